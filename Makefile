@@ -1,0 +1,30 @@
+# make demo: set up, then run the main job on the bundled sample.
+# make test: set up, then run the test suite.
+VENV   := .venv
+JNDS   := $(VENV)/bin/jnds
+EXTRAS ?= render,dev,bench
+comma  := ,
+STAMP  := $(VENV)/.installed-$(subst $(comma),-,$(EXTRAS))
+
+.PHONY: setup demo test dataset clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml scripts/setup.sh
+	EXTRAS=$(EXTRAS) bash scripts/setup.sh
+	touch $@
+
+demo: setup
+	$(JNDS) validate samples/orbit-160x90
+	$(JNDS) render --scene procedural --seed 7 --camera orbit --frames 4 --size 64x36 --spp 16 --out out/demo-render
+
+# pytest exit code 5 (no tests collected) is a failure, not a pass
+test: setup
+	$(VENV)/bin/python -m pytest -q; rc=$$?; \
+	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests" >&2; exit 1; fi; exit $$rc
+
+dataset: setup
+	$(JNDS) dataset --out data
+
+clean:
+	rm -rf out .pytest_cache

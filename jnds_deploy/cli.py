@@ -1,0 +1,119 @@
+"""``jnds``: one console script, a subcommand per action.
+
+Heavy imports (mitsuba, torch, onnxruntime) happen inside the subcommand that needs
+them, so ``jnds --help`` stays instant. Library errors (``JndsError``) become a one-line
+message and exit code 2.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from .errors import JndsError
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must look like 160x90, got {text!r}") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
+    return w, h
+
+
+def cmd_render(args) -> int:
+    from .io import validate
+    from .render import RenderConfig, render_sequence
+
+    cfg = RenderConfig(scene=args.scene, seed=args.seed, camera=args.camera, frames=args.frames,
+                       size=args.size, scale=args.scale, spp=args.spp, spp_input=args.spp_input,
+                       max_depth=args.max_depth, reference=not args.no_reference,
+                       variant=args.variant)
+    t0 = time.perf_counter()
+    times = render_sequence(cfg, args.out, progress=not args.quiet)
+    report = validate(args.out)
+    print(report.summary())
+    per = ", ".join(f"{k} {v:.2f} s" for k, v in times.items() if v is not None)
+    print(f"rendered in {time.perf_counter() - t0:.1f} s (median per frame: {per or 'all frames resumed'})")
+    return 0
+
+
+def cmd_validate(args) -> int:
+    from .io import validate
+
+    status = 0
+    for path in args.sequences:
+        report = validate(path)
+        print(report.summary())
+        if args.strict and not report.clean:
+            status = 1
+    return status
+
+
+def cmd_dataset(args) -> int:
+    from .render.dataset import dataset_specs, render_dataset
+
+    if args.list:
+        for rel, cfg in dataset_specs(args.split):
+            print(rel, json.dumps({"scene": cfg.scene, "seed": cfg.seed, "camera": cfg.camera,
+                                   "frames": cfg.frames, "size": cfg.size, "spp": cfg.spp}))
+        return 0
+    t0 = time.perf_counter()
+    done = render_dataset(args.out, args.split, args.limit)
+    for path, times in done:
+        print(f"{path}: inputs {times['inputs']:.2f} s/frame, reference {times['reference']:.2f} s/frame")
+    print(f"{len(done)} sequence(s) rendered in {time.perf_counter() - t0:.0f} s")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .render.camera import CAMERA_PATHS
+    from .render.scene import SCENE_KINDS
+
+    p = argparse.ArgumentParser(prog="jnds", description="Joint neural denoising and supersampling, deployed.")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    r = sub.add_parser("render", help="render a camera-animated sequence with Mitsuba 3")
+    r.add_argument("--scene", default="procedural", choices=SCENE_KINDS)
+    r.add_argument("--seed", type=int, default=0, help="scene, camera path and noise seed")
+    r.add_argument("--camera", default="orbit", choices=CAMERA_PATHS)
+    r.add_argument("--frames", type=int, default=8)
+    r.add_argument("--size", type=_size, default=(160, 90), help="native size WxH")
+    r.add_argument("--scale", type=int, default=2, help="reference size = scale x native")
+    r.add_argument("--spp", type=int, default=64, help="reference samples per target pixel")
+    r.add_argument("--spp-input", type=int, default=1, help="input samples per native pixel")
+    r.add_argument("--max-depth", type=int, default=5, help="path vertices, the first included")
+    r.add_argument("--no-reference", action="store_true", help="render inputs only")
+    r.add_argument("--variant", default=None, help="Mitsuba variant (default: llvm_ad_rgb if LLVM 19 is installed, else scalar_rgb)")
+    r.add_argument("--out", required=True)
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.set_defaults(func=cmd_render)
+
+    v = sub.add_parser("validate", help="check sequences against jnds-sequence/1, count NaN/Inf")
+    v.add_argument("sequences", nargs="+")
+    v.add_argument("--strict", action="store_true", help="exit 1 if any channel holds NaN/Inf")
+    v.set_defaults(func=cmd_validate)
+
+    d = sub.add_parser("dataset", help="render (or resume) the training and validation sets")
+    d.add_argument("--out", default="data")
+    d.add_argument("--split", default="all", choices=("train", "val", "all"))
+    d.add_argument("--limit", type=int, default=None, help="only the first N sequences")
+    d.add_argument("--list", action="store_true", help="print the sequences and exit")
+    d.set_defaults(func=cmd_dataset)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except JndsError as exc:
+        print(f"jnds {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,209 @@
+"""Render one camera-animated sequence in the ``jnds-sequence/1`` format.
+
+Per frame:
+- inputs at native resolution: ``spp_input`` paths (1 by default) through the frame's
+  Halton-jittered sample position; diffuse radiance demodulated by the albedo of that
+  same sample, specular with emission/background; G-buffer of the first vertex;
+- motion vectors: the pixel-centre surface point (or, for background, direction)
+  reprojected into the previous frame's camera;
+- reference at ``scale`` x native resolution: ``spp`` paths per target pixel at
+  uniformly random positions inside it (box filter), converged colour and components.
+
+Frames are written atomically and ``sequence.json`` last, so an interrupted render
+resumes where it stopped (frames already on disk and readable are kept).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import JndsError, RenderError
+from ..io import (
+    INPUT_LAYERS,
+    OPTIONAL_INPUT_LAYERS,
+    OPTIONAL_REFERENCE_LAYERS,
+    REFERENCE_LAYERS,
+    FrameInfo,
+    SequenceWriter,
+    read_layers,
+)
+from .camera import CAMERA_PATHS, Camera, camera_path, jitter
+from .scene import EXTENT, SCENE_KINDS, build_scene
+
+ALBEDO_EPS = 1e-3  # below this albedo, demodulated diffuse is written as 0 (format contract)
+MAX_LANES = 1 << 21  # paths traced per Mitsuba call: bounds memory, amortizes tracing
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    scene: str = "procedural"  # one of SCENE_KINDS
+    seed: int = 0
+    camera: str = "orbit"  # one of CAMERA_PATHS
+    frames: int = 8
+    size: tuple[int, int] = (160, 90)  # native (W, H)
+    scale: int = 2  # target = scale x native
+    spp: int = 64  # reference samples per target pixel
+    spp_input: int = 1  # input samples per native pixel, all at the jittered position
+    max_depth: int = 5  # path vertices, the first included
+    reference: bool = True
+    variant: str | None = None  # Mitsuba variant; None picks llvm_ad_rgb or scalar_rgb
+
+    def __post_init__(self):
+        if self.scene not in SCENE_KINDS:
+            raise RenderError(f"--scene {self.scene!r}: expected one of {', '.join(SCENE_KINDS)}")
+        if self.camera not in CAMERA_PATHS:
+            raise RenderError(f"--camera {self.camera!r}: expected one of {', '.join(CAMERA_PATHS)}")
+        if self.frames < 1:
+            raise RenderError(f"--frames must be >= 1, got {self.frames}")
+        w, h = self.size
+        if w < 1 or h < 1:
+            raise RenderError(f"--size must be positive, got {w}x{h}")
+        for name in ("scale", "spp", "spp_input", "max_depth"):
+            if getattr(self, name) < 1:
+                raise RenderError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+    @property
+    def target_size(self) -> tuple[int, int]:
+        return (self.size[0] * self.scale, self.size[1] * self.scale)
+
+
+def _seed(*parts) -> int:
+    return int.from_bytes(hashlib.sha256(repr(parts).encode()).digest()[:6], "little")
+
+
+def _pixel_grid(w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
+    y, x = np.mgrid[0:h, 0:w]
+    return x.ravel().astype(np.float64), y.ravel().astype(np.float64)
+
+
+def motion_vectors(tracer, cam: Camera, prev: Camera, size: tuple[int, int]) -> np.ndarray:
+    """(H, W, 2) offsets from each pixel centre to where its surface point was in ``prev``."""
+    w, h = size
+    x, y = _pixel_grid(w, h)
+    o, d = cam.rays(x + 0.5, y + 0.5, size)
+    t = tracer.intersect(o, d)
+    points = np.where(np.isfinite(t)[:, None], o + np.where(np.isfinite(t), t, 0)[:, None] * d, np.nan)
+    pos, front = prev.project(points, size, directions=d)
+    # behind the previous camera: point the vector well off-screen (a disocclusion)
+    pos = np.where(front[:, None], pos, -4.0 * max(w, h))
+    mv = pos - np.stack([x + 0.5, y + 0.5], axis=1)
+    return mv.reshape(h, w, 2).astype(np.float32)
+
+
+def _demodulate(radiance: np.ndarray, albedo: np.ndarray) -> np.ndarray:
+    ok = albedo > ALBEDO_EPS
+    return np.where(ok, radiance / np.where(ok, albedo, 1.0), 0.0).astype(np.float32)
+
+
+def render_inputs(tracer, cfg: RenderConfig, cam: Camera, jit: tuple[float, float], seed: int) -> dict:
+    w, h = cfg.size
+    x, y = _pixel_grid(w, h)
+    o, d = cam.rays(x + 0.5 + jit[0], y + 0.5 + jit[1], cfg.size)
+    n = cfg.spp_input
+    s = tracer.trace(np.repeat(o, n, 0), np.repeat(d, n, 0), seed)
+    mean = lambda a: a.reshape(h * w, n, -1).mean(1)  # noqa: E731
+    first = lambda a: a.reshape(h * w, n, -1)[:, 0]  # noqa: E731
+    albedo = first(s.albedo)
+    layers = {
+        "diffuse": _demodulate(mean(s.diffuse), albedo),
+        "specular": mean(s.specular),
+        "albedo": albedo,
+        "normal": first(s.normal),
+        "roughness": first(s.roughness),
+        "depth": first(s.depth),
+    }
+    return {k: v.reshape(h, w, -1).astype(np.float32) for k, v in layers.items()}
+
+
+def render_reference(tracer, cfg: RenderConfig, cam: Camera, seed: int) -> dict:
+    tw, th = cfg.target_size
+    n_pix = tw * th
+    per_pass = max(1, min(cfg.spp, MAX_LANES // n_pix))
+    X, Y = _pixel_grid(tw, th)
+    rng = np.random.default_rng(seed)
+    sums = {k: np.zeros((n_pix, 3)) for k in ("diffuse", "specular", "albedo")}
+    done = 0
+    while done < cfg.spp:
+        k = min(per_pass, cfg.spp - done)
+        u = rng.random((n_pix, k))
+        v = rng.random((n_pix, k))
+        px = ((X[:, None] + u) / cfg.scale).ravel()
+        py = ((Y[:, None] + v) / cfg.scale).ravel()
+        o, d = cam.rays(px, py, cfg.size)
+        s = tracer.trace(o, d, _seed(seed, done))
+        for key in sums:
+            sums[key] += getattr(s, key).reshape(n_pix, k, 3).sum(1)
+        done += k
+    mean = {k: v / cfg.spp for k, v in sums.items()}
+    layers = {
+        "color": mean["diffuse"] + mean["specular"],
+        "diffuse": _demodulate(mean["diffuse"], mean["albedo"]),
+        "specular": mean["specular"],
+        "albedo": mean["albedo"],
+    }
+    return {k: v.reshape(th, tw, 3).astype(np.float32) for k, v in layers.items()}
+
+
+def _frame_done(out: Path, i: int, cfg: RenderConfig) -> bool:
+    try:
+        read_layers(out / "inputs" / f"{i:04d}.exr", cfg.size, INPUT_LAYERS, OPTIONAL_INPUT_LAYERS)
+        if cfg.reference:
+            read_layers(out / "reference" / f"{i:04d}.exr", cfg.target_size, REFERENCE_LAYERS,
+                        OPTIONAL_REFERENCE_LAYERS)
+    except JndsError:
+        return False
+    return True
+
+
+def render_sequence(cfg: RenderConfig, out: str | Path, progress: bool = True) -> dict:
+    """Render ``cfg`` into ``out``; resumes a directory that holds the same config.
+
+    Returns timing statistics: seconds per frame for inputs (+ motion) and reference.
+    """
+    from .integrator import SplitPathTracer, load_mitsuba
+
+    out = Path(out)
+    cfg_json = json.dumps(asdict(cfg), sort_keys=True)
+    marker = out / "render.json"
+    if marker.exists() and json.loads(marker.read_text()).get("config") != json.loads(cfg_json):
+        raise RenderError(f"{out}: holds a render of another configuration; use a new --out")
+    writer = SequenceWriter(out, cfg.size, cfg.target_size if cfg.reference else None)
+    mi, dr = load_mitsuba(cfg.variant)
+    marker.write_text(json.dumps({"config": json.loads(cfg_json), "variant": mi.variant()}, indent=1))
+
+    scene_dict, materials = build_scene(mi, cfg.seed, cfg.scene)
+    tracer = SplitPathTracer(mi, dr, scene_dict, materials, cfg.max_depth)
+    cams, cuts = camera_path(cfg.camera, cfg.frames, np.random.default_rng(_seed("camera", cfg.seed)),
+                             extent=EXTENT)
+    frames = [FrameInfo(i, jitter(i), cuts[i]) for i in range(cfg.frames)]
+
+    import time
+
+    from tqdm import tqdm
+
+    times = {"inputs": [], "reference": []}
+    for i in tqdm(range(cfg.frames), desc=f"render {out.name}", unit="frame", disable=not progress):
+        if _frame_done(out, i, cfg):
+            continue
+        t0 = time.perf_counter()
+        layers = render_inputs(tracer, cfg, cams[i], frames[i].jitter, _seed(cfg.seed, i, "inputs"))
+        if i == 0 or cuts[i]:
+            layers["motion"] = np.zeros((cfg.size[1], cfg.size[0], 2), np.float32)
+        else:
+            layers["motion"] = motion_vectors(tracer, cams[i], cams[i - 1], cfg.size)
+        t1 = time.perf_counter()
+        times["inputs"].append(t1 - t0)
+        if cfg.reference:
+            ref = render_reference(tracer, cfg, cams[i], _seed(cfg.seed, i, "reference"))
+            writer.write_reference(i, ref)
+            times["reference"].append(time.perf_counter() - t1)
+        writer.write_inputs(i, layers)
+
+    cameras = [{"origin": list(c.origin), "target": list(c.target), "fov_y": c.fov_y} for c in cams]
+    writer.close(frames, {"renderer": {"config": json.loads(cfg_json), "variant": mi.variant(),
+                                       "cameras": cameras}})
+    return {k: float(np.median(v)) if v else None for k, v in times.items()}

@@ -1,0 +1,51 @@
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jnds_deploy.io import FrameInfo, SequenceWriter
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "samples" / "orbit-160x90"
+
+
+def random_inputs(rng: np.random.Generator, w: int, h: int) -> dict:
+    n = rng.normal(size=(h, w, 3)).astype(np.float32)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    return {
+        "diffuse": rng.exponential(1.0, (h, w, 3)).astype(np.float32),
+        "specular": rng.exponential(0.5, (h, w, 3)).astype(np.float32) * 100,
+        "albedo": rng.random((h, w, 3)).astype(np.float32),
+        "normal": n,
+        "roughness": rng.random((h, w, 1)).astype(np.float32),
+        "motion": rng.normal(scale=3, size=(h, w, 2)).astype(np.float32),
+        "depth": rng.random((h, w, 1)).astype(np.float32) * 10,
+    }
+
+
+def random_reference(rng: np.random.Generator, w: int, h: int) -> dict:
+    return {"color": rng.random((h, w, 3)).astype(np.float32) * 4,
+            "albedo": rng.random((h, w, 3)).astype(np.float32)}
+
+
+@pytest.fixture
+def make_sequence(tmp_path):
+    """Write a small random sequence; returns (path, inputs, references)."""
+
+    def make(frames=3, size=(7, 5), reference=True, name="seq"):
+        rng = np.random.default_rng(0)
+        w, h = size
+        path = tmp_path / name
+        writer = SequenceWriter(path, size, (2 * w, 2 * h) if reference else None)
+        ins, refs = [], []
+        for i in range(frames):
+            ins.append(random_inputs(rng, w, h))
+            writer.write_inputs(i, ins[-1])
+            if reference:
+                refs.append(random_reference(rng, 2 * w, 2 * h))
+                writer.write_reference(i, refs[-1])
+        infos = [FrameInfo(i, (0.25, -0.125), i == 2) for i in range(frames)]
+        writer.close(infos)
+        return path, ins, refs
+
+    return make
