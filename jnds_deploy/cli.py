@@ -69,6 +69,27 @@ def cmd_dataset(args) -> int:
     return 0
 
 
+def cmd_train(args) -> int:
+    from .train import TrainConfig, train
+
+    cfg = TrainConfig(data=args.data, run=args.run, preset=args.preset, patch=args.patch,
+                      unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
+                      qat_steps=args.qat_steps, lr=args.lr, spatial_loss=args.spatial_loss,
+                      feature_net=args.feature_net, val_every=args.val_every,
+                      val_sequences=args.val_sequences, threads=args.threads, seed=args.seed)
+    ckpt = train(cfg, progress=not args.quiet)
+    print(f"checkpoint: {ckpt}")
+    return 0
+
+
+def cmd_evaluate(args) -> int:
+    from .evaluate import markdown_table, run_evaluation
+
+    report = run_evaluation(args.checkpoint, args.data, args.baselines, args.out, args.threads)
+    print(markdown_table(report))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .render.camera import CAMERA_PATHS
     from .render.scene import SCENE_KINDS
@@ -103,6 +124,34 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--limit", type=int, default=None, help="only the first N sequences")
     d.add_argument("--list", action="store_true", help="print the sequences and exit")
     d.set_defaults(func=cmd_dataset)
+
+    t = sub.add_parser("train", help="train the network (fp32, then QAT); resumes from <run>/checkpoint.pt")
+    t.add_argument("--data", default="data", help="directory with train/ and val/ sequences")
+    t.add_argument("--run", default="runs/small", help="output directory (checkpoint, log, config)")
+    t.add_argument("--preset", default="small")
+    t.add_argument("--patch", type=int, default=64, help="native patch side")
+    t.add_argument("--unroll", type=int, default=6, help="consecutive frames per sample")
+    t.add_argument("--batch", type=int, default=4)
+    t.add_argument("--fp32-steps", type=int, default=4000)
+    t.add_argument("--qat-steps", type=int, default=1500)
+    t.add_argument("--lr", type=float, default=1e-3)
+    t.add_argument("--spatial-loss", default="l1", choices=("l1", "feature"))
+    t.add_argument("--feature-net", default=None, help="feature-loss network checkpoint")
+    t.add_argument("--val-every", type=int, default=500)
+    t.add_argument("--val-sequences", type=int, default=None)
+    t.add_argument("--threads", type=int, default=2)
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--quiet", action="store_true")
+    t.set_defaults(func=cmd_train)
+
+    e = sub.add_parser("evaluate", help="PSNR/SSIM/FLIP/temporal error of checkpoints and baselines")
+    e.add_argument("--checkpoint", nargs="*", default=[], help="model checkpoints to score")
+    e.add_argument("--data", default="data/val", help="a sequence or a directory of sequences")
+    e.add_argument("--baselines", nargs="*", default=["bicubic", "oidn-balanced"],
+                   help="bicubic, oidn-fast, oidn-balanced, oidn-high")
+    e.add_argument("--out", default=None, help="write the report as JSON")
+    e.add_argument("--threads", type=int, default=2)
+    e.set_defaults(func=cmd_evaluate)
     return p
 
 

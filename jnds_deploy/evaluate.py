@@ -1,0 +1,101 @@
+"""``jnds evaluate``: the model against the baselines on validation sequences.
+
+Every method turns each sequence into a list of target-resolution frames; all are then
+scored by the same ``jnds_deploy.metrics`` (PSNR, SSIM, FLIP per frame; temporal error
+per sequence) against the reference colour.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import baselines
+from .io import open_sequence
+
+
+def score_frames(outs, refs, motions, cuts, with_flip: bool = True) -> dict[str, float]:
+    """Mean per-frame PSNR/SSIM/FLIP and the sequence's temporal error; HWC arrays."""
+    from .metrics import frame_metrics, temporal_error
+
+    fm = [frame_metrics(o, r, with_flip) for o, r in zip(outs, refs)]
+    m = {k: float(np.mean([f[k] for f in fm])) for k in fm[0]}
+    m["temporal"] = temporal_error(outs, refs, motions, cuts)
+    return m
+
+
+def score(outs: list[np.ndarray], seq_path: Path, with_flip: bool = True) -> dict[str, float]:
+    seq = open_sequence(seq_path)
+    refs = [seq.reference(i)["color"] for i in range(len(seq))]
+    motions = [seq.inputs(i)["motion"] for i in range(len(seq))]
+    return score_frames(outs, refs, motions, [f.camera_cut for f in seq.frames], with_flip)
+
+
+def baseline_outputs(method: str, seq_path: Path) -> list[np.ndarray]:
+    seq = open_sequence(seq_path)
+    scale = seq.target_size[0] // seq.native_size[0]
+    outs = []
+    for i in range(len(seq)):
+        a = seq.inputs(i)
+        if method == "bicubic":
+            outs.append(baselines.bicubic(baselines.noisy_composite(a), scale))
+        elif method.startswith("oidn-"):
+            outs.append(baselines.oidn_bicubic(a, scale, quality=method.split("-", 1)[1]))
+        else:
+            raise ValueError(f"unknown method {method!r}")
+    return outs
+
+
+def model_outputs(model, seq_path: Path) -> list[np.ndarray]:
+    from .train import infer_sequence, load_sequence
+
+    return infer_sequence(model, load_sequence(seq_path))
+
+
+def evaluate_methods(seq_paths: list[Path], methods: dict, with_flip: bool = True) -> dict:
+    """``methods``: name -> callable(seq_path) -> list of HWC frames. Returns per method
+    the mean over sequences of each metric, the per-sequence values and ms per frame."""
+    report = {}
+    for name, run in methods.items():
+        per_seq, ms = {}, []
+        for p in seq_paths:
+            t0 = time.perf_counter()
+            outs = run(p)
+            ms.append(1000 * (time.perf_counter() - t0) / len(outs))
+            per_seq[p.name] = score(outs, p, with_flip)
+        keys = next(iter(per_seq.values())).keys()
+        report[name] = {"mean": {k: float(np.mean([m[k] for m in per_seq.values()])) for k in keys},
+                        "ms_per_frame": float(np.median(ms)), "sequences": per_seq}
+    return report
+
+
+def markdown_table(report: dict) -> str:
+    lines = ["| method | PSNR (dB) ↑ | SSIM ↑ | FLIP ↓ | temporal error ↓ |", "| --- | --- | --- | --- | --- |"]
+    for name, r in report.items():
+        m = r["mean"]
+        lines.append(f"| {name} | {m['psnr']:.2f} | {m['ssim']:.4f} | {m.get('flip', float('nan')):.4f} | "
+                     f"{m['temporal']:.5f} |")
+    return "\n".join(lines)
+
+
+def run_evaluation(checkpoints: list[str], data: str, baselines_: list[str], out: str | None,
+                   threads: int = 2) -> dict:
+    import torch
+
+    from .train import find_sequences, load_model
+
+    torch.set_num_threads(threads)
+    seqs = find_sequences(data) or [Path(data)]
+    methods = {}
+    for ck in checkpoints:
+        model = load_model(ck)
+        methods[Path(ck).stem] = lambda p, m=model: model_outputs(m, p)
+    for b in baselines_:
+        methods[b] = lambda p, b=b: baseline_outputs(b, p)
+    report = evaluate_methods(seqs, methods)
+    if out:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        Path(out).write_text(json.dumps(report, indent=1))
+    return report

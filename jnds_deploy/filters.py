@@ -1,0 +1,95 @@
+"""The parameter-free stages of the pipeline, in PyTorch: tonemapping, history warping,
+per-pixel kernel application, the filter paths, compositing and the upsample filter.
+
+These are the specification of the numpy/opencv filter stage of the runtime; a test
+holds the two equal. Array contract: NCHW float tensors; radiance linear HDR >= 0 unless
+stated; kernels are (N, 9, H, W) in row-major 3x3 order (dy, dx) = (-1,-1), (-1,0), ...
+Borders replicate the edge pixel everywhere (padding, warping, upsampling).
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+HDR_MAX = 65535.0  # inputs are clamped to [0, HDR_MAX] before tonemapping (paper, Sec. 3.2.1)
+
+
+TONEMAP_FLOOR = 1e-10  # log(x + 1) below this is raised to it: d/dx of t^(1/2.2) is infinite at 0
+
+
+def tonemap(x: torch.Tensor) -> torch.Tensor:
+    """Eq. 1 of the paper: (log(x + 1))^(1/2.2), after clamping to [0, 65535]."""
+    return torch.log1p(x.clamp(0.0, HDR_MAX)).clamp_min(TONEMAP_FLOOR).pow(1.0 / 2.2)
+
+
+def inverse_tonemap(y: torch.Tensor) -> torch.Tensor:
+    return torch.expm1(y.clamp_min(0.0).pow(2.2))
+
+
+def apply_kernel(x: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
+    """Per-pixel 3x3 filter: out[n, c, y, x] = sum_k kernel[n, k, y, x] * x[n, c, y+dy_k, x+dx_k]."""
+    n, c, h, w = x.shape
+    patches = F.unfold(F.pad(x, (1, 1, 1, 1), mode="replicate"), 3).view(n, c, 9, h, w)
+    return (patches * kernel.unsqueeze(1)).sum(2)
+
+
+def warp(x: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
+    """Bicubic resampling of ``x`` (previous frame) along motion vectors (N, 2, H, W) in
+    pixels: out(x, y) = x_prev(x + 0.5 + mx, y + 0.5 + my) in continuous coordinates."""
+    n, _, h, w = x.shape
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=x.dtype, device=x.device),
+                            torch.arange(w, dtype=x.dtype, device=x.device), indexing="ij")
+    px = xs + 0.5 + motion[:, 0]
+    py = ys + 0.5 + motion[:, 1]
+    grid = torch.stack([2 * px / w - 1, 2 * py / h - 1], dim=-1)
+    return F.grid_sample(x, grid, mode="bicubic", padding_mode="border", align_corners=False)
+
+
+def downsample(x: torch.Tensor) -> torch.Tensor:
+    """2x2 average pooling (sizes must be even)."""
+    return F.avg_pool2d(x, 2)
+
+
+def upsample(x: torch.Tensor, factor: int = 2) -> torch.Tensor:
+    """Bilinear upsampling, pixel centres aligned as in cv2.resize(INTER_LINEAR)."""
+    return F.interpolate(x, scale_factor=factor, mode="bilinear", align_corners=False)
+
+
+def spatiotemporal(x: torch.Tensor, history: torch.Tensor, k_spatial: torch.Tensor,
+                   k_temporal: torch.Tensor, blend: torch.Tensor) -> torch.Tensor:
+    """Separate 3x3 kernels on the current frame and on the warped history, blended
+    linearly with the per-pixel weight ``blend`` in [0, 1] (1 = all history); ReLU."""
+    return F.relu(torch.lerp(apply_kernel(x, k_spatial), apply_kernel(history, k_temporal), blend))
+
+
+def filter_path(x: torch.Tensor, history: torch.Tensor, native: dict, levels: list[dict]) -> torch.Tensor:
+    """The hierarchical filter of one signal (diffuse or specular).
+
+    ``native``: spatial, temporal (N, 9, H, W), blend (N, 1, H, W) for the spatiotemporal
+    filter, and if ``levels`` is not empty up (N, 9, H, W), up_blend (N, 1, H, W) for the
+    last upsampling filter. ``levels[k]`` (resolution H / 2^(k+1)): down kernel, and for
+    every level but the coarsest, up kernel and up_blend.
+    Down: 2x2 average pooling, then the 3x3 kernel. Up: bilinear upsampling of the
+    coarser result, the 3x3 kernel, then a linear blend with the same level's down
+    result (the skip image). Every filter is followed by a ReLU.
+    """
+    skips = [spatiotemporal(x, history, native["spatial"], native["temporal"], native["blend"])]
+    for lv in levels:
+        skips.append(F.relu(apply_kernel(downsample(skips[-1]), lv["down"])))
+    y = skips[-1]
+    for k in range(len(levels) - 1, -1, -1):
+        p = levels[k - 1] if k > 0 else native
+        y = F.relu(torch.lerp(skips[k], apply_kernel(upsample(y), p["up"]), p["up_blend"]))
+    return y
+
+
+def composite(albedo: torch.Tensor, diffuse: torch.Tensor, specular: torch.Tensor) -> torch.Tensor:
+    """Eq. 2: albedo * diffuse + specular."""
+    return albedo * diffuse + specular
+
+
+def upsample_filter(color: torch.Tensor, kernel: torch.Tensor, factor: int) -> torch.Tensor:
+    """The upsample block's filter: bilinear upsampling of the linear composite, then the
+    per-pixel 3x3 kernel predicted at target resolution; ReLU."""
+    up = upsample(color, factor) if factor > 1 else color
+    return F.relu(apply_kernel(up, kernel))

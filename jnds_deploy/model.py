@@ -1,0 +1,463 @@
+"""The JNDS network (Thomas et al. 2022, Sec. 3.2) in PyTorch, with int8 fake quantization.
+
+Stages, named as in the paper:
+- ``InputBlock`` (native resolution): clamp + tonemap (Eq. 1), concatenate the current
+  inputs with the warped history of the previous filtered outputs, 1x1 projection, 3x3
+  convolution, 2x2 average pooling; the native features are skipped to the output block.
+- ``FeatureExtractor`` (sub-native): a U-Net; two 1x1 heads per decoder block and the
+  bottleneck predict the hierarchical kernels of the diffuse and specular filter paths.
+- ``OutputBlock`` (native): 3x3 spatial and temporal kernels and blend weights for
+  diffuse, specular and (shared) albedo/normal, the last upsampling kernels of the
+  filter paths, and features for the upsample block.
+- filter paths, composite (``jnds_deploy.filters``, no parameters);
+- ``UpsampleBlock`` (target resolution): a 3x3 kernel predicted from the bilinearly
+  upsampled tonemapped composite and output-block features.
+
+``JNDSNetwork`` (input block + feature extractor + output block) and ``UpsampleBlock``
+are the two graphs the export issue writes to ONNX; ``JNDS`` runs the whole frame
+recurrently for training and reference.
+
+Quantization-aware training (Sec. 3.2.6): every convolution of the non-filter blocks
+quantizes its weights per output channel, symmetric, threshold max|w|, and its input
+activation per tensor, affine (uint8), with a trained range [lo, hi] (straight-through
+estimator). A concatenation of skip tensors is quantized once, as one tensor, so both
+parts share one range. Filter paths stay float.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from . import filters
+
+# channels of the current inputs and of the history, in order
+CURRENT = (("diffuse", 3), ("specular", 3), ("albedo", 3), ("normal", 3), ("roughness", 1))
+HISTORY = (("diffuse", 3), ("specular", 3), ("albedo", 3), ("normal", 3))
+N_CURRENT = sum(c for _, c in CURRENT)
+N_HISTORY = sum(c for _, c in HISTORY)
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Widths and depths of the network. Presets: ``ModelConfig.preset("small")``."""
+
+    input_width: int = 16  # input block features at native resolution
+    encoder_widths: tuple[int, ...] = (24, 32)  # U-Net encoder blocks; depth = len()
+    bottleneck_width: int = 48
+    output_width: int = 16  # output block hidden features at native resolution
+    upsample_features: int = 8  # output-block features handed to the upsample block
+    upsample_width: int = 8  # upsample block hidden features at target resolution
+    filter_levels: int = 3  # levels below native in the diffuse/specular filter paths
+    scale: int = 2  # target = scale x native; 1 = denoise only (no upsample block)
+
+    def __post_init__(self):
+        object.__setattr__(self, "encoder_widths", tuple(self.encoder_widths))
+        depth = len(self.encoder_widths)
+        if depth < 1:
+            raise ValueError("encoder_widths needs at least one U-Net level")
+        if not 0 <= self.filter_levels <= depth + 1:
+            raise ValueError(f"filter_levels must be in [0, {depth + 1}] for U-Net depth {depth}, "
+                             f"got {self.filter_levels}")
+        if not isinstance(self.scale, int) or self.scale < 1:
+            raise ValueError(f"scale must be an integer >= 1, got {self.scale!r}")
+        for name, v in asdict(self).items():
+            if name != "encoder_widths" and isinstance(v, int) and v < 0:
+                raise ValueError(f"{name} must be >= 0, got {v}")
+
+    @property
+    def depth(self) -> int:
+        return len(self.encoder_widths)
+
+    @property
+    def pad_multiple(self) -> int:
+        """Native sizes must be multiples of this (input pooling + U-Net max-pools)."""
+        return 2 ** (self.depth + 1)
+
+    @staticmethod
+    def preset(name: str, **overrides) -> "ModelConfig":
+        presets = {
+            # about 21 GMAC per 1280x720 frame: sized for a 2-core CPU
+            "small": {},
+            # deeper and wider, closer to the paper's network (whose exact widths are in its
+            # Fig. 3, not in the text we have): for GPUs and quality comparisons
+            "paper": dict(input_width=32, encoder_widths=(48, 64, 80), bottleneck_width=96,
+                          output_width=32, upsample_features=8, upsample_width=16, filter_levels=4),
+            # for tests: tiny and fast
+            "tiny": dict(input_width=4, encoder_widths=(6,), bottleneck_width=8, output_width=4,
+                         upsample_features=2, upsample_width=4, filter_levels=2),
+        }
+        if name not in presets:
+            raise ValueError(f"unknown preset {name!r}, expected one of {', '.join(presets)}")
+        return ModelConfig(**{**presets[name], **overrides})
+
+
+# ---------------------------------------------------------------------------------------
+# fake quantization
+
+
+def _ste_round(x: torch.Tensor) -> torch.Tensor:
+    return x + (torch.round(x) - x).detach()
+
+
+class ActQuant(nn.Module):
+    """Per-tensor affine uint8 fake quantization with a trained range [lo, hi].
+
+    Disabled (identity) until ``enabled`` is set; ``calibrate`` runs the range to the
+    observed min/max first so QAT starts from a sensible range.
+    """
+
+    def __init__(self):
+        super().__init__()
+        self.lo = nn.Parameter(torch.tensor(0.0))
+        self.hi = nn.Parameter(torch.tensor(1.0))
+        self.enabled = False
+        self.observing = False
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.observing:
+            with torch.no_grad():
+                self.lo.copy_(torch.minimum(self.lo, x.min().clamp(max=0.0)))
+                self.hi.copy_(torch.maximum(self.hi, x.max()))
+        if not self.enabled:
+            return x
+        lo = torch.minimum(self.lo, torch.zeros_like(self.lo))  # zero must be representable
+        hi = torch.maximum(self.hi, lo + 1e-4)
+        scale = (hi - lo) / 255.0
+        zero_point = _ste_round(-lo / scale)
+        q = torch.clamp(_ste_round(x / scale) + zero_point, 0.0, 255.0)
+        return (q - zero_point) * scale
+
+    def qparams(self) -> tuple[float, int]:
+        """(scale, uint8 zero point) as ONNX QuantizeLinear wants them."""
+        lo = min(self.lo.item(), 0.0)
+        hi = max(self.hi.item(), lo + 1e-4)
+        scale = (hi - lo) / 255.0
+        return scale, int(round(-lo / scale))
+
+
+def quantize_weight(w: torch.Tensor) -> torch.Tensor:
+    """Per-output-channel symmetric int8 fake quantization, threshold max|w|."""
+    scale = w.detach().abs().amax(dim=(1, 2, 3), keepdim=True).clamp_min(1e-8) / 127.0
+    return w + (torch.clamp(torch.round(w / scale), -127, 127) * scale - w).detach()
+
+
+class QConv(nn.Conv2d):
+    """A convolution whose input activation and weights are fake-quantized when enabled."""
+
+    def __init__(self, cin: int, cout: int, k: int):
+        super().__init__(cin, cout, k, padding=k // 2, padding_mode="zeros")
+        self.act_quant = ActQuant()
+        self.quantize = False
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = self.act_quant(x)
+        w = quantize_weight(self.weight) if self.quantize else self.weight
+        return F.conv2d(x, w, self.bias, padding=self.padding)
+
+
+def set_quantization(module: nn.Module, enabled: bool) -> None:
+    for m in module.modules():
+        if isinstance(m, QConv):
+            m.quantize = enabled
+            m.act_quant.enabled = enabled
+
+
+def set_observing(module: nn.Module, observing: bool) -> None:
+    for m in module.modules():
+        if isinstance(m, ActQuant):
+            m.observing = observing
+
+
+def quant_ranges(module: nn.Module) -> dict[str, dict]:
+    """The learned activation ranges, as data: conv name -> {lo, hi, scale, zero_point}."""
+    out = {}
+    for name, m in module.named_modules():
+        if isinstance(m, QConv):
+            s, z = m.act_quant.qparams()
+            out[name] = {"lo": m.act_quant.lo.item(), "hi": m.act_quant.hi.item(), "scale": s, "zero_point": z}
+    return out
+
+
+# ---------------------------------------------------------------------------------------
+# blocks
+
+
+def _kernel(raw: torch.Tensor) -> torch.Tensor:
+    """Diffuse/specular/upsample kernels: linear weights clamped to [-1, 1]."""
+    return raw.clamp(-1.0, 1.0)
+
+
+def _normalized_kernel(raw: torch.Tensor) -> torch.Tensor:
+    """Albedo/normal kernels: normalized (softmax over the 9 taps)."""
+    return torch.softmax(raw, dim=1)
+
+
+def _blend(raw: torch.Tensor) -> torch.Tensor:
+    return torch.sigmoid(raw)
+
+
+def init_identity(head: nn.Conv2d, sizes: list[tuple[str, int]]) -> None:
+    """Start a kernel head near pass-through: small weights, and a bias that makes every
+    3x3 kernel an identity (centre tap) and every blend weight 0.5."""
+    nn.init.normal_(head.weight, std=1e-3)
+    with torch.no_grad():
+        head.bias.zero_()
+        i = 0
+        for name, n in sizes:
+            if n == 9:
+                head.bias[i + 4] = 4.0 if name.startswith("aux.") else 1.0
+            i += n
+
+
+def _split(t: torch.Tensor, sizes: list[tuple[str, int]]) -> dict[str, torch.Tensor]:
+    parts = torch.split(t, [s for _, s in sizes], dim=1)
+    return {n: p for (n, _), p in zip(sizes, parts)}
+
+
+class InputBlock(nn.Module):
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.project = QConv(N_CURRENT + N_HISTORY, cfg.input_width, 1)
+        self.conv = QConv(cfg.input_width, cfg.input_width, 3)
+
+    def forward(self, current: torch.Tensor, history: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """current (N, 13, H, W), history (N, 12, H, W): linear, as stored. Returns
+        (native features for the output block, pooled features for the U-Net)."""
+        x = torch.cat([tonemap_inputs(current, CURRENT), tonemap_inputs(history, HISTORY)], 1)
+        f = F.relu(self.conv(F.relu(self.project(x))))
+        return f, filters.downsample(f)
+
+
+def tonemap_inputs(x: torch.Tensor, layout) -> torch.Tensor:
+    """Radiance layers through Eq. 1; albedo, roughness as is; normals to [0, 1]."""
+    parts, i = [], 0
+    for name, c in layout:
+        p = x[:, i:i + c]
+        if name in ("diffuse", "specular"):
+            p = filters.tonemap(p)
+        elif name == "normal":
+            p = p * 0.5 + 0.5
+        parts.append(p)
+        i += c
+    return torch.cat(parts, 1)
+
+
+class DoubleConv(nn.Module):
+    def __init__(self, cin: int, cout: int):
+        super().__init__()
+        self.a = QConv(cin, cout, 3)
+        self.b = QConv(cout, cout, 3)
+
+    def forward(self, x):
+        return F.relu(self.b(F.relu(self.a(x))))
+
+
+def _path_sizes(coarsest: bool) -> list[tuple[str, int]]:
+    return [("down", 9)] if coarsest else [("down", 9), ("up", 9), ("up_blend", 1)]
+
+
+class FeatureExtractor(nn.Module):
+    """U-Net at sub-native resolution with per-level filter-path heads."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        widths = [cfg.input_width, *cfg.encoder_widths]
+        self.encoders = nn.ModuleList(DoubleConv(widths[i], widths[i + 1]) for i in range(cfg.depth))
+        self.bottleneck = DoubleConv(widths[-1], cfg.bottleneck_width)
+        dec_in = [cfg.bottleneck_width, *reversed(cfg.encoder_widths[1:])]
+        dec_out = list(reversed(cfg.encoder_widths))
+        self.decoders = nn.ModuleList(
+            DoubleConv(dec_in[i] + dec_out[i], dec_out[i]) for i in range(cfg.depth))
+        # level k (1-based, resolution native / 2^k) is predicted by the decoder block at
+        # that resolution, the coarsest possible level (depth + 1) by the bottleneck
+        self.heads = nn.ModuleDict()
+        for level in range(1, cfg.filter_levels + 1):
+            width = cfg.bottleneck_width if level == cfg.depth + 1 else cfg.encoder_widths[level - 1]
+            n = sum(s for _, s in _path_sizes(level == cfg.filter_levels))
+            for path in ("diffuse", "specular"):
+                self.heads[f"{path}{level}"] = QConv(width, n, 1)
+                init_identity(self.heads[f"{path}{level}"], _path_sizes(level == cfg.filter_levels))
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, dict[str, list[dict]]]:
+        skips = []
+        for enc in self.encoders:
+            x = enc(x)
+            skips.append(x)
+            x = F.max_pool2d(x, 2)
+        x = self.bottleneck(x)
+        by_level = {self.cfg.depth + 1: x}
+        for i, dec in enumerate(self.decoders):
+            skip = skips[-1 - i]
+            x = dec(torch.cat([filters.upsample(x), skip], 1))
+            by_level[self.cfg.depth - i] = x
+        kernels: dict[str, list[dict]] = {"diffuse": [], "specular": []}
+        for level in range(1, self.cfg.filter_levels + 1):
+            sizes = _path_sizes(level == self.cfg.filter_levels)
+            for path in kernels:
+                raw = _split(self.heads[f"{path}{level}"](by_level[level]), sizes)
+                kernels[path].append({k: _blend(v) if k == "up_blend" else _kernel(v) for k, v in raw.items()})
+        return x, kernels
+
+
+class OutputBlock(nn.Module):
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.conv = QConv(cfg.encoder_widths[0] + cfg.input_width, cfg.output_width, 3)
+        self.path_sizes = [("spatial", 9), ("temporal", 9), ("blend", 1)]
+        if cfg.filter_levels > 0:
+            self.path_sizes += [("up", 9), ("up_blend", 1)]
+        self.sizes = ([(f"diffuse.{n}", s) for n, s in self.path_sizes]
+                      + [(f"specular.{n}", s) for n, s in self.path_sizes]
+                      + [("aux.spatial", 9), ("aux.temporal", 9), ("aux.blend", 1)])
+        if cfg.scale > 1:
+            self.sizes.append(("features", cfg.upsample_features))
+        self.head = QConv(cfg.output_width, sum(s for _, s in self.sizes), 1)
+        init_identity(self.head, self.sizes)
+
+    def forward(self, decoded: torch.Tensor, native: torch.Tensor) -> dict[str, torch.Tensor]:
+        x = F.relu(self.conv(torch.cat([filters.upsample(decoded), native], 1)))
+        out = {}
+        for name, t in _split(self.head(x), self.sizes).items():
+            kind = name.split(".")[-1]
+            if name == "features":
+                out[name] = F.relu(t)
+            elif kind in ("blend", "up_blend"):
+                out[name] = _blend(t)
+            elif name.startswith("aux."):
+                out[name] = _normalized_kernel(t)
+            else:
+                out[name] = _kernel(t)
+        return out
+
+
+class JNDSNetwork(nn.Module):
+    """Input block + feature extractor + output block: every per-pixel kernel and blend
+    weight of the filter paths, and the features of the upsample block.
+
+    Inputs: current (N, 13, H, W) and warped history (N, 12, H, W), linear as stored,
+    H and W multiples of ``cfg.pad_multiple``. Output: a flat dict of tensors named
+    ``diffuse.spatial``, ..., ``diffuse.level1.down``, ..., ``features``.
+    """
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.input_block = InputBlock(cfg)
+        self.feature_extractor = FeatureExtractor(cfg)
+        self.output_block = OutputBlock(cfg)
+
+    def forward(self, current: torch.Tensor, history: torch.Tensor) -> dict[str, torch.Tensor]:
+        native, pooled = self.input_block(current, history)
+        decoded, levels = self.feature_extractor(pooled)
+        out = self.output_block(decoded, native)
+        for path, lv in levels.items():
+            for k, d in enumerate(lv, start=1):
+                for name, t in d.items():
+                    out[f"{path}.level{k}.{name}"] = t
+        return out
+
+
+class UpsampleBlock(nn.Module):
+    """Kernel prediction at target resolution from the composite and output-block features.
+
+    Inputs at native resolution: composite (N, 3, H, W) linear, features (N, F, H, W).
+    Output: the clamped linear 3x3 kernel (N, 9, sH, sW).
+    """
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.scale = cfg.scale
+        self.conv = QConv(3 + cfg.upsample_features, cfg.upsample_width, 3)
+        self.head = QConv(cfg.upsample_width, 9, 1)
+        init_identity(self.head, [("kernel", 9)])
+
+    def forward(self, composite: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
+        x = torch.cat([filters.upsample(filters.tonemap(composite), self.scale),
+                       filters.upsample(features, self.scale)], 1)
+        return _kernel(self.head(F.relu(self.conv(x))))
+
+
+# ---------------------------------------------------------------------------------------
+# the whole frame
+
+
+@dataclass
+class FrameOutput:
+    """Outputs of one frame (NCHW, linear): the filtered native signals (also the next
+    frame's history), the native composite and the target-resolution output."""
+
+    diffuse: torch.Tensor
+    specular: torch.Tensor
+    albedo: torch.Tensor
+    normal: torch.Tensor
+    composite: torch.Tensor
+    output: torch.Tensor
+    extras: dict = field(default_factory=dict)
+
+    def history(self) -> torch.Tensor:
+        """(N, 12, H, W) in HISTORY order; normals stored in [-1, 1]."""
+        return torch.cat([self.diffuse, self.specular, self.albedo, self.normal], 1)
+
+
+def split_history(h: torch.Tensor) -> dict[str, torch.Tensor]:
+    return _split(h, list(HISTORY))
+
+
+class JNDS(nn.Module):
+    """The whole recurrent frame step in PyTorch (training, reference for the runtime)."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.network = JNDSNetwork(cfg)
+        self.upsample_block = UpsampleBlock(cfg) if cfg.scale > 1 else None
+
+    def forward(self, current: torch.Tensor, motion: torch.Tensor,
+                history: torch.Tensor | None) -> FrameOutput:
+        """One frame. ``current`` (N, 13, H, W) linear inputs; ``motion`` (N, 2, H, W);
+        ``history`` the previous frame's ``FrameOutput.history()`` or None (first frame,
+        camera cut): then the current inputs stand in for the history."""
+        cur = _split(current, list(CURRENT))
+        if history is None:
+            warped = torch.cat([cur[n] for n, _ in HISTORY], 1)
+        else:
+            warped = filters.warp(history, motion)
+            # bicubic overshoot: radiance and albedo stay >= 0, normals in [-1, 1]
+            w = split_history(warped)
+            warped = torch.cat([w["diffuse"].clamp_min(0), w["specular"].clamp_min(0),
+                                w["albedo"].clamp(0, 1), w["normal"].clamp(-1, 1)], 1)
+        net = self.network(current, warped)
+        hist = split_history(warped)
+        paths = {}
+        for p in ("diffuse", "specular"):
+            native = {k: net[f"{p}.{k}"] for k in ("spatial", "temporal", "blend", "up", "up_blend")
+                      if f"{p}.{k}" in net}
+            levels = []
+            for k in range(1, self.cfg.filter_levels + 1):
+                levels.append({n: net[f"{p}.level{k}.{n}"] for n in ("down", "up", "up_blend")
+                               if f"{p}.level{k}.{n}" in net})
+            paths[p] = filters.filter_path(cur[p], hist[p], native, levels)
+        aux = [filters.spatiotemporal(x, h, net["aux.spatial"], net["aux.temporal"], net["aux.blend"])
+               for x, h in ((cur["albedo"], hist["albedo"]), (cur["normal"] * 0.5 + 0.5, hist["normal"] * 0.5 + 0.5))]
+        albedo, normal = aux[0], aux[1] * 2.0 - 1.0
+        comp = filters.composite(albedo, paths["diffuse"], paths["specular"])
+        if self.upsample_block is not None:
+            kernel = self.upsample_block(comp, net["features"])
+            output = filters.upsample_filter(comp, kernel, self.cfg.scale)
+        else:
+            output = comp
+        return FrameOutput(paths["diffuse"], paths["specular"], albedo, normal, comp, output)
+
+
+def pad_to_multiple(x: torch.Tensor, multiple: int) -> tuple[torch.Tensor, tuple[int, int]]:
+    """Replicate-pad H and W up to a multiple; returns the padded tensor and (H, W) to crop back."""
+    h, w = x.shape[-2:]
+    ph, pw = (-h) % multiple, (-w) % multiple
+    if ph or pw:
+        x = F.pad(x, (0, pw, 0, ph), mode="replicate")
+    return x, (h, w)

@@ -1,0 +1,167 @@
+import numpy as np
+import pytest
+import torch
+
+from jnds_deploy import filters
+from jnds_deploy.model import (JNDS, N_CURRENT, ActQuant, ModelConfig, pad_to_multiple,
+                               quantize_weight, set_quantization)
+
+
+def _inputs(n, h, w, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    x = torch.rand(n, N_CURRENT, h, w, generator=g) * 4
+    return x, torch.randn(n, 2, h, w, generator=g) * 2
+
+
+@pytest.mark.parametrize("scale", [1, 2, 3])
+@pytest.mark.parametrize("size", [(16, 16), (37, 21), (8, 40)])
+def test_shapes(scale, size):
+    cfg = ModelConfig.preset("tiny", scale=scale)
+    model = JNDS(cfg)
+    h, w = size
+    x, mv = _inputs(2, h, w)
+    xp, (h0, w0) = pad_to_multiple(x, cfg.pad_multiple)
+    mvp, _ = pad_to_multiple(mv, cfg.pad_multiple)
+    assert xp.shape[-2] % cfg.pad_multiple == 0 and xp.shape[-1] % cfg.pad_multiple == 0
+    out = model(xp, mvp, None)
+    out = model(xp, mvp, out.history())  # second frame: warped history
+    H, W = xp.shape[-2:]
+    assert out.output.shape == (2, 3, H * scale, W * scale)
+    assert out.diffuse.shape == out.specular.shape == out.albedo.shape == (2, 3, H, W)
+    assert out.history().shape == (2, 12, H, W)
+    assert out.output[..., :h0 * scale, :w0 * scale].shape[-2:] == (h * scale, w * scale)
+    assert (out.output >= 0).all() and torch.isfinite(out.output).all()
+
+
+def test_presets_and_validation():
+    assert ModelConfig.preset("small").pad_multiple == 8
+    assert ModelConfig.preset("paper").pad_multiple == 16
+    with pytest.raises(ValueError, match="filter_levels must be in"):
+        ModelConfig(encoder_widths=(8,), filter_levels=3)
+    with pytest.raises(ValueError, match="scale must be an integer"):
+        ModelConfig(scale=0)
+    with pytest.raises(ValueError, match="unknown preset"):
+        ModelConfig.preset("huge")
+
+
+def test_network_kernels_respect_their_ranges():
+    cfg = ModelConfig.preset("tiny")
+    model = JNDS(cfg)
+    for p in model.parameters():  # move away from the identity initialization
+        torch.nn.init.normal_(p, std=2.0)
+    x, _ = _inputs(1, 16, 16, seed=3)
+    net = model.network(x, x[:, :12])
+    for name, t in net.items():
+        kind = name.split(".")[-1]
+        if name.startswith("aux.") and kind in ("spatial", "temporal"):
+            torch.testing.assert_close(t.sum(1), torch.ones_like(t[:, 0]))  # normalized
+            assert (t >= 0).all()
+        elif kind in ("blend", "up_blend"):
+            assert (t >= 0).all() and (t <= 1).all()
+        elif name != "features":
+            assert (t >= -1).all() and (t <= 1).all()  # linear kernels clamped to [-1, 1]
+
+
+def test_normalized_kernel_preserves_constants():
+    k = torch.softmax(torch.randn(2, 9, 8, 8), dim=1)
+    x = torch.full((2, 3, 8, 8), 0.37)
+    torch.testing.assert_close(filters.apply_kernel(x, k), x)
+    h = torch.full((2, 3, 8, 8), 0.37)
+    torch.testing.assert_close(filters.spatiotemporal(x, h, k, k.flip(1), torch.rand(2, 1, 8, 8)), x)
+
+
+def test_identity_filter_path_preserves_constants_through_all_levels():
+    n, h, w = 1, 16, 16
+    ident = lambda hh, ww: torch.nn.functional.one_hot(torch.tensor(4), 9).float().view(1, 9, 1, 1).expand(n, 9, hh, ww)  # noqa: E731
+    x = torch.full((n, 3, h, w), 2.5)
+    native = {"spatial": ident(h, w), "temporal": ident(h, w), "blend": torch.rand(n, 1, h, w),
+              "up": ident(h, w), "up_blend": torch.rand(n, 1, h, w)}
+    levels = [{"down": ident(8, 8), "up": ident(8, 8), "up_blend": torch.rand(n, 1, 8, 8)},
+              {"down": ident(4, 4)}]
+    torch.testing.assert_close(filters.filter_path(x, x, native, levels), x)
+
+
+def test_warp_zero_motion_is_identity_and_integer_motion_shifts():
+    x = torch.rand(1, 3, 10, 12)
+    torch.testing.assert_close(filters.warp(x, torch.zeros(1, 2, 10, 12)), x, atol=1e-5, rtol=0)
+    mv = torch.zeros(1, 2, 10, 12)
+    mv[:, 0] = 2.0  # previous position two pixels to the right
+    torch.testing.assert_close(filters.warp(x, mv)[..., :-2], x[..., 2:], atol=1e-5, rtol=0)
+
+
+def test_tonemap_matches_eq1_and_clamps():
+    x = torch.tensor([0.0, 1.0, 100.0, 1e6, -5.0])
+    y = filters.tonemap(x)
+    ref = np.log(np.array([0.0, 1.0, 100.0, 65535.0, 0.0]) + 1) ** (1 / 2.2)
+    np.testing.assert_allclose(y.numpy(), ref, atol=1e-4)
+    torch.testing.assert_close(filters.inverse_tonemap(filters.tonemap(torch.tensor([3.0, 40.0]))),
+                               torch.tensor([3.0, 40.0]), rtol=1e-4, atol=1e-4)
+
+
+def test_weight_fake_quant_round_trip():
+    w = torch.randn(5, 4, 3, 3)
+    q = quantize_weight(w)
+    scale = w.abs().amax(dim=(1, 2, 3), keepdim=True) / 127
+    levels = q / scale
+    torch.testing.assert_close(levels, levels.round(), atol=1e-4, rtol=0)  # on the int8 grid
+    assert levels.abs().max() <= 127 + 1e-4
+    assert ((q - w).abs() <= scale / 2 + 1e-7).all()
+    # per channel: the max |w| of each output channel is exactly representable
+    torch.testing.assert_close(q.abs().amax(dim=(1, 2, 3)), w.abs().amax(dim=(1, 2, 3)))
+
+
+def test_activation_fake_quant_round_trip_and_ste():
+    aq = ActQuant()
+    with torch.no_grad():
+        aq.lo.fill_(-0.5)
+        aq.hi.fill_(2.0)
+    aq.enabled = True
+    x = torch.linspace(-1, 3, 1001, requires_grad=True)
+    y = aq(x)
+    scale, zp = aq.qparams()
+    # same as ONNX QuantizeLinear/DequantizeLinear with (scale, zero_point) as uint8
+    q = np.clip(np.round(x.detach().numpy() / scale) + zp, 0, 255)
+    np.testing.assert_allclose(y.detach().numpy(), (q - zp) * scale, atol=1e-6)
+    inside = (x > -0.5 + scale) & (x < 2.0 - scale)
+    assert ((y - x).abs()[inside] <= scale / 2 + 1e-6).all()
+    y.sum().backward()  # straight-through: gradient 1 inside the range, 0 outside
+    assert (x.grad[inside] == 1).all() and (x.grad[x < -0.6] == 0).all()
+    assert aq.hi.grad is not None and aq.lo.grad is not None
+
+
+def test_quantized_model_stays_close_to_float():
+    cfg = ModelConfig.preset("tiny")
+    model = JNDS(cfg)
+    x, mv = _inputs(1, 16, 16)
+    from jnds_deploy.model import set_observing
+    set_observing(model, True)
+    with torch.no_grad():
+        ref = model(x, mv, None).output
+    set_observing(model, False)
+    set_quantization(model, True)
+    with torch.no_grad():
+        q = model(x, mv, None).output
+    rel = (q - ref).abs().mean() / ref.abs().mean()
+    assert 0 < rel < 0.05
+
+
+def test_one_training_step_decreases_loss(tmp_path):
+    from jnds_deploy.train import Loss, PatchSampler, TrainConfig, load_sequence, run_unroll
+    from .conftest import SAMPLE
+    torch.manual_seed(0)
+    seq = load_sequence(SAMPLE)
+    sampler = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0))
+    batch = sampler.batch(2)
+    model = JNDS(ModelConfig.preset("tiny"))
+    loss_fn = Loss(TrainConfig(), scale=2)
+    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+    losses = []
+    for _ in range(4):
+        loss, parts = loss_fn(run_unroll(model, batch), batch)
+        assert set(parts) == {"diffuse", "specular", "auxiliary", "upsample"}
+        losses.append(float(loss.detach()))
+        opt.zero_grad()
+        loss.backward()
+        assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
+        opt.step()
+    assert losses[-1] < losses[0], losses
