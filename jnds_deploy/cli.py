@@ -82,6 +82,15 @@ def cmd_train(args) -> int:
     return 0
 
 
+def cmd_train_feature_net(args) -> int:
+    from .feature_loss import FeatureNetConfig, train_feature_net
+
+    out = train_feature_net(FeatureNetConfig(data=args.data, out=args.out, steps=args.steps,
+                                             threads=args.threads), progress=not args.quiet)
+    print(f"feature-loss network: {out}")
+    return 0
+
+
 def cmd_evaluate(args) -> int:
     from .evaluate import markdown_table, run_evaluation
 
@@ -143,6 +152,14 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--quiet", action="store_true")
     t.set_defaults(func=cmd_train)
+
+    f = sub.add_parser("train-feature-net", help="train the feature-loss network on rendered data")
+    f.add_argument("--data", default="data")
+    f.add_argument("--out", default="runs/feature/feature_net.pt")
+    f.add_argument("--steps", type=int, default=1500)
+    f.add_argument("--threads", type=int, default=2)
+    f.add_argument("--quiet", action="store_true")
+    f.set_defaults(func=cmd_train_feature_net)
 
     e = sub.add_parser("evaluate", help="PSNR/SSIM/FLIP/temporal error of checkpoints and baselines")
     e.add_argument("--checkpoint", nargs="*", default=[], help="model checkpoints to score")

@@ -461,3 +461,30 @@ def pad_to_multiple(x: torch.Tensor, multiple: int) -> tuple[torch.Tensor, tuple
     if ph or pw:
         x = F.pad(x, (0, pw, 0, ph), mode="replicate")
     return x, (h, w)
+
+
+def count_macs(cfg: ModelConfig, width: int = 1280, height: int = 720) -> dict[str, float]:
+    """Multiply-accumulates of the convolutions per frame, by stage, in GMAC, at a native
+    size (padded to the model's multiple): counted by running the model on zeros."""
+    model = JNDS(cfg)
+    counts: dict[str, float] = {}
+
+    def hook(name):
+        def f(mod, inp, out):
+            k = mod.kernel_size[0] * mod.kernel_size[1] * mod.in_channels // mod.groups
+            counts[name] = counts.get(name, 0.0) + out.numel() * k / 1e9
+        return f
+
+    stages = {"input_block": model.network.input_block, "feature_extractor": model.network.feature_extractor,
+              "output_block": model.network.output_block}
+    if model.upsample_block is not None:
+        stages["upsample_block"] = model.upsample_block
+    handles = [m.register_forward_hook(hook(stage)) for stage, block in stages.items()
+               for m in block.modules() if isinstance(m, nn.Conv2d)]
+    x, _ = pad_to_multiple(torch.zeros(1, N_CURRENT, height, width), cfg.pad_multiple)
+    with torch.no_grad():
+        model(x, torch.zeros(1, 2, *x.shape[-2:]), None)
+    for h in handles:
+        h.remove()
+    counts["total"] = sum(counts.values())
+    return counts

@@ -165,3 +165,18 @@ def test_one_training_step_decreases_loss(tmp_path):
         assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
         opt.step()
     assert losses[-1] < losses[0], losses
+
+
+def test_feature_loss_network_trains_and_scores(tmp_path):
+    from jnds_deploy.feature_loss import FeatureNetConfig, load_feature_net, train_feature_net
+    data = tmp_path / "data"
+    (data / "train").mkdir(parents=True)
+    from .conftest import SAMPLE
+    (data / "train" / "sample").symlink_to(SAMPLE)
+    path = train_feature_net(FeatureNetConfig(data=str(data), out=str(tmp_path / "f.pt"), steps=3, batch=2),
+                             progress=False)
+    net = load_feature_net(path)
+    a = torch.rand(1, 3, 32, 32)
+    assert float(net.loss(a, a)) == 0.0
+    assert float(net.loss(a, a + 0.1 * torch.randn_like(a))) > 0.0
+    assert torch.isfinite(net.layer_weights).all() and (net.layer_weights > 0).all()
