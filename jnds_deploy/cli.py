@@ -99,6 +99,14 @@ def cmd_evaluate(args) -> int:
     return 0
 
 
+def cmd_export(args) -> int:
+    from .export import ExportConfig, export
+
+    manifest = export(ExportConfig(checkpoint=args.checkpoint, out=args.out))
+    print(f"wrote {', '.join(g['file'] for g in manifest['graphs'].values())} and manifest.json to {args.out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .render.camera import CAMERA_PATHS
     from .render.scene import SCENE_KINDS
@@ -160,6 +168,11 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--threads", type=int, default=2)
     f.add_argument("--quiet", action="store_true")
     f.set_defaults(func=cmd_train_feature_net)
+
+    x = sub.add_parser("export", help="write the ONNX graphs and manifest.json, validated against PyTorch")
+    x.add_argument("--checkpoint", default=None, help="default: the shipped checkpoint")
+    x.add_argument("--out", required=True)
+    x.set_defaults(func=cmd_export)
 
     e = sub.add_parser("evaluate", help="PSNR/SSIM/FLIP/temporal error of checkpoints and baselines")
     e.add_argument("--checkpoint", nargs="*", default=[], help="model checkpoints to score")

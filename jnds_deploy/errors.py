@@ -42,3 +42,13 @@ class ExrReadError(SequenceError):
 
 class RenderError(JndsError):
     """The renderer cannot run with the given configuration."""
+
+
+class ValidationError(JndsError):
+    """ONNX Runtime and PyTorch disagree beyond tolerance; lists every failing output."""
+
+    def __init__(self, failures: list[dict]):
+        self.failures = failures
+        lines = [f"{f['graph']}:{f['output']} max |diff| {f['max_abs']:.3g} > atol {f['atol']:.3g}"
+                 for f in failures]
+        super().__init__(f"{len(failures)} output(s) failed validation: " + "; ".join(lines))

@@ -362,6 +362,14 @@ def export_checkpoint(ckpt: str | Path, out: str | Path, metrics: dict | None = 
     return out
 
 
+def default_checkpoint() -> Path:
+    """The QAT checkpoint shipped inside the package."""
+    path = Path(__file__).parent / "checkpoints" / "jnds-small.pt"
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no shipped checkpoint in this install; pass --checkpoint")
+    return path
+
+
 def load_model(path: str | Path) -> JNDS:
     """A model from a (training or shipped) checkpoint, fake quantization on if it was QAT-trained."""
     data = torch.load(path, weights_only=False)

@@ -8,6 +8,7 @@ import pytest
 
 from jnds_deploy.errors import RenderError
 from jnds_deploy.io import open_sequence, validate
+from jnds_deploy.metrics import motion_warp_error
 from jnds_deploy.render.camera import Camera, camera_path, jitter
 
 from .conftest import SAMPLE
@@ -63,26 +64,8 @@ def test_camera_paths_move_as_named(kind):
 
 
 def warp_errors(seq, t):
-    """Mean |error| of the reference albedo of frame t-1 warped along frame t's motion
-    vectors, and of the unwarped one, outside disocclusions (depth edges, off-screen)."""
-    s = seq.target_size[0] // seq.native_size[0]
-    inputs = seq.inputs(t)
-    prev, cur = seq.reference(t - 1)["albedo"], seq.reference(t)["albedo"]
-    mv = cv2.resize(inputs["motion"], seq.target_size, interpolation=cv2.INTER_NEAREST) * s
-    h, w = cur.shape[:2]
-    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
-    warped = cv2.remap(prev, x + mv[..., 0], y + mv[..., 1], cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    # disocclusions happen at depth discontinuities and silhouettes against background
-    d = inputs["depth"][..., 0]
-    jumps = np.abs(cv2.Laplacian(d, cv2.CV_32F)) / np.maximum(d, 1e-3) > 0.05
-    silhouette = (d == 0) & (cv2.dilate((d > 0).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
-    edges = jumps | silhouette
-    edges = cv2.dilate(edges.astype(np.uint8), np.ones((3, 3), np.uint8))
-    edges = cv2.resize(edges, seq.target_size, interpolation=cv2.INTER_NEAREST).astype(bool)
-    valid = np.isfinite(warped).all(-1) & ~edges
-    err = lambda a: float(np.abs(a - cur)[valid].mean())  # noqa: E731
-    return err(warped), err(prev), float(valid.mean())
+    m = motion_warp_error(seq, t)
+    return m["warped"], m["unwarped"], m["valid"]
 
 
 def test_motion_vectors_warp_sample_reference():

@@ -1,0 +1,18 @@
+"""``jnds export``: split the model at the paper's boundaries into ONNX graphs.
+
+- ``network.onnx``: input block + feature extractor + output block at native resolution.
+  Inputs ``current`` (N, 13, H, W) and ``history`` (N, 12, H, W), linear as stored (the
+  tonemap of Eq. 1 is inside). Outputs: every per-pixel kernel and blend weight of the
+  filter paths (already clamped / normalized / squashed) and the upsample features.
+- ``upsample.onnx``: the upsample block's kernel prediction at target resolution.
+  Inputs ``composite`` (N, 3, H, W) linear and ``features`` (N, F, H, W); output
+  ``kernel`` (N, 9, sH, sW).
+
+Warping, the filter paths, the composite and kernel application are not in ONNX: they
+are the runtime's numpy/opencv stage. Spatial sizes are dynamic; H and W must be
+multiples of ``pad_multiple`` (the runtime pads). ``manifest.json`` says everything a
+runtime needs; every export ends with a validation of ONNX Runtime against PyTorch.
+"""
+from .convert import ExportConfig, export
+
+__all__ = ["ExportConfig", "export"]

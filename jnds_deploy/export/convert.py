@@ -1,0 +1,187 @@
+"""PyTorch -> ONNX conversion of the two graphs, the manifest, and validation."""
+from __future__ import annotations
+
+import hashlib
+import json
+import warnings
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import __version__
+from ..errors import ValidationError
+from ..model import CURRENT, HISTORY, N_CURRENT, N_HISTORY, JNDS, set_quantization
+
+OPSET = 17
+
+
+@dataclass(frozen=True)
+class ExportConfig:
+    checkpoint: str | None = None  # None: the shipped default checkpoint
+    out: str = "artifacts"
+    validate_size: tuple[int, int] = (96, 64)  # native W, H of the validation inputs
+    atol: float = 1e-4  # max |ONNX Runtime - PyTorch| allowed per output (fp32)
+    seed: int = 0
+
+
+class _NetworkGraph(torch.nn.Module):
+    def __init__(self, model: JNDS, names: list[str]):
+        super().__init__()
+        self.network, self.names = model.network, names
+
+    def forward(self, current, history):
+        out = self.network(current, history)
+        return tuple(out[k] for k in self.names)
+
+
+def _file_hash(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
+
+def _validation_inputs(cfg: ExportConfig, model: JNDS):
+    g = torch.Generator().manual_seed(cfg.seed)
+    w, h = cfg.validate_size
+    m = model.cfg.pad_multiple
+    w, h = w + (-w) % m, h + (-h) % m
+    current = torch.rand(1, N_CURRENT, h, w, generator=g)
+    current[:, :6] = current[:, :6] ** 4 * 50  # HDR-ish radiance with a long tail
+    history = torch.rand(1, N_HISTORY, h, w, generator=g)
+    return current, history
+
+
+def validate_graph(onnx_path: Path, torch_fn, feeds: dict[str, torch.Tensor], names: list[str],
+                   atol: float) -> list[dict]:
+    """Run ONNX Runtime and PyTorch on the same inputs; per output max/mean |diff|."""
+    import onnxruntime as ort
+
+    sess = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
+    got = sess.run(names, {k: v.numpy() for k, v in feeds.items()})
+    with torch.no_grad():
+        ref = torch_fn(*feeds.values())
+    if isinstance(ref, torch.Tensor):
+        ref = (ref,)
+    rows = []
+    for name, a, b in zip(names, got, ref):
+        d = np.abs(a - b.numpy())
+        rows.append({"graph": onnx_path.name, "output": name, "max_abs": float(d.max()),
+                     "mean_abs": float(d.mean()), "atol": atol, "ok": bool(d.max() <= atol)})
+    return rows
+
+
+def export(cfg: ExportConfig, log=print) -> dict:
+    """Write network.onnx, upsample.onnx (if scale > 1) and manifest.json; validate."""
+    from ..train import load_model, default_checkpoint
+
+    ckpt = Path(cfg.checkpoint) if cfg.checkpoint else default_checkpoint()
+    model = load_model(ckpt)
+    set_quantization(model, False)  # fp32 graphs; int8 comes from `jnds calibrate`
+    model.eval()
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    current, history = _validation_inputs(cfg, model)
+    with torch.no_grad():
+        net_out = model.network(current, history)
+    names = list(net_out)
+    graphs = {}
+    dyn = {2: "H", 3: "W"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.onnx.export(_NetworkGraph(model, names), (current, history), str(out / "network.onnx"),
+                          input_names=["current", "history"], output_names=names,
+                          dynamic_axes={"current": dyn, "history": dyn, **{n: dyn for n in names}},
+                          opset_version=OPSET, dynamo=False)
+    graphs["network"] = {
+        "file": "network.onnx", "precision": "fp32", "resolution": "native",
+        "inputs": {"current": _layout(CURRENT, "native, linear as stored"),
+                   "history": _layout(HISTORY, "native, warped previous filtered outputs, linear")},
+        "outputs": {n: {"shape": ["N", int(net_out[n].shape[1]), _res(net_out[n], current), ""],
+                        "meaning": _meaning(n)} for n in names},
+    }
+    rows = validate_graph(out / "network.onnx", lambda c, h: tuple(model.network(c, h)[k] for k in names),
+                          {"current": current, "history": history}, names, cfg.atol)
+
+    if model.upsample_block is not None:
+        comp = torch.rand(1, 3, *current.shape[-2:], generator=torch.Generator().manual_seed(cfg.seed + 1)) * 4
+        feats = net_out["features"]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            torch.onnx.export(model.upsample_block, (comp, feats), str(out / "upsample.onnx"),
+                              input_names=["composite", "features"], output_names=["kernel"],
+                              dynamic_axes={"composite": dyn, "features": dyn, "kernel": {2: "sH", 3: "sW"}},
+                              opset_version=OPSET, dynamo=False)
+        graphs["upsample"] = {
+            "file": "upsample.onnx", "precision": "fp32", "resolution": "target",
+            "inputs": {"composite": "N,3,H,W float32: albedo*diffuse+specular of the filtered signals, linear",
+                       "features": f"N,{feats.shape[1]},H,W float32: network output 'features'"},
+            "outputs": {"kernel": {"shape": ["N", 9, "sH", "sW"],
+                                   "meaning": "3x3 kernel at target resolution, clamped to [-1, 1], applied "
+                                              "to the bilinearly upsampled linear composite, then ReLU"}},
+        }
+        rows += validate_graph(out / "upsample.onnx", model.upsample_block,
+                               {"composite": comp, "features": feats}, ["kernel"], cfg.atol)
+
+    for g in graphs.values():
+        g["sha256"] = _file_hash(out / g["file"])
+    manifest = {
+        "format": "jnds-artifacts/1",
+        "package_version": __version__,
+        "checkpoint": {"path": str(ckpt), "sha256": _file_hash(ckpt)},
+        "model_config": asdict(model.cfg),
+        "scale": model.cfg.scale,
+        "pad_multiple": model.cfg.pad_multiple,
+        "pad_mode": "replicate the last row/column up to a multiple, crop the output back",
+        "layout": "NCHW float32",
+        "tonemap": "inside network.onnx and upsample.onnx: x' = log(clamp(x, 0, 65535) + 1)^(1/2.2)",
+        "kernel_order": "row-major 3x3 taps (dy, dx) from (-1, -1) to (1, 1); borders replicate",
+        "filter_paths": {
+            "levels": model.cfg.filter_levels,
+            "diffuse/specular": "spatiotemporal(spatial, temporal, blend) at native; level k (native / 2^k): "
+                                "2x2 average pool then 'down' kernel; back up: bilinear x2, 'up' kernel, "
+                                "lerp(skip, filtered, up_blend); ReLU after every filter; native up kernel "
+                                "and up_blend are '<path>.up', '<path>.up_blend'",
+            "albedo/normal": "spatiotemporal with the shared 'aux.*' kernels; normals filtered as n * 0.5 + 0.5",
+            "blend": "lerp(current, history, blend): 1 = all history",
+            "history": "next frame's history = [diffuse, specular, albedo, normal] filtered, warped bicubically "
+                       "along the motion vectors; on a first frame or cut the current inputs stand in",
+        },
+        "graphs": graphs,
+        "validation": rows,
+    }
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    report_validation(rows, log)
+    return manifest
+
+
+def report_validation(rows: list[dict], log=print) -> None:
+    """A check-mark line per output; one ValidationError listing every failure."""
+    for r in rows:
+        mark = "✓" if r["ok"] else "✗"
+        log(f"{mark} {r['graph']}:{r['output']} max |diff| {r['max_abs']:.2e} mean {r['mean_abs']:.2e} "
+            f"(atol {r['atol']:.0e})")
+    failures = [r for r in rows if not r["ok"]]
+    if failures:
+        raise ValidationError(failures)
+
+
+def _layout(layout, meaning: str) -> dict:
+    chans, i = [], 0
+    for name, c in layout:
+        chans.append(f"{i}:{i + c} {name}")
+        i += c
+    return {"shape": ["N", i, "H", "W"], "channels": chans, "meaning": meaning}
+
+
+def _res(t: torch.Tensor, current: torch.Tensor) -> str:
+    f = current.shape[-1] // t.shape[-1]
+    return "native" if f == 1 else f"native/{f}"
+
+
+def _meaning(name: str) -> str:
+    kind = name.split(".")[-1]
+    return {"spatial": "3x3 kernel on the current signal", "temporal": "3x3 kernel on the warped history",
+            "blend": "temporal blend weight in [0, 1]", "down": "3x3 kernel after 2x2 average pooling",
+            "up": "3x3 kernel after bilinear upsampling", "up_blend": "blend of the upsampled result with the skip",
+            "features": "upsample-block features (ReLU)"}.get(kind, kind)

@@ -1,0 +1,57 @@
+import json
+from collections import Counter
+
+import onnx
+import pytest
+import torch
+
+from jnds_deploy.errors import ValidationError
+from jnds_deploy.export import ExportConfig, export
+from jnds_deploy.export.convert import report_validation, validate_graph
+from jnds_deploy.model import JNDS, ModelConfig
+
+
+@pytest.fixture(scope="module")
+def tiny_checkpoint(tmp_path_factory):
+    d = tmp_path_factory.mktemp("ckpt")
+    model = JNDS(ModelConfig.preset("tiny"))
+    path = d / "tiny.pt"
+    torch.save({"model": model.state_dict(), "model_config": model.cfg.__dict__, "train_config": {},
+                "quantized": False, "quant_ranges": None, "state": {}}, path)
+    return path
+
+
+def test_export_writes_valid_graphs_and_manifest(tiny_checkpoint, tmp_path):
+    lines = []
+    manifest = export(ExportConfig(checkpoint=str(tiny_checkpoint), out=str(tmp_path)), log=lines.append)
+    for g in ("network.onnx", "upsample.onnx"):
+        model = onnx.load(tmp_path / g)
+        onnx.checker.check_model(model, full_check=True)
+        assert model.opset_import[0].version >= 17
+    ops = Counter(n.op_type for n in onnx.load(tmp_path / "network.onnx").graph.node)
+    assert ops["Conv"] == 14  # tiny: input 2, encoder 2, bottleneck 2, decoder 2, heads 4, output 2
+    on_disk = json.loads((tmp_path / "manifest.json").read_text())
+    assert on_disk["pad_multiple"] == 4 and on_disk["scale"] == 2
+    assert set(on_disk["graphs"]) == {"network", "upsample"}
+    assert all(r["ok"] for r in manifest["validation"])
+    assert all(line.startswith("✓") for line in lines) and len(lines) == len(manifest["validation"])
+
+
+def test_validation_catches_a_corrupted_graph(tiny_checkpoint, tmp_path):
+    export(ExportConfig(checkpoint=str(tiny_checkpoint), out=str(tmp_path)), log=lambda s: None)
+    model = onnx.load(tmp_path / "upsample.onnx")
+    for init in model.graph.initializer:  # perturb the last convolution's bias
+        if init.name.endswith("head.bias"):
+            arr = onnx.numpy_helper.to_array(init).copy() + 0.5
+            init.CopyFrom(onnx.numpy_helper.from_array(arr, init.name))
+    onnx.save(model, tmp_path / "upsample.onnx")
+    net = JNDS(ModelConfig(**torch.load(tiny_checkpoint, weights_only=False)["model_config"]))
+    net.load_state_dict(torch.load(tiny_checkpoint, weights_only=False)["model"])
+    comp, feats = torch.rand(1, 3, 8, 8), torch.rand(1, 2, 8, 8)
+    rows = validate_graph(tmp_path / "upsample.onnx", net.upsample_block, {"composite": comp, "features": feats},
+                          ["kernel"], 1e-4)
+    assert not rows[0]["ok"] and rows[0]["max_abs"] > 0.1
+    lines = []
+    with pytest.raises(ValidationError, match="1 output.* upsample.onnx:kernel max"):
+        report_validation(rows, lines.append)
+    assert lines[0].startswith("✗ upsample.onnx:kernel")
