@@ -1,0 +1,110 @@
+"""The numpy/opencv filter stage against the torch specification (jnds_deploy.filters)."""
+import numpy as np
+import pytest
+import torch
+
+from jnds_deploy import filters as T
+from jnds_deploy.io import open_sequence
+from jnds_deploy.runtime import filters as N
+
+from ..conftest import SAMPLE
+
+RNG = np.random.default_rng(0)
+
+
+def _t(a):
+    return torch.from_numpy(np.ascontiguousarray(a, np.float32))[None]
+
+
+def _kernel(h, w, normalized=False):
+    k = RNG.normal(size=(9, h, w)).astype(np.float32)
+    if normalized:
+        e = np.exp(k)
+        return e / e.sum(0)
+    return np.clip(k * 0.4, -1, 1)
+
+
+def test_apply_kernel_matches_torch():
+    x = RNG.random((3, 17, 23), dtype=np.float32) * 10
+    k = _kernel(17, 23)
+    np.testing.assert_allclose(N.apply_kernel(x, k), T.apply_kernel(_t(x), _t(k))[0].numpy(), rtol=1e-5, atol=1e-5)
+
+
+def test_pool_upsample_tonemap_match_torch():
+    x = RNG.random((3, 16, 24), dtype=np.float32) * 5
+    np.testing.assert_allclose(N.downsample(x), T.downsample(_t(x))[0].numpy(), rtol=1e-6)
+    for f in (2, 3):
+        np.testing.assert_allclose(N.upsample(x, f), T.upsample(_t(x), f)[0].numpy(), rtol=1e-5, atol=1e-5)
+    hdr = np.array([[[0.0, 0.5, 3.0, 7e4, -1.0]]], np.float32)
+    np.testing.assert_allclose(N.tonemap(hdr), T.tonemap(_t(hdr))[0].numpy(), rtol=1e-5, atol=1e-4)
+
+
+@pytest.mark.parametrize("source", ["random", "sample"])
+def test_warp_matches_torch(source):
+    if source == "random":
+        x = RNG.random((3, 20, 30), dtype=np.float32)
+        mv = RNG.normal(scale=3, size=(2, 20, 30)).astype(np.float32)
+    else:
+        seq = open_sequence(SAMPLE)
+        x = seq.inputs(3)["albedo"].transpose(2, 0, 1)
+        mv = seq.inputs(4)["motion"].transpose(2, 0, 1)
+    got = N.warp(x, mv)
+    ref = T.warp(_t(x), _t(mv))[0].numpy()
+    # cv2.remap quantizes coordinates to 1/32 px: error bounded by ~|gradient| / 64
+    err = np.abs(got - ref)
+    assert np.median(err) < 2e-3 and err.max() < 0.05, (np.median(err), err.max())
+
+
+def _levels(h, w, n):
+    levels = []
+    for k in range(1, n + 1):
+        hh, ww = h >> k, w >> k
+        lv = {"down": _kernel(hh, ww)}
+        if k < n:
+            lv.update(up=_kernel(hh, ww), up_blend=RNG.random((1, hh, ww), dtype=np.float32))
+        levels.append(lv)
+    return levels
+
+
+@pytest.mark.parametrize("source", ["random", "sample"])
+def test_filter_path_matches_torch(source):
+    if source == "random":
+        h, w = 32, 48
+        x = RNG.exponential(size=(3, h, w)).astype(np.float32)
+        hist = RNG.exponential(size=(3, h, w)).astype(np.float32)
+    else:
+        seq = open_sequence(SAMPLE)
+        x = seq.inputs(5)["diffuse"].transpose(2, 0, 1)[:, :88, :160]
+        hist = seq.inputs(4)["diffuse"].transpose(2, 0, 1)[:, :88, :160]
+        h, w = 88, 160
+    native = {"spatial": _kernel(h, w), "temporal": _kernel(h, w), "blend": RNG.random((1, h, w), dtype=np.float32),
+              "up": _kernel(h, w), "up_blend": RNG.random((1, h, w), dtype=np.float32)}
+    levels = _levels(h, w, 3)
+    got = N.filter_path(x, hist, native, levels)
+    tt = lambda d: {k: _t(v) for k, v in d.items()}  # noqa: E731
+    ref = T.filter_path(_t(x), _t(hist), tt(native), [tt(lv) for lv in levels])[0].numpy()
+    np.testing.assert_allclose(got, ref, rtol=1e-4, atol=1e-4 * max(1.0, float(np.abs(ref).max())))
+
+
+def test_upsample_filter_and_composite_match_torch():
+    h, w = 12, 20
+    a, d, s = (RNG.random((3, h, w), dtype=np.float32) for _ in range(3))
+    c = N.composite(a, d, s)
+    np.testing.assert_allclose(c, T.composite(_t(a), _t(d), _t(s))[0].numpy(), rtol=1e-6)
+    k = _kernel(2 * h, 2 * w)
+    np.testing.assert_allclose(N.upsample_filter(c, k, 2), T.upsample_filter(_t(c), _t(k), 2)[0].numpy(),
+                               rtol=1e-5, atol=1e-5)
+
+
+def test_fp16_filter_stays_close_to_fp32():
+    h, w = 32, 48
+    x = RNG.exponential(size=(3, h, w)).astype(np.float32)
+    native = {"spatial": _kernel(h, w, True), "temporal": _kernel(h, w, True),
+              "blend": RNG.random((1, h, w), dtype=np.float32), "up": _kernel(h, w, True),
+              "up_blend": RNG.random((1, h, w), dtype=np.float32)}
+    levels = _levels(h, w, 3)
+    f32 = N.filter_path(x, x, native, levels)
+    h16 = lambda d: {k: v.astype(np.float16) for k, v in d.items()}  # noqa: E731
+    f16 = N.filter_path(x.astype(np.float16), x.astype(np.float16), h16(native), [h16(lv) for lv in levels])
+    assert f16.dtype == np.float16
+    np.testing.assert_allclose(f16.astype(np.float32), f32, rtol=1e-2, atol=1e-2)
