@@ -1,0 +1,149 @@
+"""The frame-recurrent pipeline: ONNX Runtime for the network graphs, numpy/opencv for
+the filter stage, and the history between frames.
+
+``Pipeline(PipelineConfig(artifacts=DIR))`` needs nothing but the artifact directory
+(its ``manifest.json``). Each call takes one frame's input layers as read by
+``jnds_deploy.io`` (HWC float32) and returns the output colour (HWC float32, linear, at
+target resolution) and the time of every stage in milliseconds.
+
+History is reset on the first frame, on a camera cut and on a change of resolution;
+odd sizes are padded (edge replicate) to the network's multiple and cropped back.
+"""
+from __future__ import annotations
+
+import json
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import JndsError
+from ..model import CURRENT
+from . import filters as F
+
+HISTORY_LAYERS = ("diffuse", "specular", "albedo", "normal")
+
+
+class ArtifactError(JndsError):
+    """The artifact directory is missing files or has an unsupported manifest."""
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    artifacts: str
+    precision: str = "fp32"  # fp32 | int8 (graphs written by `jnds calibrate`)
+    filter_dtype: str = "float32"  # float32 | float16 (the paper's filter precision)
+    threads: int = 2
+
+    def __post_init__(self):
+        if self.precision not in ("fp32", "int8"):
+            raise ValueError(f"precision must be fp32 or int8, got {self.precision!r}")
+        if self.filter_dtype not in ("float32", "float16"):
+            raise ValueError(f"filter_dtype must be float32 or float16, got {self.filter_dtype!r}")
+
+
+class Timer:
+    def __init__(self):
+        self.ms: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, stage: str):
+        t0 = time.perf_counter()
+        yield
+        self.ms[stage] = self.ms.get(stage, 0.0) + 1000 * (time.perf_counter() - t0)
+
+
+class Pipeline:
+    def __init__(self, cfg: PipelineConfig):
+        import onnxruntime as ort
+
+        self.cfg = cfg
+        root = Path(cfg.artifacts)
+        mpath = root / "manifest.json"
+        if not mpath.is_file():
+            raise ArtifactError(f"{mpath}: missing; run `jnds export --out {root}` first")
+        self.manifest = json.loads(mpath.read_text())
+        if self.manifest.get("format") != "jnds-artifacts/1":
+            raise ArtifactError(f"{mpath}: format {self.manifest.get('format')!r}, expected 'jnds-artifacts/1'")
+        self.scale = int(self.manifest["scale"])
+        self.multiple = int(self.manifest["pad_multiple"])
+        self.levels = int(self.manifest["filter_paths"]["levels"])
+        self.dtype = np.dtype(cfg.filter_dtype)
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = cfg.threads
+        opts.inter_op_num_threads = 1
+        self.sessions = {}
+        for name, g in self.manifest["graphs"].items():
+            file = g["file"] if cfg.precision == "fp32" else g.get("int8_file")
+            if not file or not (root / file).is_file():
+                raise ArtifactError(f"{root}: no {cfg.precision} graph for {name!r}"
+                                    + ("; run `jnds calibrate`" if cfg.precision == "int8" else ""))
+            self.sessions[name] = ort.InferenceSession(str(root / file), opts, providers=["CPUExecutionProvider"])
+        self.net_outputs = [o.name for o in self.sessions["network"].get_outputs()]
+        self.reset()
+
+    def reset(self) -> None:
+        self.history: np.ndarray | None = None  # (12, Hp, Wp) filtered outputs of the last frame
+        self.size: tuple[int, int] | None = None
+
+    def __call__(self, layers: dict, camera_cut: bool = False) -> tuple[np.ndarray, dict[str, float]]:
+        t = Timer()
+        h, w = layers["diffuse"].shape[:2]
+        with t("reformat"):
+            current = np.concatenate([layers[n] for n, _ in CURRENT], axis=-1).transpose(2, 0, 1)
+            motion = layers["motion"].transpose(2, 0, 1)
+            ph, pw = (-h) % self.multiple, (-w) % self.multiple
+            if ph or pw:
+                current = np.pad(current, ((0, 0), (0, ph), (0, pw)), mode="edge")
+                motion = np.pad(motion, ((0, 0), (0, ph), (0, pw)), mode="edge")
+            current = np.ascontiguousarray(current, np.float32)
+        if camera_cut or self.history is None or self.size != (w, h):
+            self.history = None
+        with t("warp"):
+            if self.history is None:
+                warped = current[:12].copy()
+            else:
+                warped = F.warp(self.history, motion)
+                np.maximum(warped[:9], 0.0, out=warped[:9])
+                np.clip(warped[6:9], 0.0, 1.0, out=warped[6:9])
+                np.clip(warped[9:12], -1.0, 1.0, out=warped[9:12])
+        with t("network"):
+            outs = self.sessions["network"].run(None, {"current": current[None], "history": warped[None]})
+        with t("reformat"):
+            net = {n: o[0].astype(self.dtype, copy=False) for n, o in zip(self.net_outputs, outs)}
+            cur = {n: current[i:i + c].astype(self.dtype, copy=False)
+                   for (n, c), i in zip(CURRENT, np.cumsum([0] + [c for _, c in CURRENT]))}
+            hist = {n: warped[3 * i:3 * i + 3].astype(self.dtype, copy=False) for i, n in enumerate(HISTORY_LAYERS)}
+        filtered = {}
+        for path in ("diffuse", "specular"):
+            with t(f"filter_{path}"):
+                native = {k: net[f"{path}.{k}"] for k in ("spatial", "temporal", "blend", "up", "up_blend")
+                          if f"{path}.{k}" in net}
+                levels = [{k: net[f"{path}.level{lv}.{k}"] for k in ("down", "up", "up_blend")
+                           if f"{path}.level{lv}.{k}" in net} for lv in range(1, self.levels + 1)]
+                filtered[path] = F.filter_path(cur[path], hist[path], native, levels)
+        with t("filter_auxiliary"):
+            ks, kt, b = net["aux.spatial"], net["aux.temporal"], net["aux.blend"]
+            filtered["albedo"] = F.spatiotemporal(cur["albedo"], hist["albedo"], ks, kt, b)
+            n01 = F.spatiotemporal(cur["normal"] * 0.5 + 0.5, hist["normal"] * 0.5 + 0.5, ks, kt, b)
+            filtered["normal"] = n01 * 2.0 - 1.0
+        with t("composite"):
+            comp = F.composite(filtered["albedo"], filtered["diffuse"], filtered["specular"])
+        if self.scale > 1:
+            with t("upsample_kernel"):
+                kernel = self.sessions["upsample"].run(None, {
+                    "composite": comp[None].astype(np.float32, copy=False),
+                    "features": net["features"][None].astype(np.float32, copy=False)})[0][0]
+            with t("upsample_filter"):
+                out = F.upsample_filter(comp, kernel.astype(self.dtype, copy=False), self.scale)
+        else:
+            out = comp
+        with t("reformat"):
+            self.history = np.concatenate([filtered[n] for n in HISTORY_LAYERS]).astype(np.float32, copy=False)
+            self.size = (w, h)
+            s = self.scale
+            result = np.ascontiguousarray(out[:, :h * s, :w * s].transpose(1, 2, 0), np.float32)
+        t.ms["total"] = sum(t.ms.values())
+        return result, t.ms
