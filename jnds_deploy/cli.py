@@ -107,6 +107,22 @@ def cmd_export(args) -> int:
     return 0
 
 
+def cmd_run(args) -> int:
+    from .runtime.pipeline import PipelineConfig
+    from .runtime.run import run_sequence
+
+    cfg = PipelineConfig(artifacts=args.artifacts, precision=args.precision,
+                         filter_dtype=args.filter_dtype, threads=args.threads)
+    report = run_sequence(cfg, args.input, args.output, progress=not args.quiet)
+    med = report["median_ms"]
+    print(f"{report['frames']} frames -> {args.output}: median {med['total']:.1f} ms/frame "
+          f"({report['native_size'][0]}x{report['native_size'][1]} -> "
+          f"{report['output_size'][0]}x{report['output_size'][1]}, {args.precision})")
+    if "metrics" in report:
+        print(f"against the reference: PSNR {report['metrics']['psnr']:.2f} dB, FLIP {report['metrics']['flip']:.4f}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .render.camera import CAMERA_PATHS
     from .render.scene import SCENE_KINDS
@@ -173,6 +189,16 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument("--checkpoint", default=None, help="default: the shipped checkpoint")
     x.add_argument("--out", required=True)
     x.set_defaults(func=cmd_export)
+
+    rn = sub.add_parser("run", help="denoise and upsample a sequence with the exported pipeline")
+    rn.add_argument("--artifacts", required=True)
+    rn.add_argument("--input", required=True, help="a jnds-sequence/1 directory")
+    rn.add_argument("--output", required=True)
+    rn.add_argument("--precision", default="fp32", choices=("fp32", "int8"))
+    rn.add_argument("--filter-dtype", default="float32", choices=("float32", "float16"))
+    rn.add_argument("--threads", type=int, default=2)
+    rn.add_argument("--quiet", action="store_true")
+    rn.set_defaults(func=cmd_run)
 
     e = sub.add_parser("evaluate", help="PSNR/SSIM/FLIP/temporal error of checkpoints and baselines")
     e.add_argument("--checkpoint", nargs="*", default=[], help="model checkpoints to score")

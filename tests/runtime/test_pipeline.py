@@ -73,3 +73,21 @@ def test_pipeline_errors(tmp_path, artifacts):
         Pipeline(PipelineConfig(artifacts=str(tmp_path)))
     with pytest.raises(ArtifactError, match="no int8 graph"):
         Pipeline(PipelineConfig(artifacts=str(artifacts[0]), precision="int8"))
+
+
+def test_jnds_run_writes_frames_and_report(artifacts, tmp_path):
+    import json
+    import subprocess
+    import sys
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "jnds_deploy", "run", "--artifacts", str(artifacts[0]),
+                           "--input", str(SAMPLE), "--output", str(out), "--quiet"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert "against the reference: PSNR" in proc.stdout
+    report = json.loads((out / "run.json").read_text())
+    assert report["frames"] == 8 and len(report["frame_ms"]) == 8 and report["output_size"] == [320, 180]
+    assert report["metrics"]["psnr"] > 0 and 0 <= report["metrics"]["flip"] <= 1
+    from jnds_deploy.io import OUTPUT_LAYERS, read_layers
+    frame = read_layers(out / "0007.exr", (320, 180), OUTPUT_LAYERS)["color"]
+    assert np.isfinite(frame).all() and (frame >= 0).all()
