@@ -287,7 +287,14 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
     (run / "config.json").write_text(json.dumps({"train": asdict(cfg), "model": asdict(model.cfg)}, indent=1))
 
     train_seqs = [load_sequence(p) for p in find_sequences(Path(cfg.data) / "train")]
-    val_seqs = [load_sequence(p) for p in find_sequences(Path(cfg.data) / "val")][:cfg.val_sequences]
+    val_seqs: dict[Path, SequenceArrays] = {}
+
+    def validation_set() -> list[SequenceArrays]:
+        # re-scanned at every validation: sequences still rendering join when finished
+        for p in find_sequences(Path(cfg.data) / "val")[:cfg.val_sequences]:
+            if p not in val_seqs:
+                val_seqs[p] = load_sequence(p)
+        return list(val_seqs.values())
     if not train_seqs:
         raise FileNotFoundError(f"no sequences under {Path(cfg.data) / 'train'}; run `jnds dataset` first")
     sampler = PatchSampler(train_seqs, cfg.patch, cfg.unroll, rng)
@@ -324,8 +331,9 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
         if state.step % 50 == 0:
             emit(event="train", loss=float(np.mean(running[-50:])), parts=parts, lr=_lr(cfg, state))
         if state.step % cfg.val_every == 0 or state.step == total_steps:
-            if val_seqs:
-                emit(event="val", **evaluate(model, val_seqs))
+            seqs = validation_set()
+            if seqs:
+                emit(event="val", n_sequences=len(seqs), **evaluate(model, seqs))
         if state.step % cfg.checkpoint_every == 0 or state.step == total_steps:
             save_checkpoint(ckpt, model, opt, state, cfg, rng)
     state.phase = "done"

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -180,8 +181,6 @@ def render_sequence(cfg: RenderConfig, out: str | Path, progress: bool = True) -
     cams, cuts = camera_path(cfg.camera, cfg.frames, np.random.default_rng(_seed("camera", cfg.seed)),
                              extent=EXTENT)
     frames = [FrameInfo(i, jitter(i), cuts[i]) for i in range(cfg.frames)]
-
-    import time
 
     from tqdm import tqdm
 
