@@ -109,7 +109,7 @@ def cmd_export(args) -> int:
 
 def cmd_run(args) -> int:
     from .runtime.pipeline import PipelineConfig
-    from .runtime.run import run_sequence
+    from .runtime.run import run_sequence, stage_table
 
     cfg = PipelineConfig(artifacts=args.artifacts, precision=args.precision,
                          filter_dtype=args.filter_dtype, threads=args.threads)
@@ -120,6 +120,7 @@ def cmd_run(args) -> int:
           f"{report['output_size'][0]}x{report['output_size'][1]}, {args.precision})")
     if "metrics" in report:
         print(f"against the reference: PSNR {report['metrics']['psnr']:.2f} dB, FLIP {report['metrics']['flip']:.4f}")
+    print(stage_table(report))
     return 0
 
 

@@ -13,6 +13,22 @@ from ..io import OUTPUT_LAYERS, open_sequence, write_exr
 from .pipeline import Pipeline, PipelineConfig
 
 
+STAGE_ORDER = ("reformat", "warp", "network", "filter_diffuse", "filter_specular", "filter_auxiliary",
+               "composite", "upsample_kernel", "upsample_filter")
+
+
+def stage_table(report: dict) -> str:
+    """Median milliseconds per stage and share of the total, as a markdown table."""
+    med = report["median_ms"]
+    total = med["total"]
+    rows = ["| stage | median ms | % of total |", "| --- | ---: | ---: |"]
+    for k in STAGE_ORDER:
+        if k in med:
+            rows.append(f"| {k} | {med[k]:.1f} | {100 * med[k] / total:.1f} |")
+    rows.append(f"| **total** | **{total:.1f}** | 100.0 |")
+    return "\n".join(rows)
+
+
 def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path,
                  progress: bool = True, metrics: bool = True) -> dict:
     from tqdm import tqdm
