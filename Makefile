@@ -14,9 +14,12 @@ $(STAMP): pyproject.toml scripts/setup.sh
 	EXTRAS=$(EXTRAS) bash scripts/setup.sh
 	touch $@
 
+# validate the bundled sample, export the shipped checkpoint, run the pipeline on the
+# sample (frames + run.json in out/run), ending with the per-stage timing table
 demo: setup
 	$(JNDS) validate samples/orbit-160x90
-	$(JNDS) render --scene procedural --seed 7 --camera orbit --frames 4 --size 64x36 --spp 16 --out out/demo-render
+	$(JNDS) export --out out/artifacts
+	$(JNDS) run --artifacts out/artifacts --input samples/orbit-160x90 --output out/run
 
 # pytest exit code 5 (no tests collected) is a failure, not a pass
 test: setup

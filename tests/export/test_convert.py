@@ -55,3 +55,12 @@ def test_validation_catches_a_corrupted_graph(tiny_checkpoint, tmp_path):
     with pytest.raises(ValidationError, match="1 output.* upsample.onnx:kernel max"):
         report_validation(rows, lines.append)
     assert lines[0].startswith("✗ upsample.onnx:kernel")
+
+
+def test_shipped_checkpoint_exports_and_validates(tmp_path):
+    from jnds_deploy.train import default_checkpoint
+    ckpt = torch.load(default_checkpoint(), weights_only=False)
+    assert ckpt["quantized"] and ckpt["quant_ranges"]  # QAT-trained, ranges exportable
+    manifest = export(ExportConfig(out=str(tmp_path)), log=lambda s: None)
+    assert manifest["model_config"]["scale"] == 2 and manifest["pad_multiple"] == 8
+    assert all(r["ok"] for r in manifest["validation"])
