@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -223,16 +223,14 @@ def infer_sequence(model: JNDS, seq: SequenceArrays) -> list[np.ndarray]:
 
 
 def evaluate(model: JNDS, seqs: list[SequenceArrays], with_flip: bool = True) -> dict:
-    from .evaluate import score_frames
+    from .evaluate import mean_over_sequences, score_frames
 
     per_seq = {}
     for seq in seqs:
         outs = infer_sequence(model, seq)
         per_seq[seq.name] = score_frames(outs, [r.transpose(1, 2, 0) for r in seq.ref["color"]],
                                          [m.transpose(1, 2, 0) for m in seq.motion], seq.cuts, with_flip)
-    keys = next(iter(per_seq.values())).keys()
-    return {"mean": {k: float(np.mean([m[k] for m in per_seq.values()])) for k in keys},
-            "sequences": per_seq}
+    return {"mean": mean_over_sequences(per_seq), "sequences": per_seq}
 
 
 # ---------------------------------------------------------------------------------------
@@ -243,7 +241,6 @@ def evaluate(model: JNDS, seqs: list[SequenceArrays], with_flip: bool = True) ->
 class TrainState:
     step: int = 0
     phase: str = "fp32"  # fp32 | qat | done
-    best: dict = field(default_factory=dict)
 
 
 def _lr(cfg: TrainConfig, state: TrainState) -> float:
@@ -280,7 +277,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
         data = torch.load(ckpt, weights_only=False)
         model.load_state_dict(data["model"])
         opt.load_state_dict(data["optimizer"])
-        state = TrainState(**data["state"])
+        state = TrainState(step=data["state"]["step"], phase=data["state"]["phase"])
         rng.bit_generator.state = data["rng"]
         if state.phase != "fp32":
             set_quantization(model, True)
