@@ -14,12 +14,14 @@ $(STAMP): pyproject.toml scripts/setup.sh
 	EXTRAS=$(EXTRAS) bash scripts/setup.sh
 	touch $@
 
-# validate the bundled sample, export the shipped checkpoint, run the pipeline on the
-# sample (frames + run.json in out/run), ending with the per-stage timing table
+# validate the bundled sample, export the shipped checkpoint, calibrate int8 graphs with
+# its learned ranges, run the int8 pipeline on the sample (frames + run.json in
+# out/run), ending with the per-stage timing table
 demo: setup
 	$(JNDS) validate samples/orbit-160x90
 	$(JNDS) export --out out/artifacts
-	$(JNDS) run --artifacts out/artifacts --input samples/orbit-160x90 --output out/run
+	$(JNDS) calibrate --artifacts out/artifacts --data samples/orbit-160x90 --method qat
+	$(JNDS) run --artifacts out/artifacts --input samples/orbit-160x90 --output out/run --precision int8
 
 # pytest exit code 5 (no tests collected) is a failure, not a pass
 test: setup

@@ -107,6 +107,19 @@ def cmd_export(args) -> int:
     return 0
 
 
+def cmd_calibrate(args) -> int:
+    from .calibration import CalibrateConfig, calibrate
+    from .io import expand_sequences
+
+    cfg = CalibrateConfig(artifacts=args.artifacts, data=tuple(map(str, expand_sequences(args.data))),
+                          method=args.method, activation_type=args.activation_type, frames=args.frames,
+                          checkpoint=args.checkpoint, threads=args.threads)
+    manifest = calibrate(cfg)
+    files = ", ".join(g["int8"][args.method]["file"] for g in manifest["graphs"].values())
+    print(f"wrote {files} and calibration.{args.method}.json to {args.artifacts} (int8 default: {args.method})")
+    return 0
+
+
 def cmd_run(args) -> int:
     from .runtime.pipeline import PipelineConfig
     from .runtime.run import run_sequence, stage_table
@@ -190,6 +203,16 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument("--checkpoint", default=None, help="default: the shipped checkpoint")
     x.add_argument("--out", required=True)
     x.set_defaults(func=cmd_export)
+
+    c = sub.add_parser("calibrate", help="write int8 QDQ graphs next to the fp32 ones")
+    c.add_argument("--artifacts", required=True, help="a directory written by `jnds export`")
+    c.add_argument("--data", nargs="+", required=True, help="sequences, or directories of sequences")
+    c.add_argument("--method", default="qat", choices=("qat", "minmax", "percentile", "entropy"))
+    c.add_argument("--activation-type", default="u8", choices=("u8", "s8"))
+    c.add_argument("--frames", type=int, default=None, help="at most this many frames per sequence")
+    c.add_argument("--checkpoint", default=None, help="PyTorch reference for validation (default: the manifest's)")
+    c.add_argument("--threads", type=int, default=2)
+    c.set_defaults(func=cmd_calibrate)
 
     rn = sub.add_parser("run", help="denoise and upsample a sequence with the exported pipeline")
     rn.add_argument("--artifacts", required=True)

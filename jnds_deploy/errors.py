@@ -49,6 +49,8 @@ class ValidationError(JndsError):
 
     def __init__(self, failures: list[dict]):
         self.failures = failures
-        lines = [f"{f['graph']}:{f['output']} max |diff| {f['max_abs']:.3g} > atol {f['atol']:.3g}"
+        lines = [f"{f['graph']}:{f['output']} " + (f["why"] if "why" in f else
+                 f"max |diff| {f['max_abs']:.3g} (atol {f['atol']:.3g}), mean {f['mean_abs']:.3g}"
+                 + (f" (mean tol {f['mean_tol']:.3g})" if f.get("mean_tol") is not None else ""))
                  for f in failures]
         super().__init__(f"{len(failures)} output(s) failed validation: " + "; ".join(lines))

@@ -91,7 +91,8 @@ def run_evaluation(checkpoints: list[str], data: str, baselines_: list[str], out
                    threads: int = 2) -> dict:
     import torch
 
-    from .train import find_sequences, load_model
+    from .io import find_sequences
+    from .train import load_model
 
     torch.set_num_threads(threads)
     seqs = find_sequences(data) or [Path(data)]

@@ -88,7 +88,8 @@ class FeatureNetConfig:
 
 def _examples(data_root: str):
     """(tonemapped native-resolution reference colour, G-buffer target) per frame."""
-    from .train import find_sequences, load_sequence
+    from .io import find_sequences
+    from .train import load_sequence
 
     xs, ys = [], []
     for p in find_sequences(Path(data_root) / "train"):

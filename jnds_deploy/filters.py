@@ -18,8 +18,12 @@ TONEMAP_FLOOR = 1e-10  # log(x + 1) below this is raised to it: d/dx of t^(1/2.2
 
 
 def tonemap(x: torch.Tensor) -> torch.Tensor:
-    """Eq. 1 of the paper: (log(x + 1))^(1/2.2), after clamping to [0, 65535]."""
-    return torch.log1p(x.clamp(0.0, HDR_MAX)).clamp_min(TONEMAP_FLOOR).pow(1.0 / 2.2)
+    """Eq. 1 of the paper: (log(x + 1))^(1/2.2), after clamping to [0, 65535].
+
+    The power is written as exp(log(.) / 2.2) (the floor keeps the log finite): the same
+    values, but ONNX Runtime's Pow is scalar code and took 82 ms of an 875 ms network
+    graph at 1280x720, where Exp and Log are vectorized (profiled)."""
+    return torch.exp(torch.log(torch.log1p(x.clamp(0.0, HDR_MAX)).clamp_min(TONEMAP_FLOOR)) * (1.0 / 2.2))
 
 
 def inverse_tonemap(y: torch.Tensor) -> torch.Tensor:

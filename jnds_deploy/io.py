@@ -234,6 +234,24 @@ def _check_frame_files(directory: Path, count: int) -> None:
         raise FrameCountError(directory, f"extra frame(s) {listed} beyond frame_count {count}")
 
 
+def find_sequences(root: str | Path) -> list[Path]:
+    """The sequences directly inside ``root`` (directories holding a sequence.json), sorted."""
+    return sorted(p.parent for p in Path(root).glob("*/sequence.json"))
+
+
+def expand_sequences(paths) -> list[Path]:
+    """Each path is a sequence, or a directory of sequences (expanded, sorted)."""
+    out = []
+    for p in map(Path, paths):
+        if (p / "sequence.json").is_file():
+            out.append(p)
+        elif found := find_sequences(p):
+            out.extend(found)
+        else:
+            raise SequenceFormatError(p / "sequence.json", "missing sequence.json, and no sequences inside")
+    return out
+
+
 def open_sequence(path: str | Path) -> Sequence:
     """Open a sequence directory, checking ``sequence.json`` and the frame files."""
     path = Path(path)

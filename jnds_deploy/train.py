@@ -27,7 +27,7 @@ import torch
 import torch.nn.functional as F
 
 from . import filters
-from .io import open_sequence
+from .io import find_sequences, open_sequence
 from .model import (CURRENT, JNDS, ModelConfig, quant_ranges, set_observing, set_quantization,
                     pad_to_multiple)
 
@@ -97,10 +97,6 @@ def load_sequence(path: str | Path) -> SequenceArrays:
     return SequenceArrays(Path(path).name, np.stack(cur), np.stack(mot),
                           {k: np.stack(v) for k, v in refs.items()},
                           [f.camera_cut for f in seq.frames])
-
-
-def find_sequences(root: str | Path) -> list[Path]:
-    return sorted(p.parent for p in Path(root).glob("*/sequence.json"))
 
 
 class PatchSampler:

@@ -36,6 +36,7 @@ class PipelineConfig:
     precision: str = "fp32"  # fp32 | int8 (graphs written by `jnds calibrate`)
     filter_dtype: str = "float32"  # float32 | float16 (the paper's filter precision)
     threads: int = 2
+    int8_method: str | None = None  # which calibration's int8 graphs; None: the last calibrated
 
     def __post_init__(self):
         if self.precision not in ("fp32", "int8"):
@@ -74,14 +75,24 @@ class Pipeline:
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = cfg.threads
         opts.inter_op_num_threads = 1
-        self.sessions = {}
+        self.sessions, self.graph_files = {}, {}
         for name, g in self.manifest["graphs"].items():
-            file = g["file"] if cfg.precision == "fp32" else g.get("int8_file")
+            if cfg.precision == "fp32":
+                file = g["file"]
+            elif cfg.int8_method:
+                file = g.get("int8", {}).get(cfg.int8_method, {}).get("file")
+            else:
+                file = g.get("int8_file")
             if not file or not (root / file).is_file():
-                raise ArtifactError(f"{root}: no {cfg.precision} graph for {name!r}"
+                what = f"int8 ({cfg.int8_method})" if cfg.int8_method else cfg.precision
+                raise ArtifactError(f"{root}: no {what} graph for {name!r}"
                                     + ("; run `jnds calibrate`" if cfg.precision == "int8" else ""))
+            self.graph_files[name] = root / file
             self.sessions[name] = ort.InferenceSession(str(root / file), opts, providers=["CPUExecutionProvider"])
         self.net_outputs = [o.name for o in self.sessions["network"].get_outputs()]
+        # called as on_feeds(graph name, {input name: array}) before every graph runs:
+        # how calibration records the inputs the network really sees, history included
+        self.on_feeds = None
         self.reset()
 
     def reset(self) -> None:
@@ -109,8 +120,11 @@ class Pipeline:
                 np.maximum(warped[:9], 0.0, out=warped[:9])
                 np.clip(warped[6:9], 0.0, 1.0, out=warped[6:9])
                 np.clip(warped[9:12], -1.0, 1.0, out=warped[9:12])
+        feeds = {"current": current[None], "history": warped[None]}
+        if self.on_feeds:
+            self.on_feeds("network", feeds)
         with t("network"):
-            outs = self.sessions["network"].run(None, {"current": current[None], "history": warped[None]})
+            outs = self.sessions["network"].run(None, feeds)
         with t("reformat"):
             net = {n: o[0].astype(self.dtype, copy=False) for n, o in zip(self.net_outputs, outs)}
             cur = {n: current[i:i + c].astype(self.dtype, copy=False)
@@ -132,10 +146,12 @@ class Pipeline:
         with t("composite"):
             comp = F.composite(filtered["albedo"], filtered["diffuse"], filtered["specular"])
         if self.scale > 1:
+            feeds = {"composite": comp[None].astype(np.float32, copy=False),
+                     "features": net["features"][None].astype(np.float32, copy=False)}
+            if self.on_feeds:
+                self.on_feeds("upsample", feeds)
             with t("upsample_kernel"):
-                kernel = self.sessions["upsample"].run(None, {
-                    "composite": comp[None].astype(np.float32, copy=False),
-                    "features": net["features"][None].astype(np.float32, copy=False)})[0][0]
+                kernel = self.sessions["upsample"].run(None, feeds)[0][0]
             with t("upsample_filter"):
                 out = F.upsample_filter(comp, kernel.astype(self.dtype, copy=False), self.scale)
         else:

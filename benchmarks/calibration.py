@@ -1,0 +1,237 @@
+"""Int8 calibration benchmark: speed of the QDQ options on this CPU, accuracy of each method.
+
+    .venv/bin/python benchmarks/calibration.py --data data/val
+
+1. Exports the shipped checkpoint (fp32) and records calibration inputs by running the
+   fp32 pipeline recurrently over the validation sequences.
+2. Speed: the network graph at 1280x720 native, fp32 against int8 QDQ variants
+   (activations u8 / s8; quantized operators: Conv only, or Conv plus the pooling, resize
+   and concatenation between them; ONNX Runtime graph optimization all / extended),
+   median of --runs runs each, all in one process, interleaved. GMAC/s against the int8
+   VNNI and fp32 FMA peaks of this CPU.
+3. Accuracy: every calibration method with the default options: per-tensor SQNR and the
+   end-to-end PSNR/FLIP of the int8 pipeline against fp32 and the reference.
+
+Writes benchmarks/results/calibration.md and calibration.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from jnds_deploy.calibration import CalibrateConfig, calibrate  # noqa: E402
+from jnds_deploy.calibration.quantize import (DEFAULT_OP_TYPES, FLOAT_NODES, METHODS,  # noqa: E402
+                                              follow_shared_ranges, op_counts, qat_overrides, quantize_graph)
+from jnds_deploy.calibration.reader import collect_feeds  # noqa: E402
+from jnds_deploy.calibration.report import end_to_end, markdown, tensor_errors  # noqa: E402
+from jnds_deploy.export import ExportConfig, export  # noqa: E402
+from jnds_deploy.io import expand_sequences, open_sequence  # noqa: E402
+from jnds_deploy.model import CURRENT, ModelConfig, count_macs  # noqa: E402
+from jnds_deploy.runtime.profile import profile_stages  # noqa: E402
+
+# (activation type, quantized operators, nodes kept float); the last is the default
+VARIANTS = {
+    "u8, Conv only": ("u8", ("Conv",), ()),
+    "u8, Conv+ReLU": ("u8", ("Conv", "Relu"), ()),
+    "u8, all between convs": ("u8", DEFAULT_OP_TYPES, ()),
+    "s8, all between convs, float heads": ("s8", DEFAULT_OP_TYPES, FLOAT_NODES),
+    "u8, all between convs, float heads (default)": ("u8", DEFAULT_OP_TYPES, FLOAT_NODES),
+}
+
+
+def cpu_peaks() -> dict:
+    """Peak multiply-accumulates per second of this CPU, from its core count and clock:
+    AVX-512 VNNI ``vpdpbusd`` does 64 int8 MACs per instruction (16 lanes x 4), two per
+    cycle on server cores with two 512-bit FMA ports; fp32 FMA does 16 per instruction,
+    also two per cycle. The clock is the nominal one /proc/cpuinfo reports (no turbo
+    information under KVM), so the peak is an estimate."""
+    cores = os.cpu_count()
+    mhz = None
+    for line in Path("/proc/cpuinfo").read_text().splitlines():
+        if line.startswith("cpu MHz"):
+            mhz = float(line.split(":")[1])
+            break
+    flags = Path("/proc/cpuinfo").read_text()
+    ghz = (mhz or 2000.0) / 1000
+    return {"cores": cores, "ghz": ghz, "avx512_vnni": "avx512_vnni" in flags, "amx_int8": "amx_int8" in flags,
+            "int8_vnni_gmacs": cores * ghz * 2 * 64, "fp32_fma_gmacs": cores * ghz * 2 * 16,
+            "derivation": "cores x GHz x 2 instructions/cycle x 64 int8 MACs (VNNI) or 16 fp32 MACs (FMA)"}
+
+
+def timing_inputs(seq_path: Path, size: tuple[int, int]) -> dict[str, np.ndarray]:
+    """A real frame resized to ``size`` (history: the current inputs, as on a first frame)."""
+    import cv2
+
+    layers = open_sequence(seq_path).inputs(0)
+    cur = np.concatenate([cv2.resize(layers[n], size, interpolation=cv2.INTER_LINEAR).reshape(size[1], size[0], -1)
+                          for n, _ in CURRENT], -1).transpose(2, 0, 1)
+    cur = np.ascontiguousarray(cur[None], np.float32)
+    return {"current": cur, "history": np.ascontiguousarray(cur[:, :12])}
+
+
+def time_sessions(paths: dict[str, Path], feeds: dict, runs: int, threads: int, levels: dict[str, str]) -> dict:
+    """Median and spread (ms) of each graph, interleaved run by run in one process."""
+    import onnxruntime as ort
+
+    opt = {"all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL, "extended": ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED}
+    sessions = {}
+    for name, path in paths.items():
+        o = ort.SessionOptions()
+        o.intra_op_num_threads, o.inter_op_num_threads = threads, 1
+        o.graph_optimization_level = opt[levels[name]]
+        sessions[name] = ort.InferenceSession(str(path), o, providers=["CPUExecutionProvider"])
+        sessions[name].run(None, feeds)  # warm-up
+    ms = {name: [] for name in paths}
+    for _ in range(runs):
+        for name, s in sessions.items():
+            t0 = time.perf_counter()
+            s.run(None, feeds)
+            ms[name].append(1000 * (time.perf_counter() - t0))
+    return {name: {"median_ms": float(np.median(v)), "min_ms": float(np.min(v)), "max_ms": float(np.max(v)),
+                   "runs": v} for name, v in ms.items()}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", nargs="+", default=["data/val"])
+    ap.add_argument("--work", default="out/calibration-bench")
+    ap.add_argument("--size", default="1280x720")
+    ap.add_argument("--runs", type=int, default=7)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--methods", nargs="+", default=list(METHODS))
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "calibration"))
+    args = ap.parse_args()
+    size = tuple(int(v) for v in args.size.split("x"))
+    seqs = expand_sequences(args.data)
+    work = Path(args.work)
+    manifest = export(ExportConfig(out=str(work)), log=lambda *a: None)
+    feeds = collect_feeds(work, seqs, threads=args.threads)
+    overrides = json.loads((work / "qat_ranges.json").read_text())
+
+    # --- speed of the options, on the qat ranges
+    variants, levels = {"fp32": work / "network.onnx"}, {"fp32": "all"}
+    for i, (name, (act, ops, float_nodes)) in enumerate(VARIANTS.items()):
+        path = work / "variants" / f"network.{i}.onnx"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        learned = follow_shared_ranges(work / "network.onnx", overrides["network"], ops)
+        quantize_graph(work / "network.onnx", path, feeds["network"], "qat", act, ops,
+                       qat_overrides(learned), exclude=float_nodes)
+        variants[f"int8 {name}"], levels[f"int8 {name}"] = path, "all"
+    default = f"int8 {list(VARIANTS)[-1]}"
+    variants["fp32, optimization extended"], levels["fp32, optimization extended"] = work / "network.onnx", "extended"
+    variants["int8 default, optimization extended"] = variants[default]
+    levels["int8 default, optimization extended"] = "extended"
+    net_feeds = timing_inputs(seqs[0], size)
+    timing = time_sessions(variants, net_feeds, args.runs, args.threads, levels)
+    profiles = {k: profile_stages(variants[k], net_feeds, runs=3, threads=args.threads) for k in ("fp32", default)}
+
+    # the upsample block's graph at target resolution, default int8 options
+    up8 = work / "variants" / "upsample.default.onnx"
+    act, ops, float_nodes = VARIANTS[default[len("int8 "):]]
+    quantize_graph(work / "upsample.onnx", up8, feeds["upsample"], "qat", act, ops,
+                   qat_overrides(follow_shared_ranges(work / "upsample.onnx", overrides["upsample"], ops)),
+                   exclude=float_nodes)
+    import onnxruntime as ort
+    net = ort.InferenceSession(str(work / "network.onnx"), providers=["CPUExecutionProvider"])
+    features = net.run(["features"], net_feeds)[0]
+    c = net_feeds["current"]
+    up_feeds = {"composite": np.ascontiguousarray(c[:, 6:9] * c[:, 0:3] + c[:, 3:6]), "features": features}
+    del net
+    upsample_timing = time_sessions({"fp32": work / "upsample.onnx", "int8 default": up8}, up_feeds,
+                                    args.runs, args.threads, {"fp32": "all", "int8 default": "all"})
+    cfg = ModelConfig(**manifest["model_config"])
+    macs = count_macs(cfg, *size)
+    net_gmac = macs["input_block"] + macs["feature_extractor"] + macs["output_block"]
+    peaks = cpu_peaks()
+    fp32_ms = timing["fp32"]["median_ms"]
+    for name, t in timing.items():
+        t["speedup_vs_fp32"] = fp32_ms / t["median_ms"]
+        t["gmac_per_s"] = net_gmac / (t["median_ms"] / 1000)
+        t["op_counts"] = op_counts(variants[name])
+
+    # --- accuracy of each method, default options
+    accuracy = {}
+    for method in args.methods:
+        calibrate(CalibrateConfig(artifacts=str(work), data=tuple(map(str, seqs)), method=method,
+                                  threads=args.threads), log=lambda *a: None)
+        g = json.loads((work / "manifest.json").read_text())["graphs"]
+        tensors = {name: tensor_errors(work / gg["file"], work / gg["int8"][method]["file"], feeds[name][::6])
+                   for name, gg in g.items()}
+        accuracy[method] = {"end_to_end": end_to_end(work, method, seqs, args.threads), "tensors": tensors}
+
+    report = {"command": "python benchmarks/calibration.py " + " ".join(sys.argv[1:]),
+              "machine": {"platform": platform.platform(), "processor": _cpu_name(), **peaks},
+              "size": list(size), "threads": args.threads, "network_gmac": net_gmac, "timing": timing, "upsample_timing": upsample_timing,
+              "upsample_gmac": macs["upsample_block"], "profiles": profiles, "default_variant": default, "accuracy": accuracy,
+              "calibration_frames": {k: len(v) for k, v in feeds.items()},
+              "sequences": [str(s) for s in seqs], "default_op_types": list(DEFAULT_OP_TYPES)}
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps(report, indent=1))
+    out.with_suffix(".md").write_text(render_markdown(report))
+    print(out.with_suffix(".md").read_text())
+    return 0
+
+
+def _cpu_name() -> str:
+    for line in Path("/proc/cpuinfo").read_text().splitlines():
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
+    return platform.processor()
+
+
+STAGE_COLS = ("input_block", "feature_extractor", "output_block", "reformat", "total")
+
+
+def render_markdown(r: dict) -> str:
+    m = r["machine"]
+    w, h = r["size"]
+    lines = ["# Int8 calibration: speed and accuracy", "",
+             f"Command: `{r['command']}`  ", f"Machine: {m['processor']}, {m['cores']} cores, "
+             f"{m['ghz']:.1f} GHz nominal, AVX-512 VNNI {m['avx512_vnni']}, AMX-INT8 {m['amx_int8']}; "
+             f"ONNX Runtime CPU execution provider, {r['threads']} intra-op threads.", "",
+             f"## Network graph at {w}x{h} native ({r['network_gmac']:.1f} GMAC per frame)", "",
+             "| variant | median ms | min–max ms | speed-up vs fp32 | GMAC/s | % of int8 VNNI peak |",
+             "| --- | ---: | ---: | ---: | ---: | ---: |"]
+    for name, t in r["timing"].items():
+        lines.append(f"| {name} | {t['median_ms']:.0f} | {t['min_ms']:.0f}–{t['max_ms']:.0f} | "
+                     f"{t['speedup_vs_fp32']:.2f}× | {t['gmac_per_s']:.1f} | "
+                     f"{100 * t['gmac_per_s'] / m['int8_vnni_gmacs']:.1f} |")
+    ut = r["upsample_timing"]
+    lines += ["", f"Upsample block graph ({r['upsample_gmac']:.1f} GMAC, kernel at {2 * w}x{2 * h}): fp32 "
+                  f"{ut['fp32']['median_ms']:.0f} ms, int8 {ut['int8 default']['median_ms']:.0f} ms "
+                  f"({ut['fp32']['median_ms'] / ut['int8 default']['median_ms']:.2f}×)."]
+    lines += ["", f"Peaks ({m['derivation']}): int8 VNNI {m['int8_vnni_gmacs']:.0f} GMAC/s, "
+                  f"fp32 FMA {m['fp32_fma_gmacs']:.0f} GMAC/s.", "",
+              "### Where the time goes (ONNX Runtime profiler, median of 3 runs, ms)", "",
+              "| graph | " + " | ".join(STAGE_COLS) + " |", "| --- |" + " ---: |" * len(STAGE_COLS)]
+    for name, p in r["profiles"].items():
+        lines.append(f"| {name} | " + " | ".join(f"{p['median_ms'][c]:.0f}" for c in STAGE_COLS) + " |")
+    lines += ["", "Heaviest operator types (ms per run):", ""]
+    for name, p in r["profiles"].items():
+        lines.append(f"- {name}: " + ", ".join(f"{k} {v:.0f}" for k, v in list(p["by_op_ms"].items())[:10]))
+    lines += ["",
+              "## Accuracy per calibration method", "",
+              "| method | fp32 PSNR dB | int8 PSNR dB | loss dB | fp32 FLIP | int8 FLIP | int8 vs fp32 PSNR dB |",
+              "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for method, a in r["accuracy"].items():
+        e = a["end_to_end"]["mean"]
+        lines.append(f"| {method} | {e['fp32_psnr']:.2f} | {e['int8_psnr']:.2f} | {e['psnr_loss_db']:.3f} | "
+                     f"{e['fp32_flip']:.4f} | {e['int8_flip']:.4f} | {e['int8_vs_fp32_psnr']:.2f} |")
+    for method, a in r["accuracy"].items():
+        lines += ["", f"## {method}: per-tensor error", "", markdown(a["tensors"], None)]
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,240 @@
+"""``jnds calibrate``: int8 QDQ graphs next to the fp32 ones.
+
+Weights are per output channel, symmetric int8 (threshold max|w|, as in training);
+activations per tensor, affine. Methods:
+
+- ``qat``: the activation ranges learned in quantization-aware training (``qat_ranges.json``,
+  written by ``jnds export``) fix the scale of every convolution input; the remaining
+  tensors (convolution outputs before their ReLU is folded, pooling, concatenation) get
+  min/max ranges from the calibration data. ONNX Runtime only fuses DequantizeLinear ->
+  Conv -> QuantizeLinear into an int8 convolution when the output is quantized too, so
+  a purely learned model would run in float.
+- ``minmax``, ``percentile``, ``entropy``: ONNX Runtime static calibration over the feeds
+  of ``collect_feeds`` (the fp32 pipeline run recurrently on real sequences).
+
+Each run writes ``<graph>.int8.<method>.onnx``, ``calibration.<method>.json`` (the scale and
+zero point of every quantized tensor, as data) and registers them in ``manifest.json``;
+the last method calibrated is the pipeline's int8 default. It ends with a validation of
+the int8 graphs against PyTorch fp32 on recorded calibration inputs.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnx
+from onnx import numpy_helper
+
+from ..errors import JndsError
+from .reader import FeedReader, collect_feeds
+
+METHODS = ("qat", "minmax", "percentile", "entropy")
+ACTIVATION_TYPES = ("u8", "s8")
+# operators quantized: the convolutions and everything between them, so int8 tensors flow
+# from one convolution to the next without a float round trip (ReLU folds into the
+# quantized convolution output); measured fastest in benchmarks/calibration.py
+DEFAULT_OP_TYPES = ("Conv", "Relu", "MaxPool", "AveragePool", "Resize", "Concat")
+# the 1x1 kernel heads at native and target resolution stay float: their outputs go out
+# of the graph as float anyway, and int8 there costs a transpose and a dequantization of
+# every per-pixel kernel (measured slower); they are a few percent of the MACs
+FLOAT_NODES = ("/network/output_block/head/Conv", "/head/Conv")
+# int8 vs PyTorch fp32 tolerances on real calibration inputs: kernels lie in [-1, 1],
+# blend weights in [0, 1]; a mean error above this means a broken range, not rounding
+INT8_ATOL = 1.0
+INT8_MEAN_TOL = 0.03
+
+
+class CalibrationError(JndsError):
+    """Calibration cannot run: missing artifacts, no data, unknown method."""
+
+
+@dataclass(frozen=True)
+class CalibrateConfig:
+    artifacts: str
+    data: tuple[str, ...]
+    method: str = "qat"
+    activation_type: str = "u8"
+    op_types: tuple[str, ...] = DEFAULT_OP_TYPES
+    float_nodes: tuple[str, ...] = FLOAT_NODES
+    frames: int | None = None  # per sequence; None: all
+    percentile: float = 99.999
+    checkpoint: str | None = None  # PyTorch reference for validation; default: the manifest's
+    threads: int = 2
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise CalibrationError(f"unknown method {self.method!r}, expected one of {', '.join(METHODS)}")
+        if self.activation_type not in ACTIVATION_TYPES:
+            raise CalibrationError(f"activation type must be u8 or s8, got {self.activation_type!r}")
+        if not self.data:
+            raise CalibrationError("no calibration sequences given (--data SEQ ...)")
+
+
+def quantize_graph(fp32_path: Path, out_path: Path, feeds: list[dict[str, np.ndarray]], method: str,
+                   activation_type: str = "u8", op_types=DEFAULT_OP_TYPES, overrides: dict | None = None,
+                   percentile: float = 99.999, exclude: tuple[str, ...] = ()) -> None:
+    """Static QDQ quantization of one graph; written atomically to ``out_path``."""
+    from onnxruntime.quantization import CalibrationMethod, QuantFormat, QuantType, quantize_static
+
+    calib = {"qat": CalibrationMethod.MinMax, "minmax": CalibrationMethod.MinMax,
+             "percentile": CalibrationMethod.Percentile, "entropy": CalibrationMethod.Entropy}[method]
+    extra = {"CalibPercentile": percentile} if method == "percentile" else {}
+    if overrides:
+        extra["TensorQuantOverrides"] = overrides
+    act = QuantType.QUInt8 if activation_type == "u8" else QuantType.QInt8
+    root_logger = logging.getLogger()
+    level = root_logger.level
+    root_logger.setLevel(logging.ERROR)  # "consider pre-processing": shape inference is not needed here
+    with tempfile.TemporaryDirectory(dir=out_path.parent) as tmp:
+        tmp_out = Path(tmp) / out_path.name
+        quantize_static(str(fp32_path), str(tmp_out), FeedReader(feeds), quant_format=QuantFormat.QDQ,
+                        per_channel=True, activation_type=act, weight_type=QuantType.QInt8,
+                        calibrate_method=calib, op_types_to_quantize=list(op_types),
+                        nodes_to_exclude=list(exclude), extra_options=extra)
+        os.replace(tmp_out, out_path)
+    root_logger.setLevel(level)
+
+
+def qat_overrides(ranges: dict[str, dict]) -> dict[str, list[dict]]:
+    """TensorQuantOverrides from learned ranges: rmin/rmax give ONNX Runtime's scale and
+    zero point the same arithmetic as training (scale = (hi - lo) / 255, zero point
+    round(-lo / scale), shifted by -128 for s8)."""
+    return {tensor: [{"rmin": np.float32(r["rmin"]), "rmax": np.float32(r["rmax"])}] for tensor, r in ranges.items()}
+
+
+def follow_shared_ranges(fp32_path: Path, ranges: dict[str, dict], op_types) -> dict[str, dict]:
+    """Move a learned range from the output of a quantized pooling node to its input.
+
+    ONNX Runtime gives a quantized MaxPool/AveragePool output the scale of its input (the
+    int8 kernels need that), so a range set on the output would be ignored; pooling does
+    not widen the range, so the learned range is applied where the scale is decided."""
+    producers = {o: n for n in onnx.load(str(fp32_path)).graph.node for o in n.output}
+    out = {}
+    for tensor, r in ranges.items():
+        node = producers.get(tensor)
+        while node is not None and node.op_type in ("MaxPool", "AveragePool") and node.op_type in op_types:
+            tensor = node.input[0]
+            node = producers.get(tensor)
+        out[tensor] = r
+    return out
+
+
+def quantized_tensors(path: Path) -> dict[str, dict]:
+    """{tensor: {scale, zero_point, dtype, rmin, rmax}} of every activation QuantizeLinear."""
+    model = onnx.load(str(path))
+    inits = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
+    out = {}
+    for node in model.graph.node:
+        if node.op_type != "QuantizeLinear" or node.input[0] in inits:
+            continue
+        scale, zp = inits[node.input[1]], inits[node.input[2]]
+        info = np.iinfo(zp.dtype)
+        s, z = float(scale), int(zp)
+        out[node.input[0]] = {"scale": s, "zero_point": z, "dtype": str(zp.dtype),
+                              "rmin": (info.min - z) * s, "rmax": (info.max - z) * s}
+    return out
+
+
+def op_counts(path: Path) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for node in onnx.load(str(path)).graph.node:
+        counts[node.op_type] = counts.get(node.op_type, 0) + 1
+    return counts
+
+
+def _write_json(path: Path, data) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(data, indent=1))
+    os.replace(tmp, path)
+
+
+def validate_int8(root: Path, manifest: dict, method: str, feeds: dict[str, list], checkpoint: str | None) -> list[dict]:
+    """Each int8 graph against PyTorch fp32 on up to three recorded inputs (first frame,
+    middle, last), per output max/mean |diff| against INT8_ATOL / INT8_MEAN_TOL."""
+    import torch
+
+    from ..export.convert import validate_graph
+    from ..model import set_quantization
+    from ..train import load_model
+
+    ckpt = Path(checkpoint or manifest["checkpoint"]["path"])
+    if not ckpt.is_file():
+        raise CalibrationError(f"{ckpt}: checkpoint of these artifacts not found; pass --checkpoint")
+    model = load_model(ckpt)
+    set_quantization(model, False)
+    model.eval()
+    fns = {"network": lambda names: (lambda c, h: tuple(model.network(c, h)[k] for k in names)),
+           "upsample": lambda names: model.upsample_block}
+    rows = []
+    for name, g in manifest["graphs"].items():
+        path = root / g["int8"][method]["file"]
+        import onnxruntime as ort
+
+        names = [o.name for o in ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).get_outputs()]
+        recorded = feeds[name]
+        for i in sorted({0, len(recorded) // 2, len(recorded) - 1}):
+            f = {k: torch.from_numpy(v) for k, v in recorded[i].items()}
+            rows += validate_graph(path, fns[name](names), f, names, INT8_ATOL, INT8_MEAN_TOL)
+    return rows
+
+
+def calibrate(cfg: CalibrateConfig, log=print) -> dict:
+    """Write the int8 graphs of one method; returns the updated manifest."""
+    from ..export.convert import _file_hash, report_validation
+
+    root = Path(cfg.artifacts)
+    mpath = root / "manifest.json"
+    if not mpath.is_file():
+        raise CalibrationError(f"{mpath}: missing; run `jnds export --out {root}` first")
+    manifest = json.loads(mpath.read_text())
+    overrides = {}
+    if cfg.method == "qat":
+        qpath = root / manifest.get("qat_ranges", "qat_ranges.json")
+        if not qpath.is_file():
+            raise CalibrationError(f"{qpath}: missing; re-export with this version of `jnds export`")
+        overrides = json.loads(qpath.read_text())
+
+    feeds = collect_feeds(root, list(cfg.data), cfg.frames, cfg.threads)
+    ranges = {}
+    for name, g in manifest["graphs"].items():
+        if not feeds[name]:
+            raise CalibrationError(f"no calibration inputs recorded for graph {name!r}")
+        file = f"{Path(g['file']).stem}.int8.{cfg.method}.onnx"
+        log(f"quantizing {g['file']} -> {file} ({cfg.method}, {cfg.activation_type} activations, "
+            f"{len(feeds[name])} calibration frames)")
+        learned = follow_shared_ranges(root / g["file"], overrides.get(name, {}), cfg.op_types)
+        quantize_graph(root / g["file"], root / file, feeds[name], cfg.method, cfg.activation_type,
+                       cfg.op_types, qat_overrides(learned), cfg.percentile, cfg.float_nodes)
+        ranges[name] = quantized_tensors(root / file)
+        if cfg.method == "qat":
+            _check_overrides(file, learned, ranges[name])
+        g.setdefault("int8", {})[cfg.method] = {
+            "file": file, "sha256": _file_hash(root / file), "activation_type": cfg.activation_type,
+            "weights": "int8 per output channel, symmetric", "op_types": list(cfg.op_types),
+            "float_nodes": list(cfg.float_nodes),
+            "ranges": f"calibration.{cfg.method}.json"}
+        g["int8_file"] = file
+    _write_json(root / f"calibration.{cfg.method}.json",
+                {"method": cfg.method, "activation_type": cfg.activation_type,
+                 "data": [str(d) for d in cfg.data], "frames_per_sequence": cfg.frames,
+                 "frames": {k: len(v) for k, v in feeds.items()}, "tensors": ranges})
+    manifest["int8_method"] = cfg.method
+    rows = validate_int8(root, manifest, cfg.method, feeds, cfg.checkpoint)
+    manifest.setdefault("int8_validation", {})[cfg.method] = rows
+    _write_json(mpath, manifest)
+    report_validation(rows, log)
+    return manifest
+
+
+def _check_overrides(file: str, learned: dict, got: dict) -> None:
+    """Every learned range must have become the scale of its tensor (guards against the
+    exporter renaming tensors and ONNX Runtime silently ignoring an override)."""
+    bad = [t for t, r in learned.items()
+           if t not in got or not np.isclose(got[t]["scale"], (r["rmax"] - r["rmin"]) / 255, rtol=1e-3)]
+    if bad:
+        raise CalibrationError(f"{file}: learned ranges not applied to {len(bad)} tensor(s): {', '.join(bad[:5])}")

@@ -1,0 +1,65 @@
+"""Per-stage time inside one ONNX graph, from ONNX Runtime's own profiler.
+
+The network graph holds three of the paper's stages (input block, feature extractor,
+output block). ONNX Runtime's profiler times every node it runs; the exporter names nodes
+after the module that made them (``/network/feature_extractor/encoders.0/a/Conv``), and
+ONNX Runtime keeps that name as the prefix of fused nodes, so node time adds up per
+stage. Layout changes ONNX Runtime inserts (``ReorderInput``, ``Transpose`` of the NHWC
+int8 kernels) are attributed to the stage of the node they feed, or to ``reformat``.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+STAGES = ("input_block", "feature_extractor", "output_block")
+
+
+def stage_of(node_name: str) -> str:
+    for s in STAGES:
+        if f"/{s}/" in node_name:
+            return s
+    return "reformat"
+
+
+def profile_stages(onnx_path: str | Path, feeds: dict[str, np.ndarray], runs: int = 5, threads: int = 2,
+                   optimization: str = "all") -> dict:
+    """Median over ``runs`` of the summed node time per stage (ms), and per operator type."""
+    import onnxruntime as ort
+
+    with tempfile.TemporaryDirectory() as tmp:
+        o = ort.SessionOptions()
+        o.intra_op_num_threads, o.inter_op_num_threads = threads, 1
+        o.graph_optimization_level = {"all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL,
+                                      "extended": ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED}[optimization]
+        o.enable_profiling = True
+        o.profile_file_prefix = os.path.join(tmp, "profile")
+        sess = ort.InferenceSession(str(onnx_path), o, providers=["CPUExecutionProvider"])
+        sess.run(None, feeds)  # warm-up, dropped below
+        for _ in range(runs):
+            sess.run(None, feeds)
+        events = json.loads(Path(sess.end_profiling()).read_text())
+    runs_ms: list[dict[str, float]] = []
+    ops: dict[str, list[float]] = {}
+    for ev in events:
+        if ev.get("cat") == "Session" and ev.get("name") == "model_run":
+            runs_ms.append({"_start": ev["ts"], "_end": ev["ts"] + ev["dur"], "total": ev["dur"] / 1000})
+    runs_ms = runs_ms[1:]  # drop the warm-up
+    for ev in events:
+        if ev.get("cat") != "Node" or not ev.get("name", "").endswith("_kernel_time"):
+            continue
+        for r in runs_ms:
+            if r["_start"] <= ev["ts"] <= r["_end"]:
+                stage = stage_of(ev["name"])
+                r[stage] = r.get(stage, 0.0) + ev["dur"] / 1000
+                op = ev.get("args", {}).get("op_name", "?")
+                ops.setdefault(op, []).append(ev["dur"] / 1000)
+    keys = ["total", *STAGES, "reformat"]
+    med = {k: float(np.median([r.get(k, 0.0) for r in runs_ms])) for k in keys}
+    med["other"] = med["total"] - sum(med[k] for k in (*STAGES, "reformat"))  # scheduling between nodes
+    by_op = {k: float(np.sum(v)) / len(runs_ms) for k, v in sorted(ops.items(), key=lambda kv: -sum(kv[1]))}
+    return {"median_ms": med, "by_op_ms": by_op, "runs": len(runs_ms)}

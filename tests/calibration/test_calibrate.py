@@ -1,0 +1,129 @@
+"""`jnds calibrate`: int8 QDQ graphs, learned ranges applied, validation that can fail."""
+import json
+from collections import Counter
+
+import numpy as np
+import onnx
+import pytest
+from onnx import numpy_helper
+
+from jnds_deploy.calibration import CalibrateConfig, CalibrationError, calibrate
+from jnds_deploy.calibration.quantize import FLOAT_NODES, validate_int8
+from jnds_deploy.calibration.reader import collect_feeds
+from jnds_deploy.errors import ValidationError
+from jnds_deploy.export import ExportConfig, export
+from jnds_deploy.export.convert import report_validation
+from jnds_deploy.io import open_sequence
+from jnds_deploy.metrics import psnr
+from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
+
+from ..conftest import SAMPLE
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    """The shipped checkpoint exported and calibrated (qat) on three frames of the sample."""
+    d = tmp_path_factory.mktemp("artifacts")
+    export(ExportConfig(out=str(d)), log=lambda s: None)
+    lines = []
+    manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="qat", frames=3),
+                         log=lines.append)
+    return d, manifest, lines
+
+
+def _producers(model):
+    return {o: n for n in model.graph.node for o in n.output}
+
+
+def test_every_convolution_is_quantized(calibrated):
+    d, manifest, _ = calibrated
+    for name, g in manifest["graphs"].items():
+        model = onnx.load(d / g["int8"]["qat"]["file"])
+        onnx.checker.check_model(model, full_check=True)
+        ops = Counter(n.op_type for n in model.graph.node)
+        prod = _producers(model)
+        for n in model.graph.node:  # int8 from one conv to the next: pooling, resize, concat in QDQ
+            inside = "/feature_extractor/" in n.name or "/output_block/" in n.name or "AveragePool" in n.name
+            if n.op_type in ("MaxPool", "AveragePool", "Resize", "Concat") and inside:
+                users = [u.op_type for u in model.graph.node if n.output[0] in u.input]
+                assert prod[n.input[0]].op_type == "DequantizeLinear" and users == ["QuantizeLinear"], n.name
+        convs = [n for n in model.graph.node if n.op_type == "Conv" and n.name not in FLOAT_NODES]
+        heads = [n for n in model.graph.node if n.op_type == "Conv" and n.name in FLOAT_NODES]
+        assert len(heads) == 1
+        assert heads[0].input[1] not in prod  # the kernel head keeps float weights
+        assert convs and ops["QuantizeLinear"] >= len(convs) and ops["Relu"] <= 1  # ReLUs folded
+        for conv in convs:  # DQ -> Conv <- DQ(int8 weight), and Conv -> Q (what ORT fuses)
+            assert prod[conv.input[0]].op_type == "DequantizeLinear", conv.name
+            assert prod[conv.input[1]].op_type == "DequantizeLinear", conv.name
+            users = [n.op_type for n in model.graph.node if conv.output[0] in n.input]
+            assert "QuantizeLinear" in users, conv.name
+        weights = [i for i in model.graph.initializer if i.data_type == onnx.TensorProto.INT8 and len(i.dims) == 4]
+        assert len(weights) == len(convs)  # per-channel int8 weights, one per convolution
+
+
+def test_learned_ranges_become_the_scales(calibrated):
+    d, manifest, _ = calibrated
+    learned = json.loads((d / "qat_ranges.json").read_text())
+    saved = json.loads((d / "calibration.qat.json").read_text())
+    assert saved["method"] == "qat" and saved["frames"] == {"network": 3, "upsample": 3}
+    for graph, tensors in learned.items():
+        for tensor, r in tensors.items():
+            got = saved["tensors"][graph][tensor]
+            assert got["scale"] == pytest.approx(r["scale"], rel=1e-4)
+            assert got["zero_point"] == r["zero_point_u8"] and got["dtype"] == "uint8"
+
+
+def test_int8_pipeline_stays_close_to_fp32(calibrated):
+    d, manifest, lines = calibrated
+    assert manifest["int8_method"] == "qat" and any(line.startswith("✓") for line in lines)
+    assert not any(line.startswith("✗") for line in lines)
+    seq = open_sequence(SAMPLE)
+    pipes = [Pipeline(PipelineConfig(artifacts=str(d), precision=p)) for p in ("fp32", "int8")]
+    for i in range(4):
+        a, b = (p(seq.inputs(i), seq.frames[i].camera_cut)[0] for p in pipes)
+        assert np.isfinite(b).all()
+        # measured ~40 dB on the sample; a wrong scale or zero point gives < 20 dB
+        assert psnr(b, a) > 30.0
+
+
+def test_validation_catches_a_corrupted_int8_graph(calibrated, tmp_path):
+    d, manifest, _ = calibrated
+    path = d / manifest["graphs"]["upsample"]["int8"]["qat"]["file"]
+    good = path.read_bytes()
+    try:
+        model = onnx.load(path)
+        for init in model.graph.initializer:  # a per-channel weight scale 4x too large
+            if init.data_type == onnx.TensorProto.FLOAT and "scale" in init.name and init.dims:
+                init.CopyFrom(numpy_helper.from_array(numpy_helper.to_array(init) * 4, init.name))
+        onnx.save(model, path)
+        feeds = collect_feeds(d, [SAMPLE], frames=2, progress=False)
+        rows = [r for r in validate_int8(d, manifest, "qat", feeds, None) if r["graph"] == path.name]
+        assert rows and not any(r["ok"] for r in rows)
+        with pytest.raises(ValidationError, match="upsample.int8.qat.onnx:kernel"):
+            report_validation(rows, lambda s: None)
+    finally:
+        path.write_bytes(good)
+
+
+@pytest.mark.parametrize("method", ["minmax", "percentile", "entropy"])
+def test_post_training_methods(calibrated, method):
+    d, _, _ = calibrated
+    manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method=method, frames=2,
+                                         activation_type="s8"), log=lambda s: None)
+    entry = manifest["graphs"]["network"]["int8"][method]
+    assert (d / entry["file"]).is_file() and entry["activation_type"] == "s8"
+    saved = json.loads((d / f"calibration.{method}.json").read_text())
+    assert all(t["dtype"] == "int8" and t["rmin"] <= 0 <= t["rmax"] for t in saved["tensors"]["network"].values())
+    assert all(r["ok"] for r in manifest["int8_validation"][method])
+    # every method stays registered; the pipeline can pick any of them
+    assert "qat" in manifest["graphs"]["network"]["int8"]
+    Pipeline(PipelineConfig(artifacts=str(d), precision="int8", int8_method="qat"))
+
+
+def test_bad_calibration_requests(tmp_path):
+    with pytest.raises(CalibrationError, match="unknown method"):
+        CalibrateConfig(artifacts=str(tmp_path), data=(str(SAMPLE),), method="magic")
+    with pytest.raises(CalibrationError, match="no calibration sequences"):
+        CalibrateConfig(artifacts=str(tmp_path), data=())
+    with pytest.raises(CalibrationError, match="manifest.json: missing"):
+        calibrate(CalibrateConfig(artifacts=str(tmp_path), data=(str(SAMPLE),)))
