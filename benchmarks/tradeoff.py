@@ -1,0 +1,194 @@
+"""Run time against error on the validation set: the pipeline's variants and the baselines.
+
+    .venv/bin/python benchmarks/tradeoff.py --artifacts out/artifacts --data data/val
+
+Every method turns each validation sequence into 2x frames, frame after frame; all are
+scored against the reference by the same metrics (PSNR, SSIM, FLIP per frame, temporal
+error per sequence, ``jnds_deploy.metrics``) and timed per frame (inputs already in
+memory; median over all frames) in one process, at the sequences' own resolution.
+
+Methods: the JNDS pipeline in PyTorch fp32 (eager), ONNX fp32 and ONNX int8 for every
+calibration method in the artifacts, filter stage float32 and float16; bicubic upscaling
+of the noisy composite; OIDN fast / balanced / high at native resolution + bicubic; SVGF
+at native resolution + bicubic. Writes benchmarks/results/tradeoff.md, tradeoff.json and
+tradeoff.png (ms/frame against FLIP, Pareto front marked).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from jnds_deploy import baselines  # noqa: E402
+from jnds_deploy.evaluate import ground_truth, mean_over_sequences, score_frames  # noqa: E402
+from jnds_deploy.io import expand_sequences, open_sequence  # noqa: E402
+from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig  # noqa: E402
+
+
+class TorchPipeline:
+    """The PyTorch model frame by frame (fp32 eager), with its own history."""
+
+    def __init__(self, checkpoint, threads: int):
+        import torch
+
+        from jnds_deploy.model import CURRENT, set_quantization
+        from jnds_deploy.train import load_model
+
+        torch.set_num_threads(threads)
+        self.torch, self.layout = torch, CURRENT
+        self.model = load_model(checkpoint)
+        set_quantization(self.model, False)
+        self.history = None
+
+    def __call__(self, layers, cut):
+        from jnds_deploy.model import pad_to_multiple
+
+        t = self.torch
+        h, w = layers["diffuse"].shape[:2]
+        cur = t.from_numpy(np.concatenate([layers[n] for n, _ in self.layout], -1).transpose(2, 0, 1)[None].copy())
+        mv = t.from_numpy(layers["motion"].transpose(2, 0, 1)[None].copy())
+        m = self.model.cfg.pad_multiple
+        cur, _ = pad_to_multiple(cur, m)
+        mv, _ = pad_to_multiple(mv, m)
+        if cut:
+            self.history = None
+        with t.no_grad():
+            out = self.model(cur, mv, self.history)
+        self.history = out.history()
+        s = self.model.cfg.scale
+        return out.output[0, :, :h * s, :w * s].permute(1, 2, 0).numpy()
+
+
+def methods(artifacts: Path, threads: int) -> dict:
+    """name -> factory() -> callable(layers, camera_cut) -> HWC output at target size."""
+    from jnds_deploy.svgf import SVGF
+
+    manifest = json.loads((artifacts / "manifest.json").read_text())
+    scale = int(manifest["scale"])
+    out = {
+        "bicubic (noisy)": lambda: lambda l, c: baselines.bicubic(baselines.noisy_composite(l), scale),
+        **{f"OIDN {q} + bicubic": (lambda q=q: lambda l, c: baselines.oidn_bicubic(l, scale, quality=q))
+           for q in ("fast", "balanced", "high")},
+    }
+
+    def svgf():
+        s = SVGF()
+        return lambda l, c: baselines.bicubic(s(l, c), scale)
+
+    out["SVGF + bicubic"] = svgf
+    out["JNDS PyTorch fp32 (eager)"] = lambda: TorchPipeline(manifest["checkpoint"]["path"], threads)
+
+    def onnx(precision, dtype, method=None):
+        return lambda: Pipeline(PipelineConfig(artifacts=str(artifacts), precision=precision, filter_dtype=dtype,
+                                               threads=threads, int8_method=method))
+
+    def first(p):
+        return lambda l, c: p(l, c)[0]
+
+    for dtype in ("float32", "float16"):
+        out[f"JNDS ONNX fp32, filter {dtype}"] = (lambda f=onnx("fp32", dtype): first(f()))
+    int8 = manifest["graphs"]["network"].get("int8", {})
+    for method in int8:
+        out[f"JNDS ONNX int8 {method}, filter float32"] = (lambda f=onnx("int8", "float32", method): first(f()))
+    if int8:
+        default = manifest.get("int8_method")
+        out[f"JNDS ONNX int8 {default}, filter float16"] = (lambda f=onnx("int8", "float16", default): first(f()))
+    return out
+
+
+def pareto(points: dict[str, tuple[float, float]]) -> set[str]:
+    """Names not dominated in (ms, FLIP), both lower is better."""
+    front = set()
+    for a, (ta, fa) in points.items():
+        if not any((tb <= ta and fb <= fa) and (tb < ta or fb < fa) for b, (tb, fb) in points.items() if b != a):
+            front.add(a)
+    return front
+
+
+def plot(report: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pts = {k: (v["ms_per_frame"], v["mean"]["flip"]) for k, v in report["methods"].items()}
+    front = pareto(pts)
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    for name, (t, f) in pts.items():
+        on = name in front
+        ax.scatter(t, f, c="C3" if name.startswith("JNDS") else "C0", marker="o" if on else "x", s=40)
+        ax.annotate(name, (t, f), fontsize=7, xytext=(4, 3), textcoords="offset points")
+    fr = sorted(pts[n] for n in front)
+    ax.plot([p[0] for p in fr], [p[1] for p in fr], "k--", lw=0.8, label="Pareto front")
+    ax.set_xscale("log")
+    ax.set_xlabel(f"ms per frame ({report['size']}, {report['threads']} threads, this CPU)")
+    ax.set_ylabel("FLIP (lower is better)")
+    ax.set_title("Run time against error, validation set")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--artifacts", default="out/artifacts")
+    ap.add_argument("--data", nargs="+", default=["data/val"])
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--only", nargs="*", default=None, help="substrings of method names to run")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "tradeoff"))
+    args = ap.parse_args()
+    seqs = expand_sequences(args.data)
+    truth = {p: ground_truth(p) for p in seqs}
+    inputs = {p: [(open_sequence(p).inputs(i), f.camera_cut) for i, f in enumerate(open_sequence(p).frames)]
+              for p in seqs}
+    report = {"command": "python benchmarks/tradeoff.py " + " ".join(sys.argv[1:]), "threads": args.threads,
+              "size": "x".join(map(str, open_sequence(seqs[0]).native_size)) + " native",
+              "sequences": [p.name for p in seqs], "methods": {}}
+    for name, factory in methods(Path(args.artifacts), args.threads).items():
+        if args.only and not any(s in name for s in args.only):
+            continue
+        per_seq, ms = {}, []
+        for p in seqs:
+            run = factory()
+            run(*inputs[p][0])  # warm-up (numba compilation, session start), then from the first frame
+            run = factory()
+            outs = []
+            for layers, cut in inputs[p]:
+                t0 = time.perf_counter()
+                outs.append(run(layers, cut))
+                ms.append(1000 * (time.perf_counter() - t0))
+            per_seq[p.name] = score_frames(outs, *truth[p])
+        report["methods"][name] = {"mean": mean_over_sequences(per_seq), "ms_per_frame": float(np.median(ms)),
+                                   "ms_p90": float(np.percentile(ms, 90)), "sequences": per_seq}
+        m = report["methods"][name]
+        print(f"{name}: {m['ms_per_frame']:.1f} ms, PSNR {m['mean']['psnr']:.2f}, FLIP {m['mean']['flip']:.4f}, "
+              f"temporal {m['mean']['temporal']:.5f}", flush=True)
+    front = pareto({k: (v["ms_per_frame"], v["mean"]["flip"]) for k, v in report["methods"].items()})
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps(report, indent=1))
+    plot(report, out.with_suffix(".png"))
+    lines = ["# Run time against error (validation set)", "", f"Command: `{report['command']}`  ",
+             f"{len(seqs)} sequences, {report['size']} → 2×, {args.threads} threads; ms per frame is the "
+             "median over all frames (inputs in memory), all methods in one process.", "",
+             "| method | ms/frame | PSNR dB ↑ | SSIM ↑ | FLIP ↓ | temporal error ↓ | Pareto |",
+             "| --- | ---: | ---: | ---: | ---: | ---: | :---: |"]
+    for name, v in sorted(report["methods"].items(), key=lambda kv: kv[1]["ms_per_frame"]):
+        m = v["mean"]
+        lines.append(f"| {name} | {v['ms_per_frame']:.1f} | {m['psnr']:.2f} | {m['ssim']:.4f} | {m['flip']:.4f} | "
+                     f"{m['temporal']:.5f} | {'●' if name in front else ''} |")
+    lines += ["", f"![ms/frame against FLIP]({out.with_suffix('.png').name})", ""]
+    out.with_suffix(".md").write_text("\n".join(lines))
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
