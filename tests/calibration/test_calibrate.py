@@ -82,8 +82,8 @@ def test_int8_pipeline_stays_close_to_fp32(calibrated):
     for i in range(4):
         a, b = (p(seq.inputs(i), seq.frames[i].camera_cut)[0] for p in pipes)
         assert np.isfinite(b).all()
-        # measured 35.7 dB on frame 1 falling to 34.1 dB on frame 4 (error accumulates in
-        # the history) with the qat ranges from all 8 frames; a 4x weight scale gives < 20 dB
+        # measured with calibration on all 8 frames: 35.7 dB on frame 1 falling to 34.1 dB
+        # on frame 4 (int8 error accumulates in the history)
         assert psnr(b, a) > 30.0
 
 
