@@ -158,10 +158,10 @@ def main() -> int:
         return 0
     seqs = expand_sequences(args.data)
     truth = {p: ground_truth(p) for p in seqs}
-    inputs = {p: [(open_sequence(p).inputs(i), f.camera_cut) for i, f in enumerate(open_sequence(p).frames)]
-              for p in seqs}
+    opened = {p: open_sequence(p) for p in seqs}
+    inputs = {p: [(s.inputs(i), f.camera_cut) for i, f in enumerate(s.frames)] for p, s in opened.items()}
     report = {"command": "python benchmarks/tradeoff.py " + " ".join(sys.argv[1:]), "threads": args.threads,
-              "size": "x".join(map(str, open_sequence(seqs[0]).native_size)) + " native",
+              "size": "x".join(map(str, opened[seqs[0]].native_size)) + " native",
               "sequences": [p.name for p in seqs], "methods": {}}
     for name, factory in methods(Path(args.artifacts), args.threads).items():
         if args.only and not any(s in name for s in args.only):

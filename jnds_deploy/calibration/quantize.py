@@ -79,7 +79,7 @@ def quantize_graph(fp32_path: Path, out_path: Path, feeds: list[dict[str, np.nda
                    activation_type: str = "u8", op_types=DEFAULT_OP_TYPES, overrides: dict | None = None,
                    percentile: float = 99.999, exclude: tuple[str, ...] = ()) -> None:
     """Static QDQ quantization of one graph; written atomically to ``out_path``."""
-    from onnxruntime.quantization import CalibrationMethod, QuantFormat, QuantType, quantize_static
+    from onnxruntime.quantization import CalibrationMethod, QuantType
 
     calib = {"qat": CalibrationMethod.MinMax, "minmax": CalibrationMethod.MinMax,
              "percentile": CalibrationMethod.Percentile, "entropy": CalibrationMethod.Entropy}[method]
@@ -90,6 +90,15 @@ def quantize_graph(fp32_path: Path, out_path: Path, feeds: list[dict[str, np.nda
     root_logger = logging.getLogger()
     level = root_logger.level
     root_logger.setLevel(logging.ERROR)  # "consider pre-processing": shape inference is not needed here
+    try:
+        _quantize_static(fp32_path, out_path, feeds, calib, act, op_types, exclude, extra)
+    finally:
+        root_logger.setLevel(level)
+
+
+def _quantize_static(fp32_path, out_path, feeds, calib, act, op_types, exclude, extra) -> None:
+    from onnxruntime.quantization import QuantFormat, QuantType, quantize_static
+
     with tempfile.TemporaryDirectory(dir=out_path.parent) as tmp:
         tmp_out = Path(tmp) / out_path.name
         quantize_static(str(fp32_path), str(tmp_out), FeedReader(feeds), quant_format=QuantFormat.QDQ,
@@ -97,7 +106,6 @@ def quantize_graph(fp32_path: Path, out_path: Path, feeds: list[dict[str, np.nda
                         calibrate_method=calib, op_types_to_quantize=list(op_types),
                         nodes_to_exclude=list(exclude), extra_options=extra)
         os.replace(tmp_out, out_path)
-    root_logger.setLevel(level)
 
 
 def qat_overrides(ranges: dict[str, dict]) -> dict[str, list[dict]]:
@@ -173,9 +181,7 @@ def validate_int8(root: Path, manifest: dict, method: str, feeds: dict[str, list
     rows = []
     for name, g in manifest["graphs"].items():
         path = root / g["int8"][method]["file"]
-        import onnxruntime as ort
-
-        names = [o.name for o in ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).get_outputs()]
+        names = [o.name for o in onnx.load(str(path)).graph.output]
         recorded = feeds[name]
         for i in sorted({0, len(recorded) // 2, len(recorded) - 1}):
             f = {k: torch.from_numpy(v) for k, v in recorded[i].items()}
