@@ -135,7 +135,8 @@ def main() -> int:
             split = network_split(pipe, frames, args.threads)
             rows = summarize(time_pipeline(pipe, frames, args.repeats), split, macs)
             report["results"][f"{label} {precision}"] = {"native": [w, h], "target": [w * pipe.scale, h * pipe.scale],
-                                                         "precision": precision, "split": split, "stages": rows}
+                                                         "precision": precision, "graphs": dict(pipe.graph_precision),
+                                                         "split": split, "stages": rows}
             print(f"{label} {precision}: {rows['total']['median_ms']:.1f} ms/frame", flush=True)
         if size == (1280, 720):
             # the peer users have: OIDN balanced denoising alone at native 1280x720, same frames
@@ -158,12 +159,23 @@ def main() -> int:
           f"{args.threads} threads; input {seq.path.name}, frames 2–{len(seq)} × {args.repeats} passes "
           f"(the first frame is a warm-up); filter stage float32; int8 graphs: {report['int8_method']}.", ""]
     for name, r in report["results"].items():
-        md += [f"## {r['native'][0]}x{r['native'][1]} → {r['target'][0]}x{r['target'][1]}, {r['precision']} network",
-               "", table(r["stages"]), ""]
+        graphs = ", ".join(f"{g} {p}" for g, p in r["graphs"].items())
+        md += [f"## {r['native'][0]}x{r['native'][1]} → {r['target'][0]}x{r['target'][1]}, {r['precision']} "
+               f"pipeline ({graphs})", "", table(r["stages"]), ""]
     if "oidn_balanced_1280x720_ms" in report:
         o = report["oidn_balanced_1280x720_ms"]
         md += [f"OIDN `balanced` denoising alone at 1280x720 (native, no upscaling), same frames, same run: "
                f"median {o['median_ms']:.1f} ms (p10–p90 {o['p10_ms']:.1f}–{o['p90_ms']:.1f}).", ""]
+    if "oidn_balanced_1280x720_ms" in report and "1280x720 int8" in report["results"]:
+        ratio = report["results"]["1280x720 int8"]["stages"]["total"]["median_ms"] / o["median_ms"]
+        md += [f"The int8 pipeline end to end (denoising and 2x upsampling) takes {ratio:.2f}x the time of OIDN "
+               "balanced denoising alone at native resolution.", ""]
+    md += ["The int8 pipeline keeps the upsample graph in fp32 (`PipelineConfig.fp32_graphs`): its int8 graph "
+           "is slower on this CPU (see `benchmarks/results/calibration.md`).",
+           "The filter stage (filter paths, composite, upsample filter) and the reformatting are numba-fused "
+           "float32 loops; before them (commit cc5865c) the table had filter_diffuse 303.0, filter_specular "
+           "291.3, filter_auxiliary 305.5, upsample_filter 344.6, reformat 201.7 ms (int8, 1280x720; total "
+           "2554.7 ms against OIDN balanced 1416.3 ms in that run).", ""]
     md += ["The input block / feature extractor / output block rows split the measured network time by the "
            "shares ONNX Runtime's profiler gives those stages on the same inputs.", ""]
     out.with_suffix(".md").write_text("\n".join(md))

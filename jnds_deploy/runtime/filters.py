@@ -9,11 +9,22 @@ Notes on opencv: ``cv2.remap`` quantizes map coordinates to 1/32 pixel for its
 interpolating modes, so warping differs from ``torch.grid_sample`` by up to a 1/64 pixel
 shift; both use the bicubic kernel with a = -0.75. ``cv2.resize(INTER_LINEAR)`` has the
 pixel-centre convention of ``align_corners=False``.
+
+float32 takes the fast path: the per-pixel kernel application and everything fused
+around it (the lerp of the spatiotemporal filter and of the up levels, the ReLU, the 2x2
+pooling) are single-pass loops compiled by numba and run over rows on all threads; the
+same sums in the same order as the numpy code (bit-equal, a test holds it). numpy
+makes ~36 passes over memory for one spatiotemporal filter where the fused loop makes
+one: at 1280x720 -> 2560x1440 the filter paths went from ~300 to ~45 ms each and the
+upsample filter from 345 to ~50 ms (`benchmarks/results/timing.md`). numba has no float16 arithmetic on the CPU,
+so float16 runs the numpy code, which rounds every operation to float16 as a GPU's half
+arithmetic would (and is slow: numpy emulates half precision).
 """
 from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit, prange
 
 HDR_MAX = 65535.0
 
@@ -23,8 +34,74 @@ def tonemap(x: np.ndarray) -> np.ndarray:
     return np.power(np.log1p(np.clip(x, 0.0, HDR_MAX)), 1.0 / 2.2).astype(x.dtype, copy=False)
 
 
-def apply_kernel(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """out[c, y, x] = sum_k kernel[k, y, x] * x[c, y + dy_k, x + dx_k]."""
+@njit(inline="always")
+def _taps(src, k, c, ya, yb, yc, y, xa, xb, xc, x):
+    """sum_k k[k, y, x] * src[c, row_k, col_k], rows (ya, yb, yc), cols (xa, xb, xc)."""
+    a = src[c, ya, xa] * k[0, y, x]
+    a = a + src[c, ya, xb] * k[1, y, x]
+    a = a + src[c, ya, xc] * k[2, y, x]
+    a = a + src[c, yb, xa] * k[3, y, x]
+    a = a + src[c, yb, xb] * k[4, y, x]
+    a = a + src[c, yb, xc] * k[5, y, x]
+    a = a + src[c, yc, xa] * k[6, y, x]
+    a = a + src[c, yc, xb] * k[7, y, x]
+    a = a + src[c, yc, xc] * k[8, y, x]
+    return a
+
+
+@njit(parallel=True, cache=True)
+def _apply(x, k, out, relu):
+    C, H, W = x.shape
+    for y in prange(H):
+        ya, yc = max(y - 1, 0), min(y + 1, H - 1)
+        for c in range(C):
+            for i in range(W):
+                v = _taps(x, k, c, ya, y, yc, y, max(i - 1, 0), i, min(i + 1, W - 1), i)
+                out[c, y, i] = max(v, np.float32(0)) if relu else v
+
+
+@njit(parallel=True, cache=True)
+def _lerp_taps(a, ka, b, kb, t, out):
+    """out = relu(A + t * (B - A)), A = a itself if ka is empty else the kernel ka on a,
+    B = the kernel kb on b."""
+    C, H, W = b.shape
+    plain = ka.shape[0] == 0
+    for y in prange(H):
+        ya, yc = max(y - 1, 0), min(y + 1, H - 1)
+        for c in range(C):
+            for i in range(W):
+                ia, ic = max(i - 1, 0), min(i + 1, W - 1)
+                va = a[c, y, i] if plain else _taps(a, ka, c, ya, y, yc, y, ia, i, ic, i)
+                vb = _taps(b, kb, c, ya, y, yc, y, ia, i, ic, i)
+                out[c, y, i] = max(va + t[0, y, i] * (vb - va), np.float32(0))
+
+
+@njit(parallel=True, cache=True)
+def _pool_taps(x, k, out):
+    """out = relu(kernel k on the 2x2 average pool of x)."""
+    C, H, W = out.shape
+    pooled = np.empty((C, H, W), np.float32)
+    for y in prange(H):
+        for c in range(C):
+            for i in range(W):
+                pooled[c, y, i] = (x[c, 2 * y, 2 * i] + x[c, 2 * y, 2 * i + 1] + x[c, 2 * y + 1, 2 * i]
+                                   + x[c, 2 * y + 1, 2 * i + 1]) * np.float32(0.25)
+    _apply(pooled, k, out, True)
+
+
+_NONE = np.empty((0, 1, 1), np.float32)
+
+
+def _fast(*arrays) -> bool:
+    return all(a.dtype == np.float32 for a in arrays)
+
+
+def apply_kernel(x: np.ndarray, kernel: np.ndarray, relu: bool = False) -> np.ndarray:
+    """out[c, y, x] = sum_k kernel[k, y, x] * x[c, y + dy_k, x + dx_k] (then ReLU if asked)."""
+    if _fast(x, kernel):
+        out = np.empty_like(x)
+        _apply(x, kernel, out, relu)
+        return out
     _, h, w = x.shape
     p = np.pad(x, ((0, 0), (1, 1), (1, 1)), mode="edge")
     out = p[:, :h, :w] * kernel[0]
@@ -33,7 +110,7 @@ def apply_kernel(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
         dy, dx = divmod(i, 3)
         np.multiply(p[:, dy:dy + h, dx:dx + w], kernel[i], out=tmp)
         out += tmp
-    return out
+    return np.maximum(out, 0, out=out) if relu else out
 
 
 def warp(x: np.ndarray, motion: np.ndarray) -> np.ndarray:
@@ -72,18 +149,43 @@ def lerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def spatiotemporal(x, history, k_spatial, k_temporal, blend) -> np.ndarray:
+    """relu(lerp(kernel k_spatial on x, kernel k_temporal on history, blend))."""
+    if _fast(x, history, k_spatial, k_temporal, blend):
+        out = np.empty_like(x)
+        _lerp_taps(x, k_spatial, history, k_temporal, blend, out)
+        return out
     return relu(lerp(apply_kernel(x, k_spatial), apply_kernel(history, k_temporal), blend))
+
+
+def down_level(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """One level down: relu(kernel on the 2x2 average pool of x)."""
+    if _fast(x, kernel):
+        c, h, w = x.shape
+        out = np.empty((c, h // 2, w // 2), np.float32)
+        _pool_taps(x, kernel, out)
+        return out
+    return apply_kernel(downsample(x), kernel, relu=True)
+
+
+def up_level(skip: np.ndarray, coarse: np.ndarray, kernel: np.ndarray, blend: np.ndarray) -> np.ndarray:
+    """One level up: relu(lerp(skip, kernel on the bilinear upsampling of coarse, blend))."""
+    up = upsample(coarse)
+    if _fast(skip, up, kernel, blend):
+        out = np.empty_like(skip)
+        _lerp_taps(skip, _NONE, up, kernel, blend, out)
+        return out
+    return relu(lerp(skip, apply_kernel(up, kernel), blend))
 
 
 def filter_path(x: np.ndarray, history: np.ndarray, native: dict, levels: list[dict]) -> np.ndarray:
     """The hierarchical filter of one signal; see ``jnds_deploy.filters.filter_path``."""
     skips = [spatiotemporal(x, history, native["spatial"], native["temporal"], native["blend"])]
     for lv in levels:
-        skips.append(relu(apply_kernel(downsample(skips[-1]), lv["down"])))
+        skips.append(down_level(skips[-1], lv["down"]))
     y = skips[-1]
     for k in range(len(levels) - 1, -1, -1):
         p = levels[k - 1] if k > 0 else native
-        y = relu(lerp(skips[k], apply_kernel(upsample(y), p["up"]), p["up_blend"]))
+        y = up_level(skips[k], y, p["up"], p["up_blend"])
     return y
 
 
@@ -95,4 +197,4 @@ def composite(albedo: np.ndarray, diffuse: np.ndarray, specular: np.ndarray) -> 
 def upsample_filter(color: np.ndarray, kernel: np.ndarray, factor: int) -> np.ndarray:
     """Bilinear upsampling of the linear composite, the predicted 3x3 kernel, ReLU."""
     up = upsample(color, factor) if factor > 1 else color
-    return relu(apply_kernel(up, kernel))
+    return apply_kernel(up, kernel, relu=True)

@@ -22,6 +22,7 @@ import numpy as np
 from ..errors import JndsError
 from ..model import CURRENT
 from . import filters as F
+from .reformat import to_chw, to_hwc
 
 HISTORY_LAYERS = ("diffuse", "specular", "albedo", "normal")
 
@@ -37,6 +38,10 @@ class PipelineConfig:
     filter_dtype: str = "float32"  # float32 | float16 (the paper's filter precision)
     threads: int = 2
     int8_method: str | None = None  # which calibration's int8 graphs; None: the last calibrated
+    # graphs that stay fp32 when precision is int8. The upsample block's int8 graph is
+    # slower on this CPU (1280x720 -> 2560x1440: 467 ms int8, 354 ms fp32, benchmarks/
+    # results/timing.md): its 11-channel QLinearConv is 2x the fp32 Conv (ORT profiler)
+    fp32_graphs: tuple[str, ...] = ("upsample",)
 
     def __post_init__(self):
         if self.precision not in ("fp32", "int8"):
@@ -75,9 +80,13 @@ class Pipeline:
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = cfg.threads
         opts.inter_op_num_threads = 1
-        self.sessions, self.graph_files = {}, {}
+        # ORT's idle threads spin after each run by default and then compete with the
+        # numba filter stage for the cores: 160x90 int8, 74.1 ms/frame median (p90
+        # 147.9) with spinning, 29.5 ms (p90 39.7) without, same machine and frames
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        self.sessions, self.graph_files, self.graph_precision = {}, {}, {}
         for name, g in self.manifest["graphs"].items():
-            if cfg.precision == "fp32":
+            if cfg.precision == "fp32" or name in cfg.fp32_graphs:
                 file = g["file"]
             elif cfg.int8_method:
                 file = g.get("int8", {}).get(cfg.int8_method, {}).get("file")
@@ -88,6 +97,7 @@ class Pipeline:
                 raise ArtifactError(f"{root}: no {what} graph for {name!r}"
                                     + ("; run `jnds calibrate`" if cfg.precision == "int8" else ""))
             self.graph_files[name] = root / file
+            self.graph_precision[name] = "fp32" if file == g["file"] else "int8"
             self.sessions[name] = ort.InferenceSession(str(root / file), opts, providers=["CPUExecutionProvider"])
         self.net_outputs = [o.name for o in self.sessions["network"].get_outputs()]
         # called as on_feeds(graph name, {input name: array}) before every graph runs:
@@ -103,13 +113,9 @@ class Pipeline:
         t = Timer()
         h, w = layers["diffuse"].shape[:2]
         with t("reformat"):
-            current = np.concatenate([layers[n] for n, _ in CURRENT], axis=-1).transpose(2, 0, 1)
-            motion = layers["motion"].transpose(2, 0, 1)
-            ph, pw = (-h) % self.multiple, (-w) % self.multiple
-            if ph or pw:
-                current = np.pad(current, ((0, 0), (0, ph), (0, pw)), mode="edge")
-                motion = np.pad(motion, ((0, 0), (0, ph), (0, pw)), mode="edge")
-            current = np.ascontiguousarray(current, np.float32)
+            padded = (h + (-h) % self.multiple, w + (-w) % self.multiple)
+            current = to_chw([layers[n] for n, _ in CURRENT], padded)
+            motion = to_chw([layers["motion"]], padded)
         if camera_cut or self.history is None or self.size != (w, h):
             self.history = None
         with t("warp"):
@@ -159,7 +165,6 @@ class Pipeline:
         with t("reformat"):
             self.history = np.concatenate([filtered[n] for n in HISTORY_LAYERS]).astype(np.float32, copy=False)
             self.size = (w, h)
-            s = self.scale
-            result = np.ascontiguousarray(out[:, :h * s, :w * s].transpose(1, 2, 0), np.float32)
+            result = to_hwc(out, h * self.scale, w * self.scale)
         t.ms["total"] = sum(t.ms.values())
         return result, t.ms

@@ -108,3 +108,33 @@ def test_fp16_filter_stays_close_to_fp32():
     f16 = N.filter_path(x.astype(np.float16), x.astype(np.float16), h16(native), [h16(lv) for lv in levels])
     assert f16.dtype == np.float16
     np.testing.assert_allclose(f16.astype(np.float32), f32, rtol=1e-2, atol=1e-2)
+
+
+
+def _taps(a, k):
+    """The numpy formula: shifted views of the edge-padded image, taps summed in order."""
+    h, w = a.shape[1:]
+    p = np.pad(a, ((0, 0), (1, 1), (1, 1)), mode="edge")
+    out = p[:, :h, :w] * k[0]
+    for i in range(1, 9):
+        out = out + p[:, i // 3:i // 3 + h, i % 3:i % 3 + w] * k[i]
+    return out
+
+
+@pytest.mark.parametrize("h,w", [(1, 1), (7, 5), (33, 17), (8, 6)])
+def test_fused_float32_loops_equal_numpy_formulas(h, w):
+    """The numba loops of the float32 path compute the numpy formulas in the same
+    order: bit-equal results, borders included."""
+    x, hist = (RNG.exponential(size=(3, h, w)).astype(np.float32) for _ in range(2))
+    ks, kt = _kernel(h, w), _kernel(h, w)
+    blend = RNG.random((1, h, w), dtype=np.float32)
+    np.testing.assert_array_equal(N.apply_kernel(x, ks), _taps(x, ks))
+    s, t = _taps(x, ks), _taps(hist, kt)
+    np.testing.assert_array_equal(N.spatiotemporal(x, hist, ks, kt, blend), np.maximum(s + blend * (t - s), 0))
+    skip = RNG.random((3, 2 * h, 2 * w), dtype=np.float32)
+    k2, b2 = _kernel(2 * h, 2 * w), RNG.random((1, 2 * h, 2 * w), dtype=np.float32)
+    u = _taps(N.upsample(x), k2)
+    np.testing.assert_array_equal(N.up_level(skip, x, k2, b2), np.maximum(skip + b2 * (u - skip), 0))
+    if h % 2 == 0 and w % 2 == 0:
+        np.testing.assert_allclose(N.down_level(x, ks[:, ::2, ::2].copy()),
+                                   np.maximum(_taps(N.downsample(x), ks[:, ::2, ::2]), 0), rtol=1e-6)
