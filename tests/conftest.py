@@ -49,3 +49,25 @@ def make_sequence(tmp_path):
         return path, ins, refs
 
     return make
+
+
+@pytest.fixture(scope="session")
+def tiny_artifacts(tmp_path_factory):
+    """fp32 artifacts of a randomly initialized `tiny` model (heads perturbed away from the
+    identity init so every path matters), and the model."""
+    import torch
+
+    from jnds_deploy.export import ExportConfig, export
+    from jnds_deploy.model import JNDS, ModelConfig
+
+    d = tmp_path_factory.mktemp("artifacts")
+    torch.manual_seed(1)
+    model = JNDS(ModelConfig.preset("tiny"))
+    for name, p in model.named_parameters():
+        if "head" in name:
+            p.data += 0.3 * torch.randn_like(p)
+    ckpt = d / "tiny.pt"
+    torch.save({"model": model.state_dict(), "model_config": model.cfg.__dict__, "train_config": {},
+                "quantized": False, "quant_ranges": None, "state": {}}, ckpt)
+    export(ExportConfig(checkpoint=str(ckpt), out=str(d / "a")), log=lambda s: None)
+    return d / "a", model

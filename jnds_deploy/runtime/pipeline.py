@@ -31,6 +31,32 @@ class ArtifactError(JndsError):
     """The artifact directory is missing files or has an unsupported manifest."""
 
 
+class FrameError(JndsError):
+    """A frame handed to the pipeline lacks a layer or has the wrong shape."""
+
+
+INPUT_CHANNELS = dict(CURRENT, motion=2)
+
+
+def check_layers(layers: dict) -> tuple[int, int]:
+    """The frame's (H, W), or FrameError naming the missing or misshapen layer."""
+    missing = [n for n in INPUT_CHANNELS if n not in layers]
+    if missing:
+        raise FrameError(f"frame: missing layer(s) {', '.join(missing)}")
+    h, w = np.shape(layers["diffuse"])[:2]
+    for n, c in INPUT_CHANNELS.items():
+        shape = np.shape(layers[n])
+        if len(shape) != 3 or shape[2] != c:
+            raise FrameError(f"frame: layer {n!r} has shape {shape}, expected (H, W, {c})")
+        if shape[:2] != (h, w):
+            raise FrameError(f"frame: layer {n!r} is {shape[1]}x{shape[0]}, diffuse is {w}x{h}")
+        if np.asarray(layers[n]).dtype.kind != "f":
+            raise FrameError(f"frame: layer {n!r} has dtype {np.asarray(layers[n]).dtype}, expected float")
+    if h < 1 or w < 1:
+        raise FrameError(f"frame: empty image {w}x{h}")
+    return h, w
+
+
 @dataclass(frozen=True)
 class PipelineConfig:
     artifacts: str
@@ -103,6 +129,7 @@ class Pipeline:
         # called as on_feeds(graph name, {input name: array}) before every graph runs:
         # how calibration records the inputs the network really sees, history included
         self.on_feeds = None
+        self.nonfinite: dict[str, int] = {}  # per input layer, NaN/Inf met in the last frame
         self.reset()
 
     def reset(self) -> None:
@@ -111,11 +138,13 @@ class Pipeline:
 
     def __call__(self, layers: dict, camera_cut: bool = False) -> tuple[np.ndarray, dict[str, float]]:
         t = Timer()
-        h, w = layers["diffuse"].shape[:2]
+        h, w = check_layers(layers)
         with t("reformat"):
+            # NaN/Inf replaced and counted, values clamped into range (reformat.LIMITS)
+            self.nonfinite: dict[str, int] = {}
             padded = (h + (-h) % self.multiple, w + (-w) % self.multiple)
-            current = to_chw([layers[n] for n, _ in CURRENT], padded)
-            motion = to_chw([layers["motion"]], padded)
+            current = to_chw(layers, [n for n, _ in CURRENT], padded, self.nonfinite)
+            motion = to_chw(layers, ["motion"], padded, self.nonfinite)
         if camera_cut or self.history is None or self.size != (w, h):
             self.history = None
         with t("warp"):
@@ -166,5 +195,10 @@ class Pipeline:
             self.history = np.concatenate([filtered[n] for n in HISTORY_LAYERS]).astype(np.float32, copy=False)
             self.size = (w, h)
             result = to_hwc(out, h * self.scale, w * self.scale)
+            # last line of defence: nothing non-finite reaches the history or the output
+            for name, a in (("history", self.history), ("output", result)):
+                if not np.isfinite(a).all():
+                    self.nonfinite[name] = int(a.size - np.isfinite(a).sum())
+                    np.nan_to_num(a, copy=False, nan=0.0, posinf=F.HDR_MAX, neginf=0.0)
         t.ms["total"] = sum(t.ms.values())
         return result, t.ms

@@ -37,11 +37,12 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
     pipe = Pipeline(cfg)
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
-    frames, scores = [], []
+    frames, scores, nonfinite = [], [], []
     for i in tqdm(range(len(seq)), desc=f"run {seq.path.name}", unit="frame", disable=not progress):
         color, ms = pipe(seq.inputs(i), seq.frames[i].camera_cut)
         write_exr(out / f"{i:04d}.exr", {"color": color}, OUTPUT_LAYERS)
         frames.append(ms)
+        nonfinite.append(dict(pipe.nonfinite))
         if metrics and seq.has_reference:
             from ..metrics import flip, psnr
 
@@ -57,6 +58,8 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
         "frames": len(seq),
         "median_ms": {k: float(np.median([f.get(k, 0.0) for f in frames])) for k in stages},
         "frame_ms": frames,
+        # NaN/Inf values replaced per frame and input layer (only layers that had any)
+        "nonfinite": nonfinite,
     }
     if scores:
         report["metrics"] = {"psnr": float(np.mean([s["psnr"] for s in scores])),

@@ -3,28 +3,16 @@ import numpy as np
 import pytest
 import torch
 
-from jnds_deploy.export import ExportConfig, export
 from jnds_deploy.io import open_sequence
-from jnds_deploy.model import JNDS, ModelConfig
-from jnds_deploy.runtime.pipeline import ArtifactError, Pipeline, PipelineConfig
+from jnds_deploy.runtime.pipeline import ArtifactError, FrameError, Pipeline, PipelineConfig
 from jnds_deploy.train import infer_sequence, load_sequence
 
 from ..conftest import SAMPLE
 
 
 @pytest.fixture(scope="module")
-def artifacts(tmp_path_factory):
-    d = tmp_path_factory.mktemp("artifacts")
-    torch.manual_seed(1)
-    model = JNDS(ModelConfig.preset("tiny"))
-    for name, p in model.named_parameters():  # away from the identity init, so every path matters
-        if "head" in name:
-            p.data += 0.3 * torch.randn_like(p)
-    ckpt = d / "tiny.pt"
-    torch.save({"model": model.state_dict(), "model_config": model.cfg.__dict__, "train_config": {},
-                "quantized": False, "quant_ranges": None, "state": {}}, ckpt)
-    export(ExportConfig(checkpoint=str(ckpt), out=str(d / "a")), log=lambda s: None)
-    return d / "a", model
+def artifacts(tiny_artifacts):
+    return tiny_artifacts
 
 
 def test_pipeline_matches_torch_over_a_sequence(artifacts):
@@ -92,3 +80,36 @@ def test_jnds_run_writes_frames_and_report(artifacts, tmp_path):
     from jnds_deploy.io import OUTPUT_LAYERS, read_layers
     frame = read_layers(out / "0007.exr", (320, 180), OUTPUT_LAYERS)["color"]
     assert np.isfinite(frame).all() and (frame >= 0).all()
+
+
+@pytest.mark.parametrize("layer", ["diffuse", "specular", "albedo", "normal", "roughness", "motion"])
+def test_nonfinite_inputs_are_replaced_and_counted(artifacts, layer):
+    """NaN/Inf in any layer, on one pixel or the whole frame: replaced, counted, and the
+    output and history stay finite and non-negative frame after frame."""
+    path, _ = artifacts
+    seq = open_sequence(SAMPLE)
+    pipe = Pipeline(PipelineConfig(artifacts=str(path)))
+    for i, bad in enumerate([np.nan, np.inf, -np.inf, "frame"]):
+        layers = {k: v.copy() for k, v in seq.inputs(i).items()}
+        if bad == "frame":
+            layers[layer][:] = np.nan
+            expected = layers[layer].size
+        else:
+            layers[layer][5, 7, 0] = bad
+            expected = 1
+        out, _ = pipe(layers)
+        assert pipe.nonfinite == {layer: expected}, (bad, pipe.nonfinite)
+        assert np.isfinite(out).all() and out.min() >= 0
+        assert np.isfinite(pipe.history).all()
+
+
+def test_frame_errors_name_the_layer(artifacts):
+    path, _ = artifacts
+    layers = open_sequence(SAMPLE).inputs(0)
+    pipe = Pipeline(PipelineConfig(artifacts=str(path)))
+    with pytest.raises(FrameError, match="missing layer.*motion"):
+        pipe({k: v for k, v in layers.items() if k != "motion"})
+    with pytest.raises(FrameError, match="'albedo' is 80x90, diffuse is 160x90"):
+        pipe({**layers, "albedo": layers["albedo"][:, :80]})
+    with pytest.raises(FrameError, match="'normal' has shape"):
+        pipe({**layers, "normal": layers["normal"][..., :2]})
