@@ -137,6 +137,19 @@ def cmd_run(args) -> int:
     return 0
 
 
+def cmd_serve(args) -> int:
+    import logging
+
+    from .serve import ServeConfig, serve
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    cfg = ServeConfig(artifacts=args.artifacts, host=args.host, port=args.port, precision=args.precision,
+                      threads=args.threads, workers=args.workers, queue=args.queue,
+                      max_streams=args.max_streams, idle_timeout=args.idle_timeout)
+    serve(cfg, ready=lambda h, p: print(f"jnds serve: listening on http://{h}:{p}", flush=True))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .render.camera import CAMERA_PATHS
     from .render.scene import SCENE_KINDS
@@ -213,6 +226,18 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--checkpoint", default=None, help="PyTorch reference for validation (default: the manifest's)")
     c.add_argument("--threads", type=int, default=2)
     c.set_defaults(func=cmd_calibrate)
+
+    sv = sub.add_parser("serve", help="serve frame streams over HTTP (protocol: jnds_deploy/serve/server.py)")
+    sv.add_argument("--artifacts", required=True)
+    sv.add_argument("--host", default="127.0.0.1")
+    sv.add_argument("--port", type=int, default=8765, help="0 picks a free port")
+    sv.add_argument("--precision", default="int8", choices=("int8", "fp32"))
+    sv.add_argument("--threads", type=int, default=2, help="ONNX Runtime threads per graph run")
+    sv.add_argument("--workers", type=int, default=1, help="frames processed at once, over all streams")
+    sv.add_argument("--queue", type=int, default=2, help="frames waiting per stream before 429")
+    sv.add_argument("--max-streams", type=int, default=64)
+    sv.add_argument("--idle-timeout", type=float, default=300.0, help="seconds before an idle stream is closed")
+    sv.set_defaults(func=cmd_serve)
 
     rn = sub.add_parser("run", help="denoise and upsample a sequence with the exported pipeline")
     rn.add_argument("--artifacts", required=True)

@@ -66,22 +66,43 @@ def read_exr(path: str | Path) -> dict[str, np.ndarray]:
     path = Path(path)
     if not path.is_file():
         raise ExrReadError(path, "file does not exist")
+    return _read_exr(str(path), path)
+
+
+def read_exr_bytes(data: bytes, name: str = "<frame>") -> dict[str, np.ndarray]:
+    """``read_exr`` of an EXR file held in memory (a request body); ``name`` for errors."""
+    import io
+
+    return _read_exr(io.BytesIO(data), name)
+
+
+def _read_exr(source, name) -> dict[str, np.ndarray]:
     try:
-        exr = OpenEXR.File(str(path), separate_channels=True)
+        exr = OpenEXR.File(source, separate_channels=True)
         channels = exr.channels()
         out = {}
-        for name, ch in channels.items():
+        for cname, ch in channels.items():
             px = ch.pixels
             if px.dtype not in (np.float16, np.float32):
                 raise ExrReadError(
-                    path, f"channel {name!r} is stored as {px.dtype}, expected half or float"
+                    name, f"channel {cname!r} is stored as {px.dtype}, expected half or float"
                 )
-            out[name] = px.astype(np.float32, copy=False)
+            out[cname] = px.astype(np.float32, copy=False)
     except ExrReadError:
         raise
     except Exception as exc:  # OpenEXR raises RuntimeError for truncated/corrupt files
-        raise ExrReadError(path, f"unreadable or truncated OpenEXR file ({exc})") from exc
+        raise ExrReadError(name, f"unreadable or truncated OpenEXR file ({exc})") from exc
     return out
+
+
+def exr_bytes(layers: Mapping[str, np.ndarray], suffixes: Mapping[str, tuple[str, ...]],
+              half: set[str] = frozenset(), compression=None) -> bytes:
+    """``write_exr`` into memory; ``compression`` an ``OpenEXR`` constant (default ZIP)."""
+    import io
+
+    buf = io.BytesIO()
+    _exr_file(layers, suffixes, half, compression).write(buf)
+    return buf.getvalue()
 
 
 def read_layers(
@@ -91,12 +112,26 @@ def read_layers(
     optional: Mapping[str, tuple[str, ...]] = {},
 ) -> Layers:
     """Read an EXR file into named HWC float32 layers, checking channels and size (W, H)."""
-    raw = read_exr(path)
+    return channels_to_layers(read_exr(path), path, size, required, optional)
+
+
+def channels_to_layers(
+    raw: dict[str, np.ndarray],
+    path: str | Path,
+    size: tuple[int, int] | None,
+    required: Mapping[str, tuple[str, ...]],
+    optional: Mapping[str, tuple[str, ...]] = {},
+) -> Layers:
+    """EXR channels into named HWC layers, checking channels and size (W, H); ``size``
+    None takes the size of the first required channel. ``path`` names the file in errors."""
     missing = [
         c for layer, sfx in required.items() for c in channel_names(layer, sfx) if c not in raw
     ]
     if missing:
         raise ChannelError(path, f"missing channel(s) {', '.join(missing)}")
+    if size is None:
+        first = channel_names(*next(iter(required.items())))[0]
+        size = raw[first].shape[::-1]
     w, h = size
     layers: Layers = {}
     for layer, sfx in {**required, **optional}.items():
@@ -121,6 +156,12 @@ def write_exr(path: str | Path, layers: Mapping[str, np.ndarray],
     range so nothing becomes Inf); the others as 32-bit float.
     """
     path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    _exr_file(layers, suffixes, half).write(str(tmp))
+    os.replace(tmp, path)
+
+
+def _exr_file(layers, suffixes, half, compression=None) -> OpenEXR.File:
     channels = {}
     for layer, arr in layers.items():
         arr = np.asarray(arr)
@@ -136,10 +177,9 @@ def write_exr(path: str | Path, layers: Mapping[str, np.ndarray],
             else:
                 c = c.astype(np.float32)
             channels[n] = np.ascontiguousarray(c)
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    tmp = path.with_name(f".{path.name}.tmp")
-    OpenEXR.File(header, channels).write(str(tmp))
-    os.replace(tmp, path)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION if compression is None else compression,
+              "type": OpenEXR.scanlineimage}
+    return OpenEXR.File(header, channels)
 
 
 # ---------------------------------------------------------------------------------------

@@ -15,6 +15,18 @@ if [ ! -e /usr/lib/x86_64-linux-gnu/libLLVM-19.so ]; then
   fi
 fi
 
+# GNU OpenMP: numba's thread-safe threading layer (the server runs frames of several
+# streams at once; numba's default layer aborts on concurrent parallel calls)
+if [ ! -e /usr/lib/x86_64-linux-gnu/libgomp.so.1 ]; then
+  if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+    echo "setup: installing libgomp1 (numba's thread-safe threading layer)"
+    apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends libgomp1 >/dev/null
+  else
+    echo "setup: warning: libgomp.so.1 missing and apt-get unavailable; numba's parallel loops will fail" >&2
+  fi
+fi
+
 if [ ! -x .venv/bin/python ]; then
   "${PYTHON:-python3}" -m venv .venv
 fi

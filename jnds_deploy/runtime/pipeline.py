@@ -11,6 +11,7 @@ odd sizes are padded (edge replicate) to the network's multiple and cropped back
 """
 from __future__ import annotations
 
+import copy
 import json
 import time
 from contextlib import contextmanager
@@ -131,6 +132,15 @@ class Pipeline:
         self.on_feeds = None
         self.nonfinite: dict[str, int] = {}  # per input layer, NaN/Inf met in the last frame
         self.reset()
+
+    def fork(self) -> "Pipeline":
+        """Another pipeline over the same ONNX Runtime sessions (their ``run`` is
+        thread-safe) with its own history: one per stream in ``jnds serve``."""
+        other = copy.copy(self)
+        other.on_feeds = None
+        other.nonfinite = {}
+        other.reset()
+        return other
 
     def reset(self) -> None:
         self.history: np.ndarray | None = None  # (12, Hp, Wp) filtered outputs of the last frame

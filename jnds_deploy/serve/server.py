@@ -1,0 +1,441 @@
+"""``jnds serve``: a long-running ONNX Runtime loop serving frame streams over HTTP.
+
+The artifacts are loaded once; every stream gets its own recurrent history
+(``Pipeline.fork``: same sessions, own state). Frames of one stream run in arrival
+order, one at a time; frames of different streams run concurrently on a bounded pool of
+``workers``. Each stream queues at most ``queue`` frames and the server holds at most
+``max_streams`` streams: beyond that a request is refused at once (429 / 503 with
+``Retry-After``) instead of piling up in memory. The protocol is in ``PROTOCOL``
+(``jnds_deploy/serve/__init__.py`` re-exports it; the README shows a render loop).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import threading
+import time
+import uuid
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from urllib.parse import parse_qs, urlsplit
+
+import numpy as np
+import OpenEXR
+
+from ..errors import JndsError
+from ..io import INPUT_LAYERS, OPTIONAL_INPUT_LAYERS, OUTPUT_LAYERS, channels_to_layers, exr_bytes, read_exr_bytes
+from ..runtime.pipeline import INPUT_CHANNELS, Pipeline, PipelineConfig
+
+log = logging.getLogger("jnds.serve")
+
+PROTOCOL = """\
+HTTP/1.1, JSON for control, OpenEXR for frames (any language with an EXR writer can talk):
+
+  POST   /streams                        -> 201 {"stream": ID, "scale": 2, ...}
+  POST   /streams/ID/frames[?cut=1]      body: one frame as an EXR file with the input
+                                         channels of jnds-sequence/1 (diffuse.R/G/B,
+                                         specular.R/G/B, albedo.R/G/B, normal.X/Y/Z,
+                                         roughness, motion.X/Y; half or float);
+                                         cut=1 marks a camera cut (history reset)
+                                         -> 200 EXR with color.R/G/B (float32, uncompressed)
+                                            at scale x the input size; headers
+                                            X-JNDS-Frame (index in the stream),
+                                            X-JNDS-Timings (JSON, ms per stage),
+                                            X-JNDS-Nonfinite (JSON, NaN/Inf replaced per layer)
+  POST   /streams/ID/reset               -> 200 (history dropped, as on a cut)
+  DELETE /streams/ID                     -> 200
+  GET    /streams/ID                     -> 200 {"frames": n, "queued": q, ...}
+  GET    /health                         -> 200 {"status": "ok" | "closing", ...}
+  GET    /metrics                        -> 200 JSON: frames, errors, queue depth,
+                                            latency percentiles per stage, memory
+Errors: JSON {"error": message, "kind": type}. 400 bad frame (message names the
+channel, layer or value), 404 unknown stream (closed, or idle longer than the timeout),
+411/413 missing or too large body, 429 the stream's queue is full, 503 too many streams
+(429 and this 503 carry Retry-After in seconds) or shutting down (no Retry-After).
+"""
+
+
+@dataclass(frozen=True)
+class ServeConfig:
+    artifacts: str
+    host: str = "127.0.0.1"
+    port: int = 8765
+    precision: str = "int8"
+    threads: int = 2  # ONNX Runtime intra-op threads per graph run
+    workers: int = 1  # frames processed at once, over all streams
+    queue: int = 2  # frames waiting per stream (beyond the one running) before 429
+    max_streams: int = 64
+    idle_timeout: float = 300.0  # seconds without a request before a stream is closed
+    max_frame_bytes: int = 512 << 20
+    max_nonfinite: float = 0.5  # a layer with more NaN/Inf than this fraction: 400 (a NaN flood)
+
+
+class BadRequest(JndsError):
+    def __init__(self, status: int, message: str, retry_after: float | None = None):
+        self.status, self.retry_after = status, retry_after
+        super().__init__(message)
+
+
+class Stream:
+    def __init__(self, pipe: Pipeline):
+        self.id = uuid.uuid4().hex[:16]
+        self.pipe = pipe
+        self.jobs: deque = deque()
+        self.running = False
+        self.frames = 0
+        self.errors = 0
+        self.last_used = time.monotonic()
+        self.closed = False
+
+
+class Metrics:
+    """Counters and a window of the last ``window`` frames' stage timings."""
+
+    def __init__(self, window: int = 2000):
+        self.lock = threading.Lock()
+        self.frames = 0
+        self.errors: dict[str, int] = {}
+        self.timings: deque = deque(maxlen=window)
+        self.started = time.time()
+
+    def frame(self, ms: dict) -> None:
+        with self.lock:
+            self.frames += 1
+            self.timings.append(ms)
+
+    def error(self, kind: str) -> None:
+        with self.lock:
+            self.errors[kind] = self.errors.get(kind, 0) + 1
+
+    def snapshot(self) -> dict:
+        with self.lock:
+            timings = list(self.timings)
+            out = {"frames_served": self.frames, "errors": dict(self.errors),
+                   "uptime_s": round(time.time() - self.started, 3)}
+        stages = sorted({k for t in timings for k in t})
+        out["latency_ms"] = {k: {f"p{q}": float(np.percentile([t.get(k, 0.0) for t in timings], q))
+                                 for q in (50, 90, 99)} for k in stages}
+        out["latency_window"] = len(timings)
+        return out
+
+
+def _rss_bytes() -> int | None:
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except OSError:
+        return None
+
+
+class FrameServer:
+    """The server's state and work: streams, the worker pool, metrics. The HTTP layer
+    (``_Handler``) only parses requests and calls these methods."""
+
+    def __init__(self, cfg: ServeConfig):
+        self.cfg = cfg
+        self.base = Pipeline(PipelineConfig(artifacts=cfg.artifacts, precision=cfg.precision, threads=cfg.threads))
+        # warm-up: compiles the numba loops and lets ONNX Runtime allocate, so the first
+        # client frame is not the slow one (0.7 s instead of 30 ms at 160x90, measured)
+        w = self.base.multiple
+        self.base.fork()({n: np.zeros((w, w, c), np.float32) for n, c in INPUT_CHANNELS.items()})
+        self.pool = ThreadPoolExecutor(max_workers=cfg.workers, thread_name_prefix="jnds-worker")
+        self.streams: dict[str, Stream] = {}
+        self.lock = threading.Lock()
+        self.metrics = Metrics()
+        self.closing = False
+        self.inflight = 0  # requests being handled (graceful shutdown waits for 0)
+        self.idle = threading.Event()
+        self.idle.set()
+        self._reaper = threading.Thread(target=self._reap, name="jnds-reaper", daemon=True)
+        self._reaper.start()
+
+    # streams ------------------------------------------------------------------------
+
+    def open_stream(self) -> Stream:
+        with self.lock:
+            if self.closing:
+                raise BadRequest(503, "server is shutting down")
+            if len(self.streams) >= self.cfg.max_streams:
+                raise BadRequest(503, f"too many open streams ({self.cfg.max_streams}); close one first",
+                                 retry_after=1.0)
+            s = Stream(self.base.fork())
+            self.streams[s.id] = s
+        log.info("stream %s opened (%d open)", s.id, len(self.streams))
+        return s
+
+    def stream(self, sid: str) -> Stream:
+        with self.lock:
+            s = self.streams.get(sid)
+        if s is None:
+            raise BadRequest(404, f"stream {sid!r} is not open (closed, or idle longer than "
+                                  f"{self.cfg.idle_timeout:g} s)")
+        s.last_used = time.monotonic()
+        return s
+
+    def close_stream(self, sid: str) -> None:
+        with self.lock:
+            s = self.streams.pop(sid, None)
+        if s is None:
+            raise BadRequest(404, f"stream {sid!r} is not open")
+        s.closed = True
+        log.info("stream %s closed after %d frames", sid, s.frames)
+
+    def reset_stream(self, sid: str) -> None:
+        s = self.stream(sid)
+        # through the stream's queue, so it lands between the frames sent before and after
+        self._submit(s, None).result()
+
+    def _reap(self) -> None:
+        while True:
+            time.sleep(max(0.05, min(self.cfg.idle_timeout / 4, 5.0)))
+            now = time.monotonic()
+            with self.lock:
+                stale = [s for s in self.streams.values()
+                         if now - s.last_used > self.cfg.idle_timeout and not s.jobs and not s.running]
+                for s in stale:
+                    del self.streams[s.id]
+                    s.closed = True
+            for s in stale:
+                log.info("stream %s closed: idle for more than %g s", s.id, self.cfg.idle_timeout)
+
+    # frames -------------------------------------------------------------------------
+
+    def decode(self, body: bytes) -> dict:
+        """An EXR request body into the pipeline's layers, or BadRequest naming the problem."""
+        try:
+            raw = read_exr_bytes(body, "request body")
+            layers = channels_to_layers(raw, "request body", None, INPUT_LAYERS, OPTIONAL_INPUT_LAYERS)
+        except JndsError as exc:
+            raise BadRequest(400, str(exc)) from exc
+        for name, a in layers.items():
+            bad = a.size - int(np.count_nonzero(np.isfinite(a)))
+            if bad > self.cfg.max_nonfinite * a.size:
+                raise BadRequest(400, f"request body: layer {name!r} has {bad} of {a.size} values NaN or Inf "
+                                      f"(more than {self.cfg.max_nonfinite:.0%}); frame refused, stream unchanged")
+        return layers
+
+    def denoise(self, sid: str, layers: dict, cut: bool) -> tuple[np.ndarray, dict, dict, int]:
+        """Queue one frame on its stream and wait for it: (colour HWC, ms per stage,
+        non-finite counts, index of the frame in the stream)."""
+        s = self.stream(sid)
+        t0 = time.perf_counter()
+        result = self._submit(s, (layers, cut, t0)).result()
+        return result
+
+    def _submit(self, s: Stream, job) -> Future:
+        fut: Future = Future()
+        with self.lock:
+            if self.closing and job is not None:
+                raise BadRequest(503, "server is shutting down")
+            if s.closed:
+                raise BadRequest(404, f"stream {s.id!r} is not open")
+            if len(s.jobs) + (1 if s.running else 0) > self.cfg.queue:
+                raise BadRequest(429, f"stream {s.id}: {len(s.jobs)} frame(s) already queued "
+                                      f"(limit {self.cfg.queue}); send the next frame after a response",
+                                 retry_after=0.05)
+            s.jobs.append((job, fut))
+            start = not s.running
+            s.running = True
+        if start:
+            self.pool.submit(self._drain, s)
+        return fut
+
+    def _drain(self, s: Stream) -> None:
+        """Run a stream's queued jobs in order (one worker per stream at a time)."""
+        while True:
+            with self.lock:
+                if not s.jobs:
+                    s.running = False
+                    return
+                job, fut = s.jobs.popleft()
+            if job is None:  # reset
+                s.pipe.reset()
+                fut.set_result(None)
+                continue
+            layers, cut, t0 = job
+            try:
+                queued = 1000 * (time.perf_counter() - t0)
+                color, ms = s.pipe(layers, cut)
+                ms = {**ms, "queue": queued, "server": 1000 * (time.perf_counter() - t0)}
+                s.frames += 1
+                s.last_used = time.monotonic()
+                self.metrics.frame(ms)
+                fut.set_result((color, ms, dict(s.pipe.nonfinite), s.frames - 1))
+            except JndsError as exc:  # a frame the pipeline refuses: the stream goes on
+                s.errors += 1
+                fut.set_exception(BadRequest(400, str(exc)))
+            except Exception as exc:  # a bug: drop this stream's history, keep serving
+                log.exception("stream %s: frame failed", s.id)
+                s.errors += 1
+                s.pipe.reset()
+                fut.set_exception(exc)
+
+    # status -------------------------------------------------------------------------
+
+    def health(self) -> dict:
+        return {"status": "closing" if self.closing else "ok", "streams": len(self.streams),
+                "artifacts": self.cfg.artifacts, "precision": self.cfg.precision,
+                "graphs": dict(self.base.graph_precision), "scale": self.base.scale}
+
+    def snapshot(self) -> dict:
+        with self.lock:
+            queued = sum(len(s.jobs) for s in self.streams.values())
+            running = sum(1 for s in self.streams.values() if s.running)
+            streams = len(self.streams)
+        return {**self.metrics.snapshot(), "streams_open": streams, "queue_depth": queued,
+                "streams_running": running, "requests_in_flight": self.inflight,
+                "rss_bytes": _rss_bytes(), "workers": self.cfg.workers}
+
+    def begin_request(self) -> None:
+        with self.lock:
+            self.inflight += 1
+            self.idle.clear()
+
+    def end_request(self) -> None:
+        with self.lock:
+            self.inflight -= 1
+            if self.inflight == 0:
+                self.idle.set()
+
+    def close(self, timeout: float = 60.0) -> None:
+        """Refuse new work, let queued and running frames finish and their responses be
+        written, then stop the workers."""
+        with self.lock:
+            self.closing = True
+        self.idle.wait(timeout)
+        self.pool.shutdown(wait=True)
+
+
+class _Handler(BaseHTTPRequestHandler):
+    protocol_version = "HTTP/1.1"
+    server_version = "jnds-serve"
+    frames: FrameServer  # set on the subclass made by make_http_server
+
+    def log_message(self, fmt, *args):  # access log at debug level, not on stderr
+        log.debug("%s %s", self.address_string(), fmt % args)
+
+    def _send(self, status: int, body: bytes, ctype: str, headers: dict | None = None) -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        for k, v in (headers or {}).items():
+            self.send_header(k, v)
+        self.end_headers()
+        self.wfile.write(body)
+
+    def _json(self, status: int, obj, headers: dict | None = None) -> None:
+        self._send(status, json.dumps(obj).encode(), "application/json", headers)
+
+    def _error(self, exc: BadRequest) -> None:
+        kind = type(exc.__cause__).__name__ if exc.__cause__ else HTTPStatus(exc.status).phrase
+        self.frames.metrics.error(str(exc.status))
+        headers = {"Retry-After": f"{exc.retry_after:g}"} if exc.retry_after is not None else {}
+        if exc.status in (411, 413):  # the unread body makes the connection unusable
+            headers["Connection"] = "close"
+            self.close_connection = True
+        self._json(exc.status, {"error": str(exc), "kind": kind}, headers)
+
+    def _body(self) -> bytes:
+        n = self.headers.get("Content-Length")
+        if n is None:
+            raise BadRequest(411, "Content-Length required")
+        n = int(n)
+        if n > self.frames.cfg.max_frame_bytes:
+            raise BadRequest(413, f"body of {n} bytes exceeds the limit of {self.frames.cfg.max_frame_bytes}")
+        return self.rfile.read(n)
+
+    def _route(self, method: str) -> None:
+        fs = self.frames
+        fs.begin_request()
+        try:
+            url = urlsplit(self.path)
+            parts = [p for p in url.path.split("/") if p]
+            if method == "GET" and parts == ["health"]:
+                return self._json(200, fs.health())
+            if method == "GET" and parts == ["metrics"]:
+                return self._json(200, fs.snapshot())
+            if method == "POST" and parts == ["streams"]:
+                if self.headers.get("Content-Length"):
+                    self._body()
+                s = fs.open_stream()
+                return self._json(201, {"stream": s.id, "scale": fs.base.scale,
+                                        "precision": fs.cfg.precision, "idle_timeout_s": fs.cfg.idle_timeout})
+            if len(parts) >= 2 and parts[0] == "streams":
+                sid = parts[1]
+                if method == "POST" and parts[2:] == ["frames"]:
+                    body = self._body()
+                    cut = parse_qs(url.query).get("cut", ["0"])[0] not in ("0", "false", "")
+                    fs.stream(sid)  # 404 before decoding a body for nothing
+                    color, ms, nonfinite, index = fs.denoise(sid, fs.decode(body), cut)
+                    out = exr_bytes({"color": color}, OUTPUT_LAYERS, compression=OpenEXR.NO_COMPRESSION)
+                    return self._send(200, out, "image/x-exr", {
+                        "X-JNDS-Frame": str(index), "X-JNDS-Timings": json.dumps({k: round(v, 3) for k, v in ms.items()}),
+                        "X-JNDS-Nonfinite": json.dumps(nonfinite)})
+                if method == "POST" and parts[2:] == ["reset"]:
+                    fs.reset_stream(sid)
+                    return self._json(200, {"stream": sid, "reset": True})
+                if method == "DELETE" and parts[2:] == []:
+                    fs.close_stream(sid)
+                    return self._json(200, {"stream": sid, "closed": True})
+                if method == "GET" and parts[2:] == []:
+                    s = fs.stream(sid)
+                    return self._json(200, {"stream": sid, "frames": s.frames, "errors": s.errors,
+                                            "queued": len(s.jobs), "running": s.running})
+            raise BadRequest(404, f"no such endpoint: {method} {url.path}")
+        except BadRequest as exc:
+            self._error(exc)
+        except (BrokenPipeError, ConnectionResetError):
+            self.close_connection = True
+        except Exception as exc:  # never let a request kill the server
+            log.exception("%s %s failed", method, self.path)
+            self._error(BadRequest(500, f"internal error: {type(exc).__name__}: {exc}"))
+        finally:
+            fs.end_request()
+
+    def do_GET(self):
+        self._route("GET")
+
+    def do_POST(self):
+        self._route("POST")
+
+    def do_DELETE(self):
+        self._route("DELETE")
+
+
+def make_http_server(frames: FrameServer) -> ThreadingHTTPServer:
+    handler = type("Handler", (_Handler,), {"frames": frames})
+    httpd = ThreadingHTTPServer((frames.cfg.host, frames.cfg.port), handler)
+    httpd.daemon_threads = True  # idle keep-alive connections do not hold up shutdown
+    return httpd
+
+
+def serve(cfg: ServeConfig, ready=None) -> None:
+    """Run until SIGINT/SIGTERM, then shut down gracefully. ``ready(host, port)`` is
+    called once the socket listens."""
+    import signal
+
+    frames = FrameServer(cfg)
+    httpd = make_http_server(frames)
+    host, port = httpd.server_address[:2]
+    stop = threading.Event()
+
+    def on_signal(signum, _frame):
+        log.info("signal %d: finishing in-flight frames", signum)
+        stop.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
+    thread = threading.Thread(target=httpd.serve_forever, kwargs={"poll_interval": 0.1}, daemon=True)
+    thread.start()
+    log.info("serving %s (%s) on http://%s:%d", cfg.artifacts, cfg.precision, host, port)
+    if ready:
+        ready(host, port)
+    stop.wait()
+    frames.close()  # refuse new frames, wait for requests in flight
+    httpd.shutdown()
+    httpd.server_close()
+    log.info("stopped after %d frames", frames.metrics.frames)

@@ -1,0 +1,211 @@
+"""`jnds serve` over real HTTP on loopback: round trip against `jnds run`, separate
+histories, bad requests, stream control, shutdown."""
+import threading
+import time
+
+import numpy as np
+import OpenEXR
+import pytest
+
+from jnds_deploy.io import INPUT_LAYERS, exr_bytes, open_sequence, read_exr
+from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
+from jnds_deploy.runtime.run import run_sequence
+from jnds_deploy.serve import Client, FrameServer, ServeConfig, ServerError, make_http_server
+from jnds_deploy.serve.server import BadRequest
+
+from ..conftest import SAMPLE
+
+
+@pytest.fixture
+def server(tiny_artifacts):
+    """Start a server on a free loopback port; yields a function making (url, FrameServer)
+    for a config, shuts everything down afterwards."""
+    started = []
+
+    def start(**kw):
+        cfg = ServeConfig(artifacts=str(tiny_artifacts[0]), port=0, precision="fp32", **kw)
+        fs = FrameServer(cfg)
+        httpd = make_http_server(fs)
+        threading.Thread(target=httpd.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True).start()
+        started.append((fs, httpd))
+        return f"http://127.0.0.1:{httpd.server_address[1]}", fs
+
+    yield start
+    for fs, httpd in started:
+        fs.close(timeout=10)
+        httpd.shutdown()
+        httpd.server_close()
+
+
+def _frames():
+    seq = open_sequence(SAMPLE)
+    return [(seq.inputs(i), seq.frames[i].camera_cut) for i in range(len(seq))]
+
+
+def test_stream_round_trip_equals_jnds_run(server, tiny_artifacts, tmp_path):
+    url, _ = server()
+    run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0])), SAMPLE, tmp_path / "run", progress=False,
+                 metrics=False)
+    client = Client(url)
+    assert client.health()["status"] == "ok"
+    with client.open_stream() as stream:
+        for i, (layers, cut) in enumerate(_frames()):
+            got = stream.denoise(layers, cut)
+            want = read_exr(tmp_path / "run" / f"{i:04d}.exr")
+            # float32 EXR both ways: the server computes exactly what `jnds run` does
+            np.testing.assert_array_equal(got, np.stack([want[f"color.{c}"] for c in "RGB"], -1))
+            assert stream.frame_index == i and stream.timings["total"] > 0
+    m = client.metrics()
+    assert m["frames_served"] == 8 and m["streams_open"] == 0 and m["latency_ms"]["total"]["p50"] > 0
+
+
+def test_concurrent_streams_keep_separate_histories(server, tiny_artifacts):
+    url, _ = server(workers=2)
+    frames = _frames()
+    orders = {"forward": frames, "backward": frames[::-1]}
+    want = {}
+    for name, fr in orders.items():
+        pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0])))
+        want[name] = [pipe(layers, False)[0] for layers, _ in fr]
+    got, errors = {}, []
+
+    def run(name):
+        try:
+            with Client(url).open_stream() as s:
+                got[name] = [s.denoise(layers) for layers, _ in orders[name]]
+        except Exception as exc:  # surfaced below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=run, args=(n,)) for n in orders]
+    [t.start() for t in threads]
+    [t.join(60) for t in threads]
+    assert not errors, errors
+    for name in orders:
+        for g, w in zip(got[name], want[name]):
+            np.testing.assert_array_equal(g, w)
+
+
+def _exr(layers, drop=(), uint=None):
+    suffixes = {k: v for k, v in INPUT_LAYERS.items() if k not in drop}
+    body = exr_bytes({k: layers[k] for k in suffixes}, suffixes, compression=OpenEXR.NO_COMPRESSION)
+    if uint:  # the same file with one channel stored as 32-bit unsigned int
+        import io
+        f = OpenEXR.File(io.BytesIO(body), separate_channels=True)
+        ch = {k: c.pixels for k, c in f.channels().items()}
+        ch[uint] = ch[uint].astype(np.uint32)
+        buf = io.BytesIO()
+        OpenEXR.File({"compression": OpenEXR.NO_COMPRESSION, "type": OpenEXR.scanlineimage}, ch).write(buf)
+        body = buf.getvalue()
+    return body
+
+
+def test_bad_frames_get_clear_errors_and_the_stream_goes_on(server, tiny_artifacts):
+    url, _ = server()
+    frames = _frames()
+    pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0])))
+    client = Client(url)
+    stream = client.open_stream()
+    other = client.open_stream()
+    flood = {**frames[1][0], "specular": np.full_like(frames[1][0]["specular"], np.nan)}
+    bad = [(b"not an exr at all", "unreadable or truncated OpenEXR"),
+           (_exr(frames[1][0], drop=("motion",)), "missing channel\\(s\\) motion.X, motion.Y"),
+           (_exr(frames[1][0], uint="roughness"), "channel 'roughness' is stored as uint32, expected half or float"),
+           (_exr(flood), "layer 'specular' has 43200 of 43200 values NaN or Inf")]
+    for i, (layers, cut) in enumerate(frames[:4]):
+        want, _ = pipe(layers, cut)
+        body, message = bad[i]
+        with pytest.raises(ServerError, match=message) as exc:
+            stream.denoise_exr(body)
+        assert exc.value.status == 400
+        # the refused frame left the history alone: this one matches the plain pipeline
+        np.testing.assert_array_equal(stream.denoise(layers, cut), want)
+        other.denoise(layers, cut)
+    # a few NaN pixels are not a flood: replaced, counted, output finite
+    spotty = {k: v.copy() for k, v in frames[4][0].items()}
+    spotty["diffuse"][3, 4, :] = np.nan
+    out = stream.denoise(spotty)
+    assert stream.nonfinite == {"diffuse": 3} and np.isfinite(out).all()
+    with pytest.raises(ServerError, match="is not open") as exc:
+        Client(url)._json("GET", "/streams/nosuchstream")
+    assert exc.value.status == 404
+    with pytest.raises(ServerError, match="no such endpoint"):
+        Client(url)._json("GET", "/nothing")
+    m = client.metrics()
+    assert m["errors"] == {"400": 4, "404": 2} and m["streams_open"] == 2
+
+
+def test_stream_control_reset_resize_idle(server, tiny_artifacts):
+    url, fs = server(idle_timeout=0.3)
+    frames = _frames()
+    pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0])))
+    stream = Client(url).open_stream()
+    stream.denoise(frames[0][0])
+    stream.denoise(frames[1][0])
+    stream.reset()  # as a camera cut: the next frame starts without history
+    np.testing.assert_array_equal(stream.denoise(frames[2][0]), pipe(frames[2][0], camera_cut=True)[0])
+    small = {k: np.ascontiguousarray(v[:45, :70]) for k, v in frames[3][0].items()}
+    out = stream.denoise(small)  # a resolution change resets history too
+    assert out.shape == (90, 140, 3)
+    np.testing.assert_array_equal(out, pipe(small, camera_cut=True)[0])
+    time.sleep(1.0)  # idle longer than the timeout: closed by the reaper
+    with pytest.raises(ServerError, match="not open") as exc:
+        stream.denoise(frames[4][0])
+    assert exc.value.status == 404 and not fs.streams
+
+
+def test_queue_limit_refuses_instead_of_buffering(server):
+    _, fs = server(queue=0, max_streams=1)
+    s = fs.open_stream()
+    with pytest.raises(BadRequest, match="too many open streams") as exc:
+        fs.open_stream()
+    assert exc.value.status == 503
+    s.running = True  # as while a frame of this stream is being processed
+    with pytest.raises(BadRequest, match="already queued") as exc:
+        fs.denoise(s.id, _frames()[0][0], False)
+    assert exc.value.status == 429 and exc.value.retry_after > 0 and not s.jobs
+    s.running = False
+
+
+def test_shutdown_finishes_in_flight_frames(server):
+    url, fs = server()
+    frames = _frames()
+    stream = Client(url).open_stream()
+    results, errors = [], []
+
+    def send():
+        try:
+            for layers, _ in frames[:4]:
+                results.append(stream.denoise(layers))
+        except ServerError as exc:
+            errors.append(exc)
+
+    t = threading.Thread(target=send)
+    t.start()
+    while not results:
+        time.sleep(0.005)
+    fs.close(timeout=30)  # refuses new frames, waits for the ones in flight
+    t.join(30)
+    assert not t.is_alive() and fs.pool._shutdown
+    # every frame sent either came back whole or was refused with 503; none got lost
+    assert all(r.shape == (180, 320, 3) and np.isfinite(r).all() for r in results)
+    assert len(results) == 4 or (len(errors) == 1 and errors[0].status == 503), (len(results), errors)
+
+
+def test_jnds_serve_command_serves_and_stops_on_sigterm(tiny_artifacts):
+    import signal
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "jnds_deploy", "serve", "--artifacts", str(tiny_artifacts[0]),
+                             "--port", "0", "--precision", "fp32"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("jnds serve: listening on http://127.0.0.1:"), (line, proc.stderr.read())
+        with Client(line.split()[-1]).open_stream() as stream:
+            assert stream.denoise(_frames()[0][0]).shape == (180, 320, 3)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(30) == 0
+        assert "stopped after 1 frames" in proc.stderr.read()
+    finally:
+        proc.kill()
