@@ -26,6 +26,12 @@ from . import filters as F
 from .reformat import to_chw, to_hwc
 
 HISTORY_LAYERS = ("diffuse", "specular", "albedo", "normal")
+RADIANCE = ("diffuse", "specular")
+# the float16 filter stage filters radiance at most this bright; brighter frames are scaled
+# down by a power of two (exact in floating point) and back up after filtering. 65504 (the
+# largest half) / 32: headroom for the kernels' gain (diffuse/specular weights are in
+# [-1, 1], 9 taps per filter)
+FP16_SAFE_MAX = 2048.0
 
 
 class ArtifactError(JndsError):
@@ -133,6 +139,16 @@ class Pipeline:
         self.nonfinite: dict[str, int] = {}  # per input layer, NaN/Inf met in the last frame
         self.reset()
 
+    def _radiance_scale(self, current: np.ndarray, warped: np.ndarray) -> float:
+        """1, or for the float16 filter stage a power of two bringing the frame's radiance
+        (current and history) under FP16_SAFE_MAX."""
+        if self.dtype != np.float16:
+            return 1.0
+        peak = max(float(current[:6].max()), float(warped[:6].max()))
+        if peak <= FP16_SAFE_MAX:
+            return 1.0
+        return float(2.0 ** -np.ceil(np.log2(peak / FP16_SAFE_MAX)))
+
     def fork(self) -> "Pipeline":
         """Another pipeline over the same ONNX Runtime sessions (their ``run`` is
         thread-safe) with its own history: one per stream in ``jnds serve``."""
@@ -171,10 +187,14 @@ class Pipeline:
         with t("network"):
             outs = self.sessions["network"].run(None, feeds)
         with t("reformat"):
+            rs = self._radiance_scale(current, warped)
             net = {n: o[0].astype(self.dtype, copy=False) for n, o in zip(self.net_outputs, outs)}
-            cur = {n: current[i:i + c].astype(self.dtype, copy=False)
-                   for (n, c), i in zip(CURRENT, np.cumsum([0] + [c for _, c in CURRENT]))}
-            hist = {n: warped[3 * i:3 * i + 3].astype(self.dtype, copy=False) for i, n in enumerate(HISTORY_LAYERS)}
+
+            def part(a, name):  # a layer in the filter stage's dtype (radiance scaled)
+                return (a * rs if rs != 1 and name in RADIANCE else a).astype(self.dtype, copy=False)
+
+            cur = {n: part(current[i:i + c], n) for (n, c), i in zip(CURRENT, np.cumsum([0] + [c for _, c in CURRENT]))}
+            hist = {n: part(warped[3 * i:3 * i + 3], n) for i, n in enumerate(HISTORY_LAYERS)}
         filtered = {}
         for path in ("diffuse", "specular"):
             with t(f"filter_{path}"):
@@ -191,7 +211,7 @@ class Pipeline:
         with t("composite"):
             comp = F.composite(filtered["albedo"], filtered["diffuse"], filtered["specular"])
         if self.scale > 1:
-            feeds = {"composite": comp[None].astype(np.float32, copy=False),
+            feeds = {"composite": (comp[None] / rs if rs != 1 else comp[None]).astype(np.float32, copy=False),
                      "features": net["features"][None].astype(np.float32, copy=False)}
             if self.on_feeds:
                 self.on_feeds("upsample", feeds)
@@ -203,6 +223,9 @@ class Pipeline:
             out = comp
         with t("reformat"):
             self.history = np.concatenate([filtered[n] for n in HISTORY_LAYERS]).astype(np.float32, copy=False)
+            if rs != 1:
+                self.history[:6] /= rs
+                out = out.astype(np.float32) / rs
             self.size = (w, h)
             result = to_hwc(out, h * self.scale, w * self.scale)
             # last line of defence: nothing non-finite reaches the history or the output

@@ -1,0 +1,209 @@
+"""Numerical stability and bad input: extreme values, broken motion, odd sizes, fp16
+limits, fuzzed files and frames. Each case states its expectation. Long runs and
+larger fuzzing budgets are in benchmarks/stability.py."""
+import json
+
+import numpy as np
+import OpenEXR
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from jnds_deploy.errors import ExrReadError, JndsError, SequenceError
+from jnds_deploy.io import INPUT_LAYERS, exr_bytes, open_sequence, read_exr, read_exr_bytes
+from jnds_deploy.runtime.pipeline import INPUT_CHANNELS, Pipeline, PipelineConfig
+from jnds_deploy.runtime.run import run_sequence
+
+from ..conftest import SAMPLE, random_inputs
+
+FUZZ = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+@pytest.fixture(scope="module")
+def pipes(tiny_artifacts):
+    a = str(tiny_artifacts[0])
+    return {"float32": Pipeline(PipelineConfig(artifacts=a)),
+            "float16": Pipeline(PipelineConfig(artifacts=a, filter_dtype="float16"))}
+
+
+def _ok(out, shape=None):
+    """The invariant of every case: finite, non-negative, the right size."""
+    assert np.isfinite(out).all() and out.min() >= 0
+    if shape:
+        assert out.shape == shape
+
+
+def _sample(i=0):
+    return {k: v.copy() for k, v in open_sequence(SAMPLE).inputs(i).items()}
+
+
+@pytest.mark.parametrize("case", ["tiny", "huge", "beyond_clamp", "log_uniform"])
+def test_extreme_radiance(pipes, case):
+    """Radiance from 1e-8 to 1e6 and beyond the clamp: output finite and non-negative;
+    beyond 65535 the input is clamped, so 1e6 and 1e30 give the same output."""
+    rng = np.random.default_rng(1)
+    pipe = pipes["float32"]
+    layers = _sample()
+    shape = layers["diffuse"].shape
+    value = {"tiny": 1e-8, "huge": 1e6, "beyond_clamp": 1e30}.get(case)
+    for k in ("diffuse", "specular"):
+        layers[k] = (np.full(shape, value, np.float32) if value else
+                     (10.0 ** rng.uniform(-8, 6, shape)).astype(np.float32))
+    out, _ = pipe(layers, camera_cut=True)
+    _ok(out, (180, 320, 3))
+    if case == "beyond_clamp":
+        clamped = {**layers, "diffuse": np.full(shape, 65535, np.float32), "specular": np.full(shape, 65535, np.float32)}
+        np.testing.assert_array_equal(out, pipe(clamped, camera_cut=True)[0])
+
+
+def test_zero_constant_and_black_albedo(pipes):
+    """All-zero radiance gives exactly zero (every filter is linear in radiance); a
+    constant frame and black albedo give finite, non-negative output."""
+    pipe = pipes["float32"]
+    layers = _sample()
+    zero = {**layers, "diffuse": np.zeros_like(layers["diffuse"]), "specular": np.zeros_like(layers["specular"])}
+    for i in range(3):  # with history too
+        out, _ = pipe(zero, camera_cut=i == 0)
+        assert not out.any()
+    const = {k: np.full_like(v, 0.5) for k, v in layers.items()}
+    const["motion"][:] = 0
+    for i in range(3):
+        _ok(pipe(const, camera_cut=i == 0)[0])
+    black = {**layers, "albedo": np.zeros_like(layers["albedo"])}
+    _ok(pipe(black, camera_cut=True)[0])
+
+
+@pytest.mark.parametrize("motion", ["huge", "offscreen", "nan", "disocclusion"])
+def test_broken_motion_vectors(pipes, motion):
+    """Motion of 1e9 px, pointing off screen, NaN, or random per pixel (every pixel
+    disoccluded): history is resampled at the border or not at all; output finite."""
+    pipe = pipes["float32"]
+    pipe(_sample(0), camera_cut=True)
+    layers = _sample(1)
+    m = layers["motion"]
+    rng = np.random.default_rng(2)
+    m[:] = {"huge": 1e9, "offscreen": -500.0, "nan": np.nan}.get(motion, 0.0)
+    if motion == "disocclusion":
+        m[:] = rng.normal(scale=40, size=m.shape)
+    out, _ = pipe(layers)
+    _ok(out, (180, 320, 3))
+    if motion == "nan":
+        assert pipe.nonfinite == {"motion": m.size}
+
+
+@pytest.mark.parametrize("w,h", [(1, 1), (7, 5), (33, 17), (1921, 1081)])
+def test_odd_sizes(pipes, w, h):
+    """Padded to the network's multiple and cropped back; two frames so history is used."""
+    rng = np.random.default_rng(3)
+    pipe = pipes["float32"]
+    for i in range(2):
+        layers = random_inputs(rng, w, h)
+        out, _ = pipe(layers, camera_cut=i == 0)
+        _ok(out, (2 * h, 2 * w, 3))
+
+
+def test_fp16_filter_stage_does_not_overflow(pipes):
+    """Radiance up to and beyond 65504 (the largest half): the float16 filter stage
+    scales such frames by a power of two, filters, scales back. Without that, the
+    specular input alone would be Inf in half precision. Output stays within 1% (mean)
+    of the float32 filter stage."""
+    layers = _sample(2)
+    for peak in (6.0e4, 65535.0, 1e6):
+        bright = {**layers, "specular": layers["specular"] * np.float32(peak / layers["specular"].max())}
+        with np.errstate(over="ignore"):  # what half precision would hold
+            naive = np.minimum(bright["specular"], 65535).astype(np.float16)
+        assert np.isinf(naive).any() == (peak > 65504)
+        f32, _ = pipes["float32"](bright, camera_cut=True)
+        f16, _ = pipes["float16"](bright, camera_cut=True)
+        _ok(f16)
+        assert np.abs(f16 - f32).mean() < 0.01 * np.abs(f32).mean(), peak
+
+
+@FUZZ
+@given(data=st.data())
+def test_any_finite_input_gives_finite_nonnegative_output(pipes, data):
+    """The property: any finite float32 input, any size, output finite and >= 0."""
+    pipe = pipes["float32"]
+    h = data.draw(st.integers(1, 12), label="h")
+    w = data.draw(st.integers(1, 12), label="w")
+    elements = st.floats(width=32, allow_nan=False, allow_infinity=False)  # all finite float32
+    layers = {n: data.draw(hnp.arrays(np.float32, (h, w, c), elements=elements), label=n)
+              for n, c in INPUT_CHANNELS.items()}
+    for cut in (True, False):  # the second frame warps the first one's history
+        out, _ = pipe(layers, camera_cut=cut)
+        _ok(out, (2 * h, 2 * w, 3))
+        assert np.isfinite(pipe.history).all()
+
+
+@FUZZ
+@given(cut=st.integers(0, 10_000), flips=st.lists(st.tuples(st.integers(0, 10_000), st.integers(0, 255)),
+                                                   max_size=8))
+def test_fuzzed_exr_bytes_read_or_raise_exr_error(cut, flips):
+    """Truncated and byte-flipped EXR files: read, or ExrReadError naming the file;
+    never another exception (and never a crash of the OpenEXR library)."""
+    rng = np.random.default_rng(0)
+    layers = random_inputs(rng, 9, 7)
+    data = bytearray(exr_bytes({k: layers[k] for k in INPUT_LAYERS}, INPUT_LAYERS))
+    data = data[:cut % (len(data) + 1)]
+    for pos, val in flips:
+        if data:
+            data[pos % len(data)] = val
+    try:
+        channels = read_exr_bytes(bytes(data), "fuzzed.exr")
+    except ExrReadError as exc:
+        assert "fuzzed.exr" in str(exc)
+    else:
+        assert all(c.dtype == np.float32 for c in channels.values())
+
+
+@FUZZ
+@given(key=st.sampled_from(["format", "native_size", "target_size", "frame_count", "frames", "scale"]),
+       value=st.recursive(st.none() | st.booleans() | st.integers(-10, 10) | st.floats(allow_nan=True) | st.text(max_size=5),
+                          lambda kids: st.lists(kids, max_size=3) | st.dictionaries(st.text(max_size=5), kids, max_size=3),
+                          max_leaves=6))
+def test_fuzzed_sequence_json_opens_or_raises_sequence_error(make_sequence, key, value):
+    """Any JSON value for any key of sequence.json: the sequence opens, or a
+    SequenceError names sequence.json; never another exception."""
+    path, _, _ = make_sequence()
+    meta = json.loads((path / "sequence.json").read_text())
+    meta[key] = value
+    (path / "sequence.json").write_text(json.dumps(meta))
+    try:
+        seq = open_sequence(path)
+        seq.inputs(0)
+    except SequenceError as exc:
+        assert exc.path.name in ("sequence.json", "0000.exr", "inputs", "reference"), exc
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "missing_channel", "uint"])
+def test_jnds_run_stops_at_a_bad_frame_keeping_what_it_wrote(tiny_artifacts, tmp_path, damage):
+    """A broken frame mid-sequence: a clear error naming the file; the frames written
+    before it are complete and equal to a clean run's; no temporary files left."""
+    import shutil
+
+    seq = tmp_path / "seq"
+    shutil.copytree(SAMPLE, seq)
+    bad = seq / "inputs" / "0005.exr"
+    data = bad.read_bytes()
+    if damage == "truncate":
+        bad.write_bytes(data[: len(data) // 3])
+    elif damage == "garbage":
+        bad.write_bytes(b"\x76\x2f\x31\x01" + b"\x00" * 200)  # EXR magic, then nothing sensible
+    else:
+        ch = read_exr(bad)
+        if damage == "missing_channel":
+            del ch["normal.Y"]
+        else:
+            ch["roughness"] = ch["roughness"].astype(np.uint32)
+        OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, ch).write(str(bad))
+    cfg = PipelineConfig(artifacts=str(tiny_artifacts[0]))
+    with pytest.raises(JndsError, match="0005.exr") as exc:
+        run_sequence(cfg, seq, tmp_path / "out", progress=False, metrics=False)
+    assert isinstance(exc.value, SequenceError)
+    run_sequence(cfg, SAMPLE, tmp_path / "clean", progress=False, metrics=False)
+    written = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert written == [f"{i:04d}.exr" for i in range(5)], written
+    for name in written:
+        a, b = read_exr(tmp_path / "out" / name), read_exr(tmp_path / "clean" / name)
+        assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
