@@ -42,6 +42,9 @@ from jnds_deploy.io import INPUT_LAYERS, exr_bytes, find_sequences, open_sequenc
 from jnds_deploy.runtime.pipeline import INPUT_CHANNELS, Pipeline, PipelineConfig  # noqa: E402
 
 
+STEADY_LOOPS = 10
+
+
 def tonemapped_psnr(a: np.ndarray, b: np.ndarray) -> float:
     ta, tb = np.log1p(np.maximum(a, 0)), np.log1p(np.maximum(b, 0))
     mse = float(np.mean((ta - tb) ** 2))
@@ -53,18 +56,22 @@ def long_run(pipe: Pipeline, seq, frames: int) -> dict:
     inputs = [seq.inputs(i) for i in range(len(seq))]
     refs = [seq.reference(i)["color"].mean() for i in range(len(seq))]
     pipe.reset()
-    ratio, hist_max = [], 0.0
+    ratio, hist_max, rejected = [], 0.0, 0
     for t in range(frames):
         i = t % len(seq)
-        out, _ = pipe(inputs[i], camera_cut=t == 0)
-        ratio.append(float(out.mean() / refs[i]))
+        # the sequence's own cuts are flagged in every loop; the loop seam is not
+        out, _ = pipe(inputs[i], camera_cut=t == 0 or seq.frames[i].camera_cut)
+        ratio.append(float(np.mean(out, dtype=np.float64) / refs[i]))
         hist_max = max(hist_max, float(pipe.history[:6].max()))
+        rejected += pipe.rejected
         assert np.isfinite(out).all()
     r = np.array(ratio)
-    slope = float(np.polyfit(np.arange(frames), r, 1)[0]) * 1000
     n = len(seq)
+    steady = STEADY_LOOPS * n  # the recurrence settles within a few loops; drift is measured after
+    slope = float(np.polyfit(np.arange(steady, frames), r[steady:], 1)[0]) * 1000
     return {"sequence": seq.path.name, "frames": frames, "ratio": ratio, "drift_per_1000": slope,
-            "first_loop_ratio": float(r[:n].mean()), "last_loop_ratio": float(r[-n:].mean()),
+            "first_loop_ratio": float(r[:n].mean()), "steady_ratio": float(r[steady:steady + n].mean()),
+            "last_loop_ratio": float(r[-n:].mean()), "rejected_tiles": rejected,
             "history_max": hist_max, "output_ratio_min": float(r.min()), "output_ratio_max": float(r.max())}
 
 
@@ -206,13 +213,22 @@ def write_markdown(r: dict, out: Path, args) -> None:
           "overflow, the finite-output property, fuzzed EXR and sequence.json, broken frames in `jnds run`) and "
           "`tests/runtime/test_pipeline.py` (NaN/Inf per layer, cuts, resolution changes).", "",
           f"## 1. Long runs ({args.long_frames} frames per validation sequence, looped, seams not flagged as cuts, int8)",
-          "", "Checks: output finite every frame; brightness against the reference does not drift; history bounded.",
-          "", "| sequence | drift of out/ref brightness per 1000 frames | first loop | last loop | min–max | max history radiance |",
-          "| --- | ---: | ---: | ---: | ---: | ---: |"]
+          "", "Checks: output finite every frame; brightness (mean output / mean reference) does not drift; history "
+          f"bounded. Drift: least-squares slope of the brightness ratio per 1000 frames, after the first "
+          f"{STEADY_LOOPS} loops (the recurrence settles to its steady state within them); the ratio in the first "
+          f"loop, in loop {STEADY_LOOPS + 1} and in the last loop; history tiles restarted by the rejection test.",
+          "", "| sequence | drift per 1000 frames | first loop | loop 11 | last loop | min–max | max history radiance "
+          "| rejected tiles |", "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for x in r["long"]:
         md.append(f"| {x['sequence']} | {x['drift_per_1000']:+.4f} | {x['first_loop_ratio']:.4f} | "
-                  f"{x['last_loop_ratio']:.4f} | {x['output_ratio_min']:.3f}–{x['output_ratio_max']:.3f} | "
-                  f"{x['history_max']:.1f} |")
+                  f"{x['steady_ratio']:.4f} | {x['last_loop_ratio']:.4f} | {x['output_ratio_min']:.3f}–"
+                  f"{x['output_ratio_max']:.3f} | {x['history_max']:.1f} | {x['rejected_tiles']} |")
+    md += ["", "Before the history rejection test (`REJECT_RATIO` in `jnds_deploy/runtime/pipeline.py`), the same "
+           "run grew without bound on procedural-dolly-2001 (brightness ratio 7.4e4 at frame 100, 6.4e17 at 300, "
+           "history radiance 7.9e37) and procedural-static-2000 (static camera: 23 at frame 300, Inf by 1000, "
+           "history 6.9e37): the shipped checkpoint's temporal kernels sum to about 2.3 with blend weights about "
+           "0.7, and the 6-frame training unrolls never saw the loop gain exceed 1. The test rejects nothing on "
+           "the 12-frame validation sequences (outputs unchanged)."]
     md += ["", "Plot: `stability_drift.png` (output/reference mean brightness per frame).", "",
            "## 2. int8 outside the calibration range", "",
            "Checks: int8 against fp32 as the input radiance is scaled beyond what calibration saw (x1).", "",

@@ -32,6 +32,15 @@ RADIANCE = ("diffuse", "specular")
 # largest half) / 32: headroom for the kernels' gain (diffuse/specular weights are in
 # [-1, 1], 9 taps per filter)
 FP16_SAFE_MAX = 2048.0
+# history rejection: a tile of REJECT_TILE^2 pixels whose warped history (diffuse or
+# specular) is brighter than REJECT_RATIO x (the current frame's tile mean + REJECT_FLOOR x
+# the current frame's mean) restarts from the current frame, as after a cut. The shipped
+# checkpoint's recurrence has a loop gain above 1 in places (temporal kernels summing to
+# ~2.3, trained on 6-frame unrolls): without this, 2 of 6 validation sequences looped to
+# 1000 frames grew without bound (benchmarks/results/stability.md)
+REJECT_TILE = 32
+REJECT_RATIO = 8.0
+REJECT_FLOOR = 0.1
 
 
 class ArtifactError(JndsError):
@@ -81,6 +90,25 @@ class PipelineConfig:
             raise ValueError(f"precision must be fp32 or int8, got {self.precision!r}")
         if self.filter_dtype not in ("float32", "float16"):
             raise ValueError(f"filter_dtype must be float32 or float16, got {self.filter_dtype!r}")
+
+
+def reject_history(current: np.ndarray, warped: np.ndarray) -> int:
+    """Restart (in place) the tiles of the warped history that are far brighter than the
+    current frame (see REJECT_RATIO); returns how many tiles."""
+    import cv2
+
+    h, w = current.shape[1:]
+    size = (-(-w // REJECT_TILE), -(-h // REJECT_TILE))
+    bad = np.zeros(size[::-1], bool)
+    for c in (0, 3):  # diffuse, specular
+        cur = current[c:c + 3].sum(0)
+        cur_tiles = cv2.resize(cur, size, interpolation=cv2.INTER_AREA)
+        his_tiles = cv2.resize(warped[c:c + 3].sum(0), size, interpolation=cv2.INTER_AREA)
+        bad |= his_tiles > REJECT_RATIO * (cur_tiles + REJECT_FLOOR * float(cur.mean()))
+    if bad.any():
+        mask = np.repeat(np.repeat(bad, REJECT_TILE, 0), REJECT_TILE, 1)[:h, :w]
+        warped[:, mask] = current[:12, mask]
+    return int(bad.sum())
 
 
 class Timer:
@@ -137,6 +165,7 @@ class Pipeline:
         # how calibration records the inputs the network really sees, history included
         self.on_feeds = None
         self.nonfinite: dict[str, int] = {}  # per input layer, NaN/Inf met in the last frame
+        self.rejected = 0  # history tiles restarted from the current frame in the last frame
         self.reset()
 
     def _radiance_scale(self, current: np.ndarray, warped: np.ndarray) -> float:
@@ -173,14 +202,16 @@ class Pipeline:
             motion = to_chw(layers, ["motion"], padded, self.nonfinite)
         if camera_cut or self.history is None or self.size != (w, h):
             self.history = None
+        self.rejected = 0
         with t("warp"):
             if self.history is None:
                 warped = current[:12].copy()
             else:
                 warped = F.warp(self.history, motion)
-                np.maximum(warped[:9], 0.0, out=warped[:9])
+                np.clip(warped[:6], 0.0, F.HDR_MAX, out=warped[:6])
                 np.clip(warped[6:9], 0.0, 1.0, out=warped[6:9])
                 np.clip(warped[9:12], -1.0, 1.0, out=warped[9:12])
+                self.rejected = reject_history(current, warped)
         feeds = {"current": current[None], "history": warped[None]}
         if self.on_feeds:
             self.on_feeds("network", feeds)

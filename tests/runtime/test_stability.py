@@ -207,3 +207,21 @@ def test_jnds_run_stops_at_a_bad_frame_keeping_what_it_wrote(tiny_artifacts, tmp
     for name in written:
         a, b = read_exr(tmp_path / "out" / name), read_exr(tmp_path / "clean" / name)
         assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_history_rejection_restarts_only_runaway_tiles():
+    """A history tile far brighter than the current frame restarts from it; a history
+    in line with the current frame is left alone (bit for bit)."""
+    from jnds_deploy.runtime.pipeline import REJECT_TILE, reject_history
+
+    rng = np.random.default_rng(4)
+    h, w = 2 * REJECT_TILE, 3 * REJECT_TILE
+    current = rng.exponential(size=(16, h, w)).astype(np.float32)
+    history = current[:12] * rng.uniform(0.5, 2.0, size=(12, h, w)).astype(np.float32)
+    kept = history.copy()
+    assert reject_history(current, kept) == 0 and np.array_equal(kept, history)
+    runaway = history.copy()
+    runaway[3:6, REJECT_TILE:, :REJECT_TILE] *= 1e4  # specular, one tile
+    assert reject_history(current, runaway) == 1
+    np.testing.assert_array_equal(runaway[:, REJECT_TILE:, :REJECT_TILE], current[:12, REJECT_TILE:, :REJECT_TILE])
+    np.testing.assert_array_equal(runaway[:, :REJECT_TILE], history[:, :REJECT_TILE])

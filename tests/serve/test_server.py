@@ -134,8 +134,8 @@ def test_bad_frames_get_clear_errors_and_the_stream_goes_on(server, tiny_artifac
     assert m["errors"] == {"400": 4, "404": 2} and m["streams_open"] == 2
 
 
-def test_stream_control_reset_resize_idle(server, tiny_artifacts):
-    url, fs = server(idle_timeout=0.3)
+def test_stream_control_reset_resize(server, tiny_artifacts):
+    url, fs = server()
     frames = _frames()
     pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0])))
     stream = Client(url).open_stream()
@@ -147,10 +147,19 @@ def test_stream_control_reset_resize_idle(server, tiny_artifacts):
     out = stream.denoise(small)  # a resolution change resets history too
     assert out.shape == (90, 140, 3)
     np.testing.assert_array_equal(out, pipe(small, camera_cut=True)[0])
-    time.sleep(1.0)  # idle longer than the timeout: closed by the reaper
+
+
+def test_idle_streams_are_closed(server):
+    url, fs = server(idle_timeout=0.3)
+    client = Client(url)
+    idle, busy = client.open_stream(), client.open_stream()
+    frame = _frames()[0][0]
+    t_end = time.monotonic() + 1.0
+    while time.monotonic() < t_end:  # one stream keeps sending, the other idles past the timeout
+        busy.denoise(frame)
     with pytest.raises(ServerError, match="not open") as exc:
-        stream.denoise(frames[4][0])
-    assert exc.value.status == 404 and not fs.streams
+        idle.denoise(frame)
+    assert exc.value.status == 404 and list(fs.streams) == [busy.id]
 
 
 def test_queue_limit_refuses_instead_of_buffering(server):
