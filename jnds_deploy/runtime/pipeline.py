@@ -32,9 +32,10 @@ RADIANCE = ("diffuse", "specular")
 # largest half) / 32: headroom for the kernels' gain (diffuse/specular weights are in
 # [-1, 1], 9 taps per filter)
 FP16_SAFE_MAX = 2048.0
-# history rejection: a tile of REJECT_TILE^2 pixels whose warped history (diffuse or
-# specular) is brighter than REJECT_RATIO x (the current frame's tile mean + REJECT_FLOOR x
-# the current frame's mean) restarts from the current frame, as after a cut. The shipped
+# history rejection: a tile of REJECT_TILE^2 pixels whose warped diffuse (or specular)
+# history is brighter than REJECT_RATIO x (the current frame's tile mean + REJECT_FLOOR x
+# the current frame's mean) restarts that signal from the current frame, as after a cut
+# (a signal that vanished from the whole frame, a light switched off, drops its history). The shipped
 # checkpoint's recurrence has a loop gain above 1 in places (temporal kernels summing to
 # ~2.3, trained on 6-frame unrolls): without this, 2 of 6 validation sequences looped to
 # 1000 frames grew without bound (benchmarks/results/stability.md)
@@ -84,6 +85,8 @@ class PipelineConfig:
     # slower on this CPU (1280x720 -> 2560x1440: 467 ms int8, 354 ms fp32, benchmarks/
     # results/timing.md): its 11-channel QLinearConv is 2x the fp32 Conv (ORT profiler)
     fp32_graphs: tuple[str, ...] = ("upsample",)
+    # skip work a frame does not need, where the result is the same (see Pipeline.decisions)
+    adaptive: bool = True
 
     def __post_init__(self):
         if self.precision not in ("fp32", "int8"):
@@ -93,22 +96,23 @@ class PipelineConfig:
 
 
 def reject_history(current: np.ndarray, warped: np.ndarray) -> int:
-    """Restart (in place) the tiles of the warped history that are far brighter than the
-    current frame (see REJECT_RATIO); returns how many tiles."""
+    """Restart (in place) the tiles of the warped diffuse or specular history that are far
+    brighter than the current frame there (see REJECT_RATIO); returns how many tiles."""
     import cv2
 
     h, w = current.shape[1:]
     size = (-(-w // REJECT_TILE), -(-h // REJECT_TILE))
-    bad = np.zeros(size[::-1], bool)
+    rejected = 0
     for c in (0, 3):  # diffuse, specular
         cur = current[c:c + 3].sum(0)
         cur_tiles = cv2.resize(cur, size, interpolation=cv2.INTER_AREA)
         his_tiles = cv2.resize(warped[c:c + 3].sum(0), size, interpolation=cv2.INTER_AREA)
-        bad |= his_tiles > REJECT_RATIO * (cur_tiles + REJECT_FLOOR * float(cur.mean()))
-    if bad.any():
-        mask = np.repeat(np.repeat(bad, REJECT_TILE, 0), REJECT_TILE, 1)[:h, :w]
-        warped[:, mask] = current[:12, mask]
-    return int(bad.sum())
+        bad = his_tiles > REJECT_RATIO * (cur_tiles + REJECT_FLOOR * float(cur.mean()))
+        if bad.any():
+            mask = np.repeat(np.repeat(bad, REJECT_TILE, 0), REJECT_TILE, 1)[:h, :w]
+            warped[c:c + 3, mask] = current[c:c + 3, mask]
+            rejected += int(bad.sum())
+    return rejected
 
 
 class Timer:
@@ -166,6 +170,11 @@ class Pipeline:
         self.on_feeds = None
         self.nonfinite: dict[str, int] = {}  # per input layer, NaN/Inf met in the last frame
         self.rejected = 0  # history tiles restarted from the current frame in the last frame
+        # what adaptive execution decided for the last frame (all False with adaptive off):
+        # static: zero motion everywhere, the history is used as it is (no resampling);
+        # skip_diffuse / skip_specular: that signal is zero in the frame and its history, so
+        # its filter path, whose output would be exactly zero, is not run
+        self.decisions: dict[str, bool] = {}
         self.reset()
 
     def _radiance_scale(self, current: np.ndarray, warped: np.ndarray) -> float:
@@ -203,11 +212,17 @@ class Pipeline:
         if camera_cut or self.history is None or self.size != (w, h):
             self.history = None
         self.rejected = 0
+        adaptive = self.cfg.adaptive
+        self.decisions = {"static": False, "skip_diffuse": False, "skip_specular": False}
         with t("warp"):
             if self.history is None:
                 warped = current[:12].copy()
             else:
-                warped = F.warp(self.history, motion)
+                if adaptive and not motion.any():  # bicubic resampling at zero motion is the identity
+                    self.decisions["static"] = True
+                    warped = self.history.copy()
+                else:
+                    warped = F.warp(self.history, motion)
                 np.clip(warped[:6], 0.0, F.HDR_MAX, out=warped[:6])
                 np.clip(warped[6:9], 0.0, 1.0, out=warped[6:9])
                 np.clip(warped[9:12], -1.0, 1.0, out=warped[9:12])
@@ -227,7 +242,11 @@ class Pipeline:
             cur = {n: part(current[i:i + c], n) for (n, c), i in zip(CURRENT, np.cumsum([0] + [c for _, c in CURRENT]))}
             hist = {n: part(warped[3 * i:3 * i + 3], n) for i, n in enumerate(HISTORY_LAYERS)}
         filtered = {}
-        for path in ("diffuse", "specular"):
+        for k, path in enumerate(("diffuse", "specular")):
+            if adaptive and not current[3 * k:3 * k + 3].any() and not warped[3 * k:3 * k + 3].any():
+                self.decisions[f"skip_{path}"] = True
+                filtered[path] = np.zeros_like(cur[path])
+                continue
             with t(f"filter_{path}"):
                 native = {k: net[f"{path}.{k}"] for k in ("spatial", "temporal", "blend", "up", "up_blend")
                           if f"{path}.{k}" in net}

@@ -37,12 +37,13 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
     pipe = Pipeline(cfg)
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
-    frames, scores, nonfinite = [], [], []
+    frames, scores, nonfinite, decisions = [], [], [], []
     for i in tqdm(range(len(seq)), desc=f"run {seq.path.name}", unit="frame", disable=not progress):
         color, ms = pipe(seq.inputs(i), seq.frames[i].camera_cut)
         write_exr(out / f"{i:04d}.exr", {"color": color}, OUTPUT_LAYERS)
         frames.append(ms)
         nonfinite.append(dict(pipe.nonfinite))
+        decisions.append({k: v for k, v in pipe.decisions.items() if v})
         if metrics and seq.has_reference:
             from ..metrics import flip, psnr
 
@@ -60,6 +61,8 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
         "frame_ms": frames,
         # NaN/Inf values replaced per frame and input layer (only layers that had any)
         "nonfinite": nonfinite,
+        # adaptive execution per frame: what was skipped (Pipeline.decisions)
+        "adaptive": cfg.adaptive, "decisions": decisions,
     }
     if scores:
         report["metrics"] = {"psnr": float(np.mean([s["psnr"] for s in scores])),
