@@ -31,11 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 from jnds_deploy.io import open_sequence  # noqa: E402
 from jnds_deploy.serve import Client  # noqa: E402
-
-
-def rss_mib(pid: int) -> float:
-    with open(f"/proc/{pid}/statm") as f:
-        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+from jnds_deploy.serve.server import rss_bytes  # noqa: E402
 
 
 class Sampler(threading.Thread):
@@ -48,7 +44,7 @@ class Sampler(threading.Thread):
 
     def run(self):
         while not self.stop.is_set():
-            self.samples.append((time.monotonic() - self.t0, rss_mib(self.pid)))
+            self.samples.append((time.monotonic() - self.t0, rss_bytes(self.pid) / 2**20))
             time.sleep(self.period)
 
 

@@ -5,27 +5,23 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 EXTRAS="${EXTRAS:-render,dev}"
 
-if [ ! -e /usr/lib/x86_64-linux-gnu/libLLVM-19.so ]; then
+# apt_install FILE PACKAGE WHY: install the Debian package if FILE is missing (root + apt only)
+apt_install() {
+  [ -e "$1" ] && return 0
   if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
-    echo "setup: installing libllvm19 (Mitsuba's llvm_ad_rgb backend)"
+    echo "setup: installing $2 ($3)"
     apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends libllvm19 >/dev/null
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "$2" >/dev/null
   else
-    echo "setup: warning: libLLVM-19 missing and apt-get unavailable; Mitsuba falls back to scalar_rgb (slow)" >&2
+    echo "setup: warning: $1 missing and apt-get unavailable: $3 will not work as intended" >&2
   fi
-fi
+}
 
-# GNU OpenMP: numba's thread-safe threading layer (the server runs frames of several
-# streams at once; numba's default layer aborts on concurrent parallel calls)
-if [ ! -e /usr/lib/x86_64-linux-gnu/libgomp.so.1 ]; then
-  if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
-    echo "setup: installing libgomp1 (numba's thread-safe threading layer)"
-    apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends libgomp1 >/dev/null
-  else
-    echo "setup: warning: libgomp.so.1 missing and apt-get unavailable; numba's parallel loops will fail" >&2
-  fi
-fi
+apt_install /usr/lib/x86_64-linux-gnu/libLLVM-19.so libllvm19 \
+  "Mitsuba's llvm_ad_rgb backend; without it the renderer falls back to slow scalar_rgb"
+# numba's thread-safe threading layer: the server runs frames of several streams at once,
+# and numba's default layer aborts on concurrent parallel calls
+apt_install /usr/lib/x86_64-linux-gnu/libgomp.so.1 libgomp1 "numba's thread-safe threading layer (GNU OpenMP)"
 
 if [ ! -x .venv/bin/python ]; then
   "${PYTHON:-python3}" -m venv .venv

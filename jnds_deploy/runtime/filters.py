@@ -15,8 +15,8 @@ around it (the lerp of the spatiotemporal filter and of the up levels, the ReLU,
 pooling) are single-pass loops compiled by numba and run over rows on all threads; the
 same sums in the same order as the numpy code (bit-equal, a test holds it). numpy
 makes ~36 passes over memory for one spatiotemporal filter where the fused loop makes
-one: at 1280x720 -> 2560x1440 the filter paths went from ~300 to ~45 ms each and the
-upsample filter from 345 to ~50 ms (`benchmarks/results/timing.md`). numba has no float16 arithmetic on the CPU,
+one: at 1280x720 -> 2560x1440 the filter paths went from ~300 to 43-47 ms each and the
+upsample filter from 345 to 53 ms (the timing report of commit fe226b2, a quiet machine). numba has no float16 arithmetic on the CPU,
 so float16 runs the numpy code, which rounds every operation to float16 as a GPU's half
 arithmetic would (and is slow: numpy emulates half precision).
 """

@@ -18,6 +18,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from ..errors import JndsError
@@ -34,9 +35,9 @@ RADIANCE = ("diffuse", "specular")
 FP16_SAFE_MAX = 2048.0
 # history rejection: a tile of REJECT_TILE^2 pixels whose warped diffuse (or specular)
 # history is brighter than REJECT_RATIO x (the current frame's tile mean + REJECT_FLOOR x
-# the current frame's mean) restarts that signal from the current frame, as after a cut
-# (a signal that vanished from the whole frame, a light switched off, drops its history). The shipped
-# checkpoint's recurrence has a loop gain above 1 in places (temporal kernels summing to
+# the current frame's mean) restarts that signal from the current frame, as after a cut (a
+# signal that vanished from the whole frame, a light switched off, drops its history). The
+# shipped checkpoint's recurrence has a loop gain above 1 in places (temporal kernels summing to
 # ~2.3, trained on 6-frame unrolls): without this, 2 of 6 validation sequences looped to
 # 1000 frames grew without bound (benchmarks/results/stability.md)
 REJECT_TILE = 32
@@ -62,13 +63,13 @@ def check_layers(layers: dict) -> tuple[int, int]:
         raise FrameError(f"frame: missing layer(s) {', '.join(missing)}")
     h, w = np.shape(layers["diffuse"])[:2]
     for n, c in INPUT_CHANNELS.items():
-        shape = np.shape(layers[n])
+        shape, dtype = np.shape(layers[n]), np.asarray(layers[n]).dtype
         if len(shape) != 3 or shape[2] != c:
             raise FrameError(f"frame: layer {n!r} has shape {shape}, expected (H, W, {c})")
         if shape[:2] != (h, w):
             raise FrameError(f"frame: layer {n!r} is {shape[1]}x{shape[0]}, diffuse is {w}x{h}")
-        if np.asarray(layers[n]).dtype.kind != "f":
-            raise FrameError(f"frame: layer {n!r} has dtype {np.asarray(layers[n]).dtype}, expected float")
+        if dtype.kind != "f":
+            raise FrameError(f"frame: layer {n!r} has dtype {dtype}, expected float")
     if h < 1 or w < 1:
         raise FrameError(f"frame: empty image {w}x{h}")
     return h, w
@@ -82,8 +83,8 @@ class PipelineConfig:
     threads: int = 2
     int8_method: str | None = None  # which calibration's int8 graphs; None: the last calibrated
     # graphs that stay fp32 when precision is int8. The upsample block's int8 graph is
-    # slower on this CPU (1280x720 -> 2560x1440: 467 ms int8, 354 ms fp32, benchmarks/
-    # results/timing.md): its 11-channel QLinearConv is 2x the fp32 Conv (ORT profiler)
+    # slower on this CPU (kernel at 2560x1440: 494 ms int8, 398 ms fp32 in benchmarks/
+    # results/calibration.md): its 11-channel QLinearConv is 2x the fp32 Conv (ORT profiler)
     fp32_graphs: tuple[str, ...] = ("upsample",)
     # skip work a frame does not need, where the result is the same (see Pipeline.decisions)
     adaptive: bool = True
@@ -98,8 +99,6 @@ class PipelineConfig:
 def reject_history(current: np.ndarray, warped: np.ndarray) -> int:
     """Restart (in place) the tiles of the warped diffuse or specular history that are far
     brighter than the current frame there (see REJECT_RATIO); returns how many tiles."""
-    import cv2
-
     h, w = current.shape[1:]
     size = (-(-w // REJECT_TILE), -(-h // REJECT_TILE))
     rejected = 0
@@ -205,7 +204,7 @@ class Pipeline:
         h, w = check_layers(layers)
         with t("reformat"):
             # NaN/Inf replaced and counted, values clamped into range (reformat.LIMITS)
-            self.nonfinite: dict[str, int] = {}
+            self.nonfinite = {}
             padded = (h + (-h) % self.multiple, w + (-w) % self.multiple)
             current = to_chw(layers, [n for n, _ in CURRENT], padded, self.nonfinite)
             motion = to_chw(layers, ["motion"], padded, self.nonfinite)
@@ -242,8 +241,8 @@ class Pipeline:
             cur = {n: part(current[i:i + c], n) for (n, c), i in zip(CURRENT, np.cumsum([0] + [c for _, c in CURRENT]))}
             hist = {n: part(warped[3 * i:3 * i + 3], n) for i, n in enumerate(HISTORY_LAYERS)}
         filtered = {}
-        for k, path in enumerate(("diffuse", "specular")):
-            if adaptive and not current[3 * k:3 * k + 3].any() and not warped[3 * k:3 * k + 3].any():
+        for c0, path in ((0, "diffuse"), (3, "specular")):
+            if adaptive and not current[c0:c0 + 3].any() and not warped[c0:c0 + 3].any():
                 self.decisions[f"skip_{path}"] = True
                 filtered[path] = np.zeros_like(cur[path])
                 continue

@@ -123,9 +123,10 @@ class Metrics:
         return out
 
 
-def _rss_bytes() -> int | None:
+def rss_bytes(pid: int | str = "self") -> int | None:
+    """Resident memory of a process (Linux /proc), None elsewhere."""
     try:
-        with open("/proc/self/statm") as f:
+        with open(f"/proc/{pid}/statm") as f:
             return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
     except OSError:
         return None
@@ -221,10 +222,7 @@ class FrameServer:
     def denoise(self, sid: str, layers: dict, cut: bool) -> tuple[np.ndarray, dict, dict, int]:
         """Queue one frame on its stream and wait for it: (colour HWC, ms per stage,
         non-finite counts, index of the frame in the stream)."""
-        s = self.stream(sid)
-        t0 = time.perf_counter()
-        result = self._submit(s, (layers, cut, t0)).result()
-        return result
+        return self._submit(self.stream(sid), (layers, cut, time.perf_counter())).result()
 
     def _submit(self, s: Stream, job) -> Future:
         fut: Future = Future()
@@ -288,7 +286,7 @@ class FrameServer:
             streams = len(self.streams)
         return {**self.metrics.snapshot(), "streams_open": streams, "queue_depth": queued,
                 "streams_running": running, "requests_in_flight": self.inflight,
-                "rss_bytes": _rss_bytes(), "workers": self.cfg.workers}
+                "rss_bytes": rss_bytes(), "workers": self.cfg.workers}
 
     def begin_request(self) -> None:
         with self.lock:
