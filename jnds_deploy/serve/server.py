@@ -18,6 +18,7 @@ import time
 import uuid
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -89,6 +90,7 @@ class Stream:
         self.frames = 0
         self.errors = 0
         self.last_used = time.monotonic()
+        self.users = 0  # requests holding the stream right now: never reaped while > 0
         self.closed = False
 
 
@@ -177,6 +179,19 @@ class FrameServer:
         s.last_used = time.monotonic()
         return s
 
+    @contextmanager
+    def using(self, sid: str):
+        """The stream, held for one request: the idle reaper leaves it alone meanwhile."""
+        s = self.stream(sid)
+        with self.lock:
+            s.users += 1
+        try:
+            yield s
+        finally:
+            with self.lock:
+                s.users -= 1
+                s.last_used = time.monotonic()
+
     def close_stream(self, sid: str) -> None:
         with self.lock:
             s = self.streams.pop(sid, None)
@@ -196,7 +211,7 @@ class FrameServer:
             now = time.monotonic()
             with self.lock:
                 stale = [s for s in self.streams.values()
-                         if now - s.last_used > self.cfg.idle_timeout and not s.jobs and not s.running]
+                         if now - s.last_used > self.cfg.idle_timeout and not (s.users or s.jobs or s.running)]
                 for s in stale:
                     del self.streams[s.id]
                     s.closed = True
@@ -219,10 +234,10 @@ class FrameServer:
                                       f"(more than {self.cfg.max_nonfinite:.0%}); frame refused, stream unchanged")
         return layers
 
-    def denoise(self, sid: str, layers: dict, cut: bool) -> tuple[np.ndarray, dict, dict, int]:
+    def denoise(self, s: Stream, layers: dict, cut: bool) -> tuple[np.ndarray, dict, dict, int]:
         """Queue one frame on its stream and wait for it: (colour HWC, ms per stage,
         non-finite counts, index of the frame in the stream)."""
-        return self._submit(self.stream(sid), (layers, cut, time.perf_counter())).result()
+        return self._submit(s, (layers, cut, time.perf_counter())).result()
 
     def _submit(self, s: Stream, job) -> Future:
         fut: Future = Future()
@@ -367,8 +382,8 @@ class _Handler(BaseHTTPRequestHandler):
                 if method == "POST" and parts[2:] == ["frames"]:
                     body = self._body()
                     cut = parse_qs(url.query).get("cut", ["0"])[0] not in ("0", "false", "")
-                    fs.stream(sid)  # 404 before decoding a body for nothing
-                    color, ms, nonfinite, index = fs.denoise(sid, fs.decode(body), cut)
+                    with fs.using(sid) as stream:  # 404 before decoding a body for nothing
+                        color, ms, nonfinite, index = fs.denoise(stream, fs.decode(body), cut)
                     out = exr_bytes({"color": color}, OUTPUT_LAYERS, compression=OpenEXR.NO_COMPRESSION)
                     return self._send(200, out, "image/x-exr", {
                         "X-JNDS-Frame": str(index), "X-JNDS-Timings": json.dumps({k: round(v, 3) for k, v in ms.items()}),
