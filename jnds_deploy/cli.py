@@ -125,7 +125,8 @@ def cmd_run(args) -> int:
     from .runtime.run import run_sequence, stage_table
 
     cfg = PipelineConfig(artifacts=args.artifacts, precision=args.precision,
-                         filter_dtype=args.filter_dtype, threads=args.threads, adaptive=not args.no_adaptive)
+                         filter_dtype=args.filter_dtype, threads=args.threads, adaptive=not args.no_adaptive,
+                         native_output=args.native)
     report = run_sequence(cfg, args.input, args.output, progress=not args.quiet)
     med = report["median_ms"]
     print(f"{report['frames']} frames -> {args.output}: median {med['total']:.1f} ms/frame "
@@ -247,6 +248,9 @@ def build_parser() -> argparse.ArgumentParser:
     rn.add_argument("--filter-dtype", default="float32", choices=("float32", "float16"))
     rn.add_argument("--no-adaptive", action="store_true",
                     help="run every stage on every frame (default: skip what a frame does not need)")
+    rn.add_argument("--native", action="store_true",
+                    help="denoise only: output at the input size, no upsample block (a renderer "
+                         "already at display resolution); metrics against the reference area-downsampled")
     rn.add_argument("--threads", type=int, default=2)
     rn.add_argument("--quiet", action="store_true")
     rn.set_defaults(func=cmd_run)

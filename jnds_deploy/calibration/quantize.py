@@ -12,7 +12,8 @@ activations per tensor, affine. Methods:
 - ``minmax``, ``percentile``, ``entropy``: ONNX Runtime static calibration over the feeds
   of ``collect_feeds`` (the fp32 pipeline run recurrently on real sequences).
 
-Each run writes ``<graph>.int8.<method>.onnx``, ``calibration.<method>.json`` (the scale and
+Each run writes ``<graph>.int8.<method>.onnx`` and its pruned variants
+(``<graph>.int8.<method>.no-<groups>.onnx``, ``export.prune``), ``calibration.<method>.json`` (the scale and
 zero point of every quantized tensor, as data) and registers them in ``manifest.json``;
 the last method calibrated is the pipeline's int8 default. It ends with a validation of
 the int8 graphs against PyTorch fp32 on recorded calibration inputs.
@@ -31,6 +32,7 @@ import onnx
 from onnx import numpy_helper
 
 from ..errors import JndsError
+from ..export.prune import INT8_VARIANT_TOL, validate_variant, write_variants
 from .reader import FeedReader, collect_feeds
 
 METHODS = ("qat", "minmax", "percentile", "entropy")
@@ -206,7 +208,7 @@ def calibrate(cfg: CalibrateConfig, log=print) -> dict:
         overrides = json.loads(qpath.read_text())
 
     feeds = collect_feeds(root, list(cfg.data), cfg.frames, cfg.threads)
-    ranges = {}
+    ranges, vrows = {}, []
     for name, g in manifest["graphs"].items():
         if not feeds[name]:
             raise CalibrationError(f"no calibration inputs recorded for graph {name!r}")
@@ -224,13 +226,19 @@ def calibrate(cfg: CalibrateConfig, log=print) -> dict:
             "weights": "int8 per output channel, symmetric", "op_types": list(cfg.op_types),
             "float_nodes": list(cfg.float_nodes),
             "ranges": f"calibration.{cfg.method}.json"}
+        variants = write_variants(root, file, file[:-len(".onnx")])
+        for v in variants.values():
+            vrows += validate_variant(root / file, root / v["file"], feeds[name][0], *INT8_VARIANT_TOL)
+            v["sha256"] = _file_hash(root / v["file"])
+        if variants:
+            g["int8"][cfg.method]["variants"] = variants
         g["int8_file"] = file
     _write_json(root / f"calibration.{cfg.method}.json",
                 {"method": cfg.method, "activation_type": cfg.activation_type,
                  "data": [str(d) for d in cfg.data], "frames_per_sequence": cfg.frames,
                  "frames": {k: len(v) for k, v in feeds.items()}, "tensors": ranges})
     manifest["int8_method"] = cfg.method
-    rows = validate_int8(root, manifest, cfg.method, feeds, cfg.checkpoint)
+    rows = validate_int8(root, manifest, cfg.method, feeds, cfg.checkpoint) + vrows
     manifest.setdefault("int8_validation", {})[cfg.method] = rows
     _write_json(mpath, manifest)
     report_validation(rows, log)

@@ -12,7 +12,17 @@ Warping, the filter paths, the composite and kernel application are not in ONNX:
 are the runtime's numpy/opencv stage. Spatial sizes are dynamic; H and W must be
 multiples of ``pad_multiple`` (the runtime pads). ``manifest.json`` says everything a
 runtime needs; every export ends with a validation of ONNX Runtime against PyTorch.
-"""
-from .convert import ExportConfig, export
+- ``network.no-<groups>.onnx``: pruned variants without the diffuse or specular path's
+  kernels or the upsample features (``prune``), for adaptive execution.
 
+``convert`` (torch) is imported on first use, so the runtime can read ``prune`` without torch.
+"""
 __all__ = ["ExportConfig", "export"]
+
+
+def __getattr__(name):
+    if name in __all__:
+        from . import convert
+
+        return getattr(convert, name)
+    raise AttributeError(name)

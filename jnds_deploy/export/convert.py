@@ -1,4 +1,4 @@
-"""PyTorch -> ONNX conversion of the two graphs, the manifest, and validation."""
+"""PyTorch -> ONNX conversion of the two graphs, their pruned variants, the manifest, and validation."""
 from __future__ import annotations
 
 import hashlib
@@ -13,6 +13,7 @@ import torch
 from .. import __version__
 from ..errors import ValidationError
 from ..model import CURRENT, HISTORY, N_CURRENT, N_HISTORY, JNDS, quant_ranges, set_quantization
+from .prune import validate_variant, write_variants
 
 OPSET = 17
 
@@ -125,8 +126,16 @@ def export(cfg: ExportConfig, log=print) -> dict:
         rows += validate_graph(out / "upsample.onnx", model.upsample_block,
                                {"composite": comp, "features": feats}, ["kernel"], cfg.atol)
 
+    # pruned variants: the graphs adaptive execution runs when a frame skips a filter path
+    # or the upsample block (export.prune)
+    net_feeds = {"current": current.numpy(), "history": history.numpy()}
+    graphs["network"]["variants"] = write_variants(out, "network.onnx", "network")
+    for v in graphs["network"]["variants"].values():
+        rows += validate_variant(out / "network.onnx", out / v["file"], net_feeds)
     for g in graphs.values():
         g["sha256"] = _file_hash(out / g["file"])
+        for v in g.get("variants", {}).values():
+            v["sha256"] = _file_hash(out / v["file"])
     feeds = {"network": (current, history)}
     if model.upsample_block is not None:
         feeds["upsample"] = (comp, feats)

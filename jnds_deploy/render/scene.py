@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-SCENE_KINDS = ("procedural", "diffuse", "metal")
+SCENE_KINDS = ("procedural", "diffuse", "metal", "sky", "sunlit")
 EXTENT = 4.0  # objects are scattered over [-EXTENT, EXTENT]^2 on the ground
 
 
@@ -107,23 +107,27 @@ def build_scene(mi, seed: int, kind: str = "procedural") -> tuple[dict, dict[str
     """Mitsuba scene dict and the material of each shape id, for a seed and a scene kind.
 
     ``diffuse``: only diffuse materials (no glossy signal); ``metal``: only metals (no
-    diffuse signal); ``procedural``: everything.
+    diffuse signal); ``sky``: a few objects floating in front of the sky, no ground
+    (most pixels see only the environment); ``sunlit``: diffuse materials lit by a sun (a
+    directional light) with a black background, so that nothing seen directly emits and
+    the specular layer is exactly zero; ``procedural``: everything.
     """
     if kind not in SCENE_KINDS:
         raise ValueError(f"unknown scene {kind!r}, expected one of {', '.join(SCENE_KINDS)}")
     rng = np.random.default_rng(seed)
     T = mi.ScalarTransform4f
     kinds = {"procedural": ("diffuse", "plastic", "metal"), "diffuse": ("diffuse",),
-             "metal": ("metal",)}[kind]
+             "metal": ("metal",), "sky": ("diffuse", "plastic", "metal"), "sunlit": ("diffuse",)}[kind]
     scene: dict = {"type": "scene"}
     materials: dict[str, Material] = {}
 
-    bsdf, mat = _bsdf(mi, rng, ("diffuse", "plastic") if kind == "procedural" else kinds)
-    scene["ground"] = {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(3 * EXTENT),
-                       "bsdf": bsdf}
-    materials["ground"] = mat
+    if kind != "sky":
+        bsdf, mat = _bsdf(mi, rng, ("diffuse", "plastic") if kind == "procedural" else kinds)
+        scene["ground"] = {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(3 * EXTENT),
+                           "bsdf": bsdf}
+        materials["ground"] = mat
 
-    for i in range(int(rng.integers(5, 12))):
+    for i in range(int(rng.integers(3, 6) if kind == "sky" else rng.integers(5, 12))):
         shape = str(rng.choice(["sphere", "cube", "panel"]))
         scale = float(np.exp(rng.uniform(np.log(0.15), np.log(1.6))))
         x, z = rng.uniform(-EXTENT, EXTENT, 2)
@@ -141,10 +145,16 @@ def build_scene(mi, seed: int, kind: str = "procedural") -> tuple[dict, dict[str
                            .scale([scale, 2 * scale, 1])}
         materials[name] = mat
 
-    if kind == "metal" or rng.random() < 0.8:
+    if kind == "sunlit":
+        elevation, azimuth = rng.uniform(0.35, 1.2), rng.uniform(0, 2 * np.pi)
+        direction = [-np.cos(elevation) * np.sin(azimuth), -np.sin(elevation), -np.cos(elevation) * np.cos(azimuth)]
+        scene["sun"] = {"type": "directional", "direction": direction,
+                        "irradiance": {"type": "rgb", "value": (rng.uniform(2.0, 5.0) * rng.uniform(0.85, 1.0, 3)).tolist()}}
+        return scene, materials
+    if kind in ("metal", "sky") or rng.random() < 0.8:
         scene["sky"] = {"type": "envmap", "bitmap": mi.Bitmap(sky_map(rng)),
                         "scale": float(rng.uniform(0.3, 1.5))}
-    for i in range(int(rng.integers(0 if "sky" in scene else 1, 3))):
+    for i in range(0 if kind == "sky" else int(rng.integers(0 if "sky" in scene else 1, 3))):
         size = float(rng.uniform(0.5, 2.0))
         pos = [rng.uniform(-EXTENT, EXTENT), rng.uniform(4, 7), rng.uniform(-EXTENT, EXTENT)]
         power = rng.uniform(10, 40) * rng.uniform(0.8, 1.0, 3)

@@ -49,31 +49,100 @@ def _taps(src, k, c, ya, yb, yc, y, xa, xb, xc, x):
     return a
 
 
+@njit(inline="always")
+def _apply_span(x, k, out, relu, c, y, ya, yc, i0, i1, W):
+    for i in range(i0, i1):
+        v = _taps(x, k, c, ya, y, yc, y, max(i - 1, 0), i, min(i + 1, W - 1), i)
+        out[c, y, i] = max(v, np.float32(0)) if relu else v
+
+
 @njit(parallel=True, cache=True)
-def _apply(x, k, out, relu):
+def _apply(x, k, out, relu, skip=None, tile=1):
+    """out = kernel k on x (ReLU if asked); where ``skip[y // tile, x // tile]`` is set
+    (empty tiles), out = x. Rows without a skipped tile run one plain loop (vectorized)."""
     C, H, W = x.shape
     for y in prange(H):
         ya, yc = max(y - 1, 0), min(y + 1, H - 1)
+        spans = skip is not None and skip[y // tile].any()
         for c in range(C):
-            for i in range(W):
-                v = _taps(x, k, c, ya, y, yc, y, max(i - 1, 0), i, min(i + 1, W - 1), i)
-                out[c, y, i] = max(v, np.float32(0)) if relu else v
+            if not spans:
+                _apply_span(x, k, out, relu, c, y, ya, yc, 0, W, W)
+                continue
+            for tx in range(skip.shape[1]):
+                i0, i1 = tx * tile, min((tx + 1) * tile, W)
+                if skip[y // tile, tx]:
+                    for i in range(i0, i1):
+                        out[c, y, i] = x[c, y, i]
+                else:
+                    _apply_span(x, k, out, relu, c, y, ya, yc, i0, i1, W)
+
+
+@njit(inline="always")
+def _lerp_span(a, ka, b, kb, t, out, plain, c, y, ya, yc, i0, i1, W):
+    for i in range(i0, i1):
+        ia, ic = max(i - 1, 0), min(i + 1, W - 1)
+        va = a[c, y, i] if plain else _taps(a, ka, c, ya, y, yc, y, ia, i, ic, i)
+        vb = _taps(b, kb, c, ya, y, yc, y, ia, i, ic, i)
+        out[c, y, i] = max(va + t[0, y, i] * (vb - va), np.float32(0))
 
 
 @njit(parallel=True, cache=True)
-def _lerp_taps(a, ka, b, kb, t, out):
+def _lerp_taps(a, ka, b, kb, t, out, skip=None, tile=1):
     """out = relu(A + t * (B - A)), A = a itself if ka is empty else the kernel ka on a,
-    B = the kernel kb on b."""
+    B = the kernel kb on b; where ``skip[y // tile, x // tile]`` is set, out = a."""
     C, H, W = b.shape
     plain = ka.shape[0] == 0
     for y in prange(H):
         ya, yc = max(y - 1, 0), min(y + 1, H - 1)
+        spans = skip is not None and skip[y // tile].any()
         for c in range(C):
-            for i in range(W):
-                ia, ic = max(i - 1, 0), min(i + 1, W - 1)
-                va = a[c, y, i] if plain else _taps(a, ka, c, ya, y, yc, y, ia, i, ic, i)
-                vb = _taps(b, kb, c, ya, y, yc, y, ia, i, ic, i)
-                out[c, y, i] = max(va + t[0, y, i] * (vb - va), np.float32(0))
+            if not spans:
+                _lerp_span(a, ka, b, kb, t, out, plain, c, y, ya, yc, 0, W, W)
+                continue
+            for tx in range(skip.shape[1]):
+                i0, i1 = tx * tile, min((tx + 1) * tile, W)
+                if skip[y // tile, tx]:
+                    for i in range(i0, i1):
+                        out[c, y, i] = a[c, y, i]
+                else:
+                    _lerp_span(a, ka, b, kb, t, out, plain, c, y, ya, yc, i0, i1, W)
+
+
+@njit(parallel=True, cache=True)
+def empty_tiles(current, history, tile, flat):
+    """Tiles with nothing to filter: (ceil(H / tile), ceil(W / tile)) uint8, 1 where the
+    tile and a 1-pixel border around it see no geometry (|albedo|, |normal| <= 1e-3: the
+    filtered history of an empty pixel is zero up to rounding) in the current frame
+    (13, H, W) and the warped history (12, H, W), the specular signal (what the background
+    emits) varies by at most ``flat`` x its maximum and the diffuse signal stays below
+    that: sky and empty background, which the filter stage passes through."""
+    _, H, W = current.shape
+    th, tw = (H + tile - 1) // tile, (W + tile - 1) // tile
+    out = np.zeros((th, tw), np.uint8)
+    for t in prange(th * tw):
+        ty, tx = t // tw, t % tw
+        y0, y1 = max(ty * tile - 1, 0), min((ty + 1) * tile + 1, H)
+        x0, x1 = max(tx * tile - 1, 0), min((tx + 1) * tile + 1, W)
+        empty = True
+        lo, hi, dmax = np.inf, -np.inf, 0.0
+        for y in range(y0, y1):
+            for i in range(x0, x1):
+                for c in range(6, 12):
+                    if abs(current[c, y, i]) > 1e-3 or abs(history[c, y, i]) > 1e-3:
+                        empty = False
+                for s in (current[3, y, i] + current[4, y, i] + current[5, y, i],
+                          history[3, y, i] + history[4, y, i] + history[5, y, i]):
+                    lo, hi = min(lo, s), max(hi, s)
+                for d in (current[0, y, i] + current[1, y, i] + current[2, y, i],
+                          history[0, y, i] + history[1, y, i] + history[2, y, i]):
+                    dmax = max(dmax, d)
+                if not empty:
+                    break
+            if not empty:
+                break
+        if empty and hi - lo <= flat * hi and dmax <= flat * hi:
+            out[ty, tx] = 1
+    return out
 
 
 @njit(parallel=True, cache=True)
@@ -96,12 +165,14 @@ def _fast(*arrays) -> bool:
     return all(a.dtype == np.float32 for a in arrays)
 
 
-def apply_kernel(x: np.ndarray, kernel: np.ndarray, relu: bool = False) -> np.ndarray:
-    """out[c, y, x] = sum_k kernel[k, y, x] * x[c, y + dy_k, x + dx_k] (then ReLU if asked)."""
+def apply_kernel(x: np.ndarray, kernel: np.ndarray, relu: bool = False, skip=None, tile: int = 1) -> np.ndarray:
+    """out[c, y, x] = sum_k kernel[k, y, x] * x[c, y + dy_k, x + dx_k] (then ReLU if asked);
+    ``skip`` (float32 only): a tile mask (``empty_tiles``) where out = x."""
     if _fast(x, kernel):
         out = np.empty_like(x)
-        _apply(x, kernel, out, relu)
+        _apply(x, kernel, out, relu, skip, tile)
         return out
+    _no_skip(skip)
     _, h, w = x.shape
     p = np.pad(x, ((0, 0), (1, 1), (1, 1)), mode="edge")
     out = p[:, :h, :w] * kernel[0]
@@ -148,12 +219,14 @@ def lerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
     return a + t * (b - a)
 
 
-def spatiotemporal(x, history, k_spatial, k_temporal, blend) -> np.ndarray:
-    """relu(lerp(kernel k_spatial on x, kernel k_temporal on history, blend))."""
+def spatiotemporal(x, history, k_spatial, k_temporal, blend, skip=None, tile: int = 1) -> np.ndarray:
+    """relu(lerp(kernel k_spatial on x, kernel k_temporal on history, blend)); in the
+    tiles set in ``skip``: x."""
     if _fast(x, history, k_spatial, k_temporal, blend):
         out = np.empty_like(x)
-        _lerp_taps(x, k_spatial, history, k_temporal, blend, out)
+        _lerp_taps(x, k_spatial, history, k_temporal, blend, out, skip, tile)
         return out
+    _no_skip(skip)
     return relu(lerp(apply_kernel(x, k_spatial), apply_kernel(history, k_temporal), blend))
 
 
@@ -167,25 +240,31 @@ def down_level(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     return apply_kernel(downsample(x), kernel, relu=True)
 
 
-def up_level(skip: np.ndarray, coarse: np.ndarray, kernel: np.ndarray, blend: np.ndarray) -> np.ndarray:
-    """One level up: relu(lerp(skip, kernel on the bilinear upsampling of coarse, blend))."""
+def up_level(skip: np.ndarray, coarse: np.ndarray, kernel: np.ndarray, blend: np.ndarray,
+             tiles=None, tile: int = 1) -> np.ndarray:
+    """One level up: relu(lerp(skip, kernel on the bilinear upsampling of coarse, blend));
+    in the tiles set in ``tiles``: skip."""
     up = upsample(coarse)
     if _fast(skip, up, kernel, blend):
         out = np.empty_like(skip)
-        _lerp_taps(skip, _NONE, up, kernel, blend, out)
+        _lerp_taps(skip, _NONE, up, kernel, blend, out, tiles, tile)
         return out
+    _no_skip(tiles)
     return relu(lerp(skip, apply_kernel(up, kernel), blend))
 
 
-def filter_path(x: np.ndarray, history: np.ndarray, native: dict, levels: list[dict]) -> np.ndarray:
-    """The hierarchical filter of one signal; see ``jnds_deploy.filters.filter_path``."""
-    skips = [spatiotemporal(x, history, native["spatial"], native["temporal"], native["blend"])]
+def filter_path(x: np.ndarray, history: np.ndarray, native: dict, levels: list[dict],
+                skip=None, tile: int = 1) -> np.ndarray:
+    """The hierarchical filter of one signal; see ``jnds_deploy.filters.filter_path``.
+    ``skip``: empty tiles passed through at native resolution (the levels below native are
+    small and filtered whole)."""
+    skips = [spatiotemporal(x, history, native["spatial"], native["temporal"], native["blend"], skip, tile)]
     for lv in levels:
         skips.append(down_level(skips[-1], lv["down"]))
     y = skips[-1]
     for k in range(len(levels) - 1, -1, -1):
         p = levels[k - 1] if k > 0 else native
-        y = up_level(skips[k], y, p["up"], p["up_blend"])
+        y = up_level(skips[k], y, p["up"], p["up_blend"], *((skip, tile) if k == 0 else ()))
     return y
 
 
@@ -194,7 +273,13 @@ def composite(albedo: np.ndarray, diffuse: np.ndarray, specular: np.ndarray) -> 
     return albedo * diffuse + specular
 
 
-def upsample_filter(color: np.ndarray, kernel: np.ndarray, factor: int) -> np.ndarray:
-    """Bilinear upsampling of the linear composite, the predicted 3x3 kernel, ReLU."""
+def upsample_filter(color: np.ndarray, kernel: np.ndarray, factor: int, skip=None, tile: int = 1) -> np.ndarray:
+    """Bilinear upsampling of the linear composite, the predicted 3x3 kernel, ReLU; in the
+    native tiles set in ``skip``, the bilinear upsampling alone."""
     up = upsample(color, factor) if factor > 1 else color
-    return apply_kernel(up, kernel, relu=True)
+    return apply_kernel(up, kernel, relu=True, skip=skip, tile=tile * factor)
+
+
+def _no_skip(skip) -> None:
+    if skip is not None:
+        raise ValueError("tile skipping needs the float32 filter stage")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import json
+import threading
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -22,6 +23,7 @@ import cv2
 import numpy as np
 
 from ..errors import JndsError
+from ..export.prune import variant_key
 from ..model import CURRENT
 from . import filters as F
 from .reformat import to_chw, to_hwc
@@ -40,6 +42,15 @@ FP16_SAFE_MAX = 2048.0
 # shipped checkpoint's recurrence has a loop gain above 1 in places (temporal kernels summing to
 # ~2.3, trained on 6-frame unrolls): without this, 2 of 6 validation sequences looped to
 # 1000 frames grew without bound (benchmarks/results/stability.md)
+# adaptive tile skipping: tiles of TILE^2 native pixels that see no geometry and a
+# background varying by at most TILE_FLAT x its brightness (runtime.filters.empty_tiles)
+# pass through the filter stage (the current frame's values, bilinearly upsampled) and
+# the upsample block runs only on the bounding box of the other tiles, with a margin of
+# UPSAMPLE_HALO native pixels (its bilinear upsampling and 3x3 convolution reach 1 native
+# pixel; 2 keep the box's inside equal to the whole frame's)
+TILE = 16
+TILE_FLAT = 0.1
+UPSAMPLE_HALO = 2
 REJECT_TILE = 32
 REJECT_RATIO = 8.0
 REJECT_FLOOR = 0.1
@@ -88,6 +99,13 @@ class PipelineConfig:
     fp32_graphs: tuple[str, ...] = ("upsample",)
     # skip work a frame does not need, where the result is the same (see Pipeline.decisions)
     adaptive: bool = True
+    # denoise only: output at the input resolution, the upsample block (and the network's
+    # features for it) not computed -- for a renderer that already renders at display size
+    native_output: bool = False
+    # with adaptive: pass empty background tiles through the filter stage (approximate; off by
+    # default: with a tile mask the numba filter loops run ~3x slower per pixel, so it costs
+    # more than it saves, benchmarks/results/adaptive.md)
+    tile_skip: bool = False
 
     def __post_init__(self):
         if self.precision not in ("fp32", "int8"):
@@ -138,6 +156,7 @@ class Pipeline:
         if self.manifest.get("format") != "jnds-artifacts/1":
             raise ArtifactError(f"{mpath}: format {self.manifest.get('format')!r}, expected 'jnds-artifacts/1'")
         self.scale = int(self.manifest["scale"])
+        self.out_scale = 1 if cfg.native_output else self.scale  # output size / input size
         self.multiple = int(self.manifest["pad_multiple"])
         self.levels = int(self.manifest["filter_paths"]["levels"])
         self.dtype = np.dtype(cfg.filter_dtype)
@@ -148,22 +167,35 @@ class Pipeline:
         # numba filter stage for the cores: 160x90 int8, 74.1 ms/frame median (p90
         # 147.9) with spinning, 29.5 ms (p90 39.7) without, same machine and frames
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        self.sessions, self.graph_files, self.graph_precision = {}, {}, {}
+        self._opts = opts
+        # graph name -> {frozenset of dropped output groups: file}; frozenset() is the full graph
+        self.graph_files, self.graph_precision, self.variant_files = {}, {}, {}
         for name, g in self.manifest["graphs"].items():
             if cfg.precision == "fp32" or name in cfg.fp32_graphs:
-                file = g["file"]
-            elif cfg.int8_method:
-                file = g.get("int8", {}).get(cfg.int8_method, {}).get("file")
+                entry = g
             else:
-                file = g.get("int8_file")
+                method = cfg.int8_method or next((m for m, e in g.get("int8", {}).items()
+                                                  if e.get("file") == g.get("int8_file")), None)
+                entry = g.get("int8", {}).get(method, {}) if method else {}
+            file = entry.get("file")
             if not file or not (root / file).is_file():
                 what = f"int8 ({cfg.int8_method})" if cfg.int8_method else cfg.precision
                 raise ArtifactError(f"{root}: no {what} graph for {name!r}"
                                     + ("; run `jnds calibrate`" if cfg.precision == "int8" else ""))
             self.graph_files[name] = root / file
             self.graph_precision[name] = "fp32" if file == g["file"] else "int8"
-            self.sessions[name] = ort.InferenceSession(str(root / file), opts, providers=["CPUExecutionProvider"])
-        self.net_outputs = [o.name for o in self.sessions["network"].get_outputs()]
+            self.variant_files[name] = {frozenset(): root / file}
+            for v in entry.get("variants", {}).values():
+                if (root / v["file"]).is_file():
+                    self.variant_files[name][frozenset(v["drops"])] = root / v["file"]
+        # sessions are created when first needed (a pruned variant only when a frame skips
+        # what it drops); shared with fork()ed pipelines
+        self.sessions: dict[str, object] = {}
+        self._variant_sessions: dict[tuple[str, frozenset], object] = {}
+        self._sessions_lock = threading.Lock()
+        for name in self.graph_files:
+            if name != "upsample" or self.out_scale > 1:
+                self.sessions[name] = self._session(name)
         # called as on_feeds(graph name, {input name: array}) before every graph runs:
         # how calibration records the inputs the network really sees, history included
         self.on_feeds = None
@@ -172,7 +204,9 @@ class Pipeline:
         # what adaptive execution decided for the last frame (all False with adaptive off):
         # static: zero motion everywhere, the history is used as it is (no resampling);
         # skip_diffuse / skip_specular: that signal is zero in the frame and its history, so
-        # its filter path, whose output would be exactly zero, is not run
+        # its filter path, whose output would be exactly zero, is not run, nor the network's
+        # kernels for it; network_graph: the pruned network variant that ran (export.prune);
+        # empty_tiles: background tiles passed through the filter stage (TILE)
         self.decisions: dict[str, bool] = {}
         self.reset()
 
@@ -185,6 +219,43 @@ class Pipeline:
         if peak <= FP16_SAFE_MAX:
             return 1.0
         return float(2.0 ** -np.ceil(np.log2(peak / FP16_SAFE_MAX)))
+
+    def _variant(self, name: str, drops: frozenset) -> frozenset:
+        return max((d for d in self.variant_files[name] if d <= drops), key=len)
+
+    def _session(self, name: str, drops: frozenset = frozenset()):
+        """The ONNX Runtime session of graph ``name`` without the output groups ``drops``
+        (export.prune): the smallest variant on disk that drops a subset of them."""
+        import onnxruntime as ort
+
+        best = self._variant(name, drops)
+        with self._sessions_lock:
+            sess = self._variant_sessions.get((name, best))
+            if sess is None:
+                sess = ort.InferenceSession(str(self.variant_files[name][best]), self._opts,
+                                            providers=["CPUExecutionProvider"])
+                self._variant_sessions[(name, best)] = sess
+        return sess
+
+    def _upsample_kernel(self, feeds: dict, tiles) -> np.ndarray:
+        """The upsample block's kernel (9, sH, sW); with empty tiles, computed only on the
+        bounding box of the others (plus UPSAMPLE_HALO), the rest left zero (not read)."""
+        sess = self.sessions["upsample"]
+        if tiles is None:
+            return sess.run(None, feeds)[0][0]
+        _, _, h, w = feeds["composite"].shape
+        s = self.scale
+        kernel = np.zeros((9, h * s, w * s), np.float32)
+        rows, cols = np.flatnonzero(~tiles.all(1)), np.flatnonzero(~tiles.all(0))
+        if rows.size == 0:
+            return kernel
+        y0, y1 = max(rows[0] * TILE - UPSAMPLE_HALO, 0), min((rows[-1] + 1) * TILE + UPSAMPLE_HALO, h)
+        x0, x1 = max(cols[0] * TILE - UPSAMPLE_HALO, 0), min((cols[-1] + 1) * TILE + UPSAMPLE_HALO, w)
+        if (y1 - y0) * (x1 - x0) == h * w:
+            return sess.run(None, feeds)[0][0]
+        box = {k: np.ascontiguousarray(v[:, :, y0:y1, x0:x1]) for k, v in feeds.items()}
+        kernel[:, y0 * s:y1 * s, x0 * s:x1 * s] = sess.run(None, box)[0][0]
+        return kernel
 
     def fork(self) -> "Pipeline":
         """Another pipeline over the same ONNX Runtime sessions (their ``run`` is
@@ -226,24 +297,41 @@ class Pipeline:
                 np.clip(warped[6:9], 0.0, 1.0, out=warped[6:9])
                 np.clip(warped[9:12], -1.0, 1.0, out=warped[9:12])
                 self.rejected = reject_history(current, warped)
+        # a signal that is zero in the frame and its history has a zero filter path: the
+        # network variant without its kernels runs, and the path is not filtered
+        for c0, path in ((0, "diffuse"), (3, "specular")):
+            self.decisions[f"skip_{path}"] = bool(adaptive and not current[c0:c0 + 3].any()
+                                                  and not warped[c0:c0 + 3].any())
+        drops = frozenset([p for p in RADIANCE if self.decisions[f"skip_{p}"]]
+                          + (["features"] if self.out_scale == 1 else []))
         feeds = {"current": current[None], "history": warped[None]}
         if self.on_feeds:
             self.on_feeds("network", feeds)
+        if drops and self._variant("network", drops):
+            self.decisions["network_graph"] = variant_key(self._variant("network", drops))
         with t("network"):
-            outs = self.sessions["network"].run(None, feeds)
+            sess = self._session("network", drops) if drops else self.sessions["network"]
+            outs = sess.run(None, feeds)
         with t("reformat"):
             rs = self._radiance_scale(current, warped)
-            net = {n: o[0].astype(self.dtype, copy=False) for n, o in zip(self.net_outputs, outs)}
+            net = {o.name: a[0].astype(self.dtype, copy=False) for o, a in zip(sess.get_outputs(), outs)}
 
             def part(a, name):  # a layer in the filter stage's dtype (radiance scaled)
                 return (a * rs if rs != 1 and name in RADIANCE else a).astype(self.dtype, copy=False)
 
             cur = {n: part(current[i:i + c], n) for (n, c), i in zip(CURRENT, np.cumsum([0] + [c for _, c in CURRENT]))}
             hist = {n: part(warped[3 * i:3 * i + 3], n) for i, n in enumerate(HISTORY_LAYERS)}
+        tiles = None
+        if adaptive and self.cfg.tile_skip and self.dtype == np.float32:
+            with t("tile_skip"):
+                tiles = F.empty_tiles(current, warped, TILE, TILE_FLAT)
+                self.decisions["empty_tiles"] = int(tiles.sum())
+                if not tiles.any():
+                    tiles = None
+        sk = {"skip": tiles, "tile": TILE}
         filtered = {}
-        for c0, path in ((0, "diffuse"), (3, "specular")):
-            if adaptive and not current[c0:c0 + 3].any() and not warped[c0:c0 + 3].any():
-                self.decisions[f"skip_{path}"] = True
+        for path in RADIANCE:
+            if self.decisions[f"skip_{path}"]:
                 filtered[path] = np.zeros_like(cur[path])
                 continue
             with t(f"filter_{path}"):
@@ -251,23 +339,23 @@ class Pipeline:
                           if f"{path}.{k}" in net}
                 levels = [{k: net[f"{path}.level{lv}.{k}"] for k in ("down", "up", "up_blend")
                            if f"{path}.level{lv}.{k}" in net} for lv in range(1, self.levels + 1)]
-                filtered[path] = F.filter_path(cur[path], hist[path], native, levels)
+                filtered[path] = F.filter_path(cur[path], hist[path], native, levels, **sk)
         with t("filter_auxiliary"):
             ks, kt, b = net["aux.spatial"], net["aux.temporal"], net["aux.blend"]
-            filtered["albedo"] = F.spatiotemporal(cur["albedo"], hist["albedo"], ks, kt, b)
-            n01 = F.spatiotemporal(cur["normal"] * 0.5 + 0.5, hist["normal"] * 0.5 + 0.5, ks, kt, b)
+            filtered["albedo"] = F.spatiotemporal(cur["albedo"], hist["albedo"], ks, kt, b, **sk)
+            n01 = F.spatiotemporal(cur["normal"] * 0.5 + 0.5, hist["normal"] * 0.5 + 0.5, ks, kt, b, **sk)
             filtered["normal"] = n01 * 2.0 - 1.0
         with t("composite"):
             comp = F.composite(filtered["albedo"], filtered["diffuse"], filtered["specular"])
-        if self.scale > 1:
+        if self.out_scale > 1:
             feeds = {"composite": (comp[None] / rs if rs != 1 else comp[None]).astype(np.float32, copy=False),
                      "features": net["features"][None].astype(np.float32, copy=False)}
             if self.on_feeds:
                 self.on_feeds("upsample", feeds)
             with t("upsample_kernel"):
-                kernel = self.sessions["upsample"].run(None, feeds)[0][0]
+                kernel = self._upsample_kernel(feeds, tiles)
             with t("upsample_filter"):
-                out = F.upsample_filter(comp, kernel.astype(self.dtype, copy=False), self.scale)
+                out = F.upsample_filter(comp, kernel.astype(self.dtype, copy=False), self.scale, **sk)
         else:
             out = comp
         with t("reformat"):
@@ -276,7 +364,7 @@ class Pipeline:
                 self.history[:6] /= rs
                 out = out.astype(np.float32) / rs
             self.size = (w, h)
-            result = to_hwc(out, h * self.scale, w * self.scale)
+            result = to_hwc(out, h * self.out_scale, w * self.out_scale)
             # last line of defence: nothing non-finite reaches the history or the output
             for name, a in (("history", self.history), ("output", result)):
                 if not np.isfinite(a).all():

@@ -7,13 +7,14 @@ import json
 import os
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from ..io import OUTPUT_LAYERS, open_sequence, write_exr
 from .pipeline import Pipeline, PipelineConfig
 
 
-STAGE_ORDER = ("reformat", "warp", "network", "filter_diffuse", "filter_specular", "filter_auxiliary",
+STAGE_ORDER = ("reformat", "warp", "tile_skip", "network", "filter_diffuse", "filter_specular", "filter_auxiliary",
                "composite", "upsample_kernel", "upsample_filter")
 
 
@@ -48,21 +49,23 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
             from ..metrics import flip, psnr
 
             ref = seq.reference(i)["color"]
+            if ref.shape[:2] != color.shape[:2]:  # --native: the reference at the output size
+                ref = cv2.resize(ref, color.shape[1::-1], interpolation=cv2.INTER_AREA)
             scores.append({"psnr": psnr(color, ref), "flip": flip(color, ref)})
     stages = sorted({k for f in frames for k in f})
     report = {
         "input": str(seq.path), "artifacts": str(Path(cfg.artifacts)),
         "checkpoint_sha256": pipe.manifest["checkpoint"]["sha256"],
         "precision": cfg.precision, "filter_dtype": cfg.filter_dtype, "threads": cfg.threads,
-        "native_size": list(seq.native_size), "output_size": [seq.native_size[0] * pipe.scale,
-                                                            seq.native_size[1] * pipe.scale],
+        "native_size": list(seq.native_size), "output_size": [seq.native_size[0] * pipe.out_scale,
+                                                            seq.native_size[1] * pipe.out_scale],
         "frames": len(seq),
         "median_ms": {k: float(np.median([f.get(k, 0.0) for f in frames])) for k in stages},
         "frame_ms": frames,
         # NaN/Inf values replaced per frame and input layer (only layers that had any)
         "nonfinite": nonfinite,
         # adaptive execution per frame: what was skipped (Pipeline.decisions)
-        "adaptive": cfg.adaptive, "decisions": decisions,
+        "adaptive": cfg.adaptive, "native_output": cfg.native_output, "decisions": decisions,
     }
     if scores:
         report["metrics"] = {"psnr": float(np.mean([s["psnr"] for s in scores])),

@@ -292,7 +292,7 @@ class FrameServer:
     def health(self) -> dict:
         return {"status": "closing" if self.closing else "ok", "streams": len(self.streams),
                 "artifacts": self.cfg.artifacts, "precision": self.cfg.precision,
-                "graphs": dict(self.base.graph_precision), "scale": self.base.scale}
+                "graphs": dict(self.base.graph_precision), "scale": self.base.out_scale}
 
     def snapshot(self) -> dict:
         with self.lock:

@@ -61,6 +61,15 @@ def test_every_convolution_is_quantized(calibrated):
         assert len(weights) == len(convs)  # per-channel int8 weights, one per convolution
 
 
+def test_int8_graph_has_pruned_variants(calibrated):
+    d, manifest, lines = calibrated
+    variants = manifest["graphs"]["network"]["int8"]["qat"]["variants"]
+    assert len(variants) == 7
+    for v in variants.values():
+        assert (d / v["file"]).is_file() and v["file"].startswith("network.int8.qat.no-")
+    assert sum(1 for line in lines if ".int8.qat.no-" in line and line.startswith("✓")) == 7
+
+
 def test_learned_ranges_become_the_scales(calibrated):
     d, manifest, _ = calibrated
     learned = json.loads((d / "qat_ranges.json").read_text())

@@ -64,3 +64,33 @@ def test_shipped_checkpoint_exports_and_validates(tmp_path):
     manifest = export(ExportConfig(out=str(tmp_path)), log=lambda s: None)
     assert manifest["model_config"]["scale"] == 2 and manifest["pad_multiple"] == 8
     assert all(r["ok"] for r in manifest["validation"])
+
+
+def test_pruned_variants_drop_their_kernels(tiny_checkpoint, tmp_path):
+    """One variant per set of dropped output groups; a dropped path's heads are gone and
+    the output block's head convolution computes fewer channels; the kept outputs equal
+    the full graph's (validated at export)."""
+    from onnx import numpy_helper
+
+    manifest = export(ExportConfig(checkpoint=str(tiny_checkpoint), out=str(tmp_path)), log=lambda s: None)
+    variants = manifest["graphs"]["network"]["variants"]
+    assert set(variants) == {"no-diffuse", "no-specular", "no-features", "no-diffuse-specular",
+                             "no-diffuse-features", "no-specular-features", "no-diffuse-specular-features"}
+    full = onnx.load(tmp_path / "network.onnx")
+
+    def head_channels(model):
+        inits = {i.name: i for i in model.graph.initializer}
+        conv = next(n for n in model.graph.node if n.name == "/network/output_block/head/Conv")
+        return numpy_helper.to_array(inits[conv.input[1]]).shape[0]
+
+    n_full = len(full.graph.node)
+    for key, v in variants.items():
+        model = onnx.load(tmp_path / v["file"])
+        onnx.checker.check_model(model, full_check=True)
+        outs = [o.name for o in model.graph.output]
+        assert outs == v["outputs"] and not any(o.split(".")[0] in v["drops"] for o in outs)
+        assert head_channels(model) < head_channels(full) and len(model.graph.node) < n_full
+        if "diffuse" in v["drops"]:
+            assert not any("/diffuse" in n.name for n in model.graph.node)
+    rows = [r for r in manifest["validation"] if r["graph"].startswith("network.no-")]
+    assert len(rows) == 7 and all(r["ok"] and r["max_abs"] == 0 for r in rows)
