@@ -307,10 +307,12 @@ class Pipeline:
         feeds = {"current": current[None], "history": warped[None]}
         if self.on_feeds:
             self.on_feeds("network", feeds)
-        if drops and self._variant("network", drops):
-            self.decisions["network_graph"] = variant_key(self._variant("network", drops))
+        sess = self.sessions["network"]
+        if drops:
+            sess = self._session("network", drops)
+            if self._variant("network", drops):
+                self.decisions["network_graph"] = variant_key(self._variant("network", drops))
         with t("network"):
-            sess = self._session("network", drops) if drops else self.sessions["network"]
             outs = sess.run(None, feeds)
         with t("reformat"):
             rs = self._radiance_scale(current, warped)
