@@ -96,6 +96,21 @@ def composite(albedo: torch.Tensor, diffuse: torch.Tensor, specular: torch.Tenso
     return albedo * diffuse + specular
 
 
+def to_phases(kernel: torch.Tensor, factor: int) -> torch.Tensor:
+    """A target-resolution map (N, C, sH, sW) in phase layout (N, s*s*C, H, W): channel
+    (py * s + px) * C + c at native (i, j) holds target pixel (s*i + py, s*j + px)."""
+    n, c, h, w = kernel.shape
+    s = factor
+    return kernel.reshape(n, c, h // s, s, w // s, s).permute(0, 3, 5, 1, 2, 4).reshape(n, s * s * c, h // s, w // s)
+
+
+def from_phases(kernel: torch.Tensor, factor: int) -> torch.Tensor:
+    """Inverse of ``to_phases``."""
+    n, _, h, w = kernel.shape
+    s = factor
+    return kernel.reshape(n, s, s, -1, h, w).permute(0, 3, 4, 1, 5, 2).reshape(n, -1, h * s, w * s)
+
+
 def upsample_filter(color: torch.Tensor, kernel: torch.Tensor, factor: int) -> torch.Tensor:
     """The upsample block's filter: bilinear upsampling of the linear composite, then the
     per-pixel 3x3 kernel predicted at target resolution; ReLU."""

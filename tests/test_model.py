@@ -3,8 +3,8 @@ import pytest
 import torch
 
 from jnds_deploy import filters
-from jnds_deploy.model import (JNDS, N_CURRENT, ActQuant, ModelConfig, pad_to_multiple,
-                               quantize_weight, set_quantization)
+from jnds_deploy.model import (JNDS, N_CURRENT, ActQuant, ModelConfig, UpsampleBlock, bilinear_taps,
+                               pad_to_multiple, quantize_weight, set_quantization)
 
 
 def _inputs(n, h, w, seed=0):
@@ -31,6 +31,28 @@ def test_shapes(scale, size):
     assert out.history().shape == (2, 12, H, W)
     assert out.output[..., :h0 * scale, :w0 * scale].shape[-2:] == (h * scale, w * scale)
     assert (out.output >= 0).all() and torch.isfinite(out.output).all()
+
+
+@pytest.mark.parametrize("scale", [2, 3, 4])
+@pytest.mark.parametrize("size", [(1, 1), (5, 7), (16, 24)])
+def test_sub_pixel_upsample_block_equals_the_target_resolution_block(scale, size):
+    """The native-resolution (sub-pixel) form gives the reference block's kernel at every
+    target pixel, the border ring included; phase layout round-trips."""
+    torch.manual_seed(scale)
+    block = UpsampleBlock(ModelConfig.preset("small", scale=scale)).eval()
+    with torch.no_grad():
+        for p in block.parameters():
+            p.normal_(0, 0.3)
+    comp, feats = torch.rand(2, 3, *size) * 8, torch.rand(2, 8, *size)
+    with torch.no_grad():
+        ref = block(comp, feats)
+        got = block.polyphase()(comp, feats)
+    assert got.shape == (2, scale * scale * 9, *size)
+    assert ref.abs().max() > 0.1  # not a trivially small kernel
+    torch.testing.assert_close(filters.from_phases(got, scale), ref, rtol=0, atol=2e-5)
+    torch.testing.assert_close(filters.to_phases(ref, scale), got, rtol=0, atol=2e-5)
+    taps = bilinear_taps(scale)
+    torch.testing.assert_close(taps.sum(-1), torch.ones(scale, 3, dtype=taps.dtype))  # each sample's weights sum to 1
 
 
 def test_presets_and_validation():

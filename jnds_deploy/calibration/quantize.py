@@ -169,6 +169,7 @@ def validate_int8(root: Path, manifest: dict, method: str, feeds: dict[str, list
     import torch
 
     from ..export.convert import validate_graph
+    from ..filters import to_phases
     from ..model import set_quantization
     from ..train import load_model
 
@@ -179,7 +180,7 @@ def validate_int8(root: Path, manifest: dict, method: str, feeds: dict[str, list
     set_quantization(model, False)
     model.eval()
     fns = {"network": lambda names: (lambda c, h: tuple(model.network(c, h)[k] for k in names)),
-           "upsample": lambda names: model.upsample_block}
+           "upsample": lambda names: (lambda c, f: to_phases(model.upsample_block(c, f), model.cfg.scale))}
     rows = []
     for name, g in manifest["graphs"].items():
         path = root / g["int8"][method]["file"]

@@ -4,9 +4,11 @@
   Inputs ``current`` (N, 13, H, W) and ``history`` (N, 12, H, W), linear as stored (the
   tonemap of Eq. 1 is inside). Outputs: every per-pixel kernel and blend weight of the
   filter paths (already clamped / normalized / squashed) and the upsample features.
-- ``upsample.onnx``: the upsample block's kernel prediction at target resolution.
+- ``upsample.onnx``: the upsample block's kernel prediction for the target resolution,
+  computed by native-resolution convolutions (sub-pixel form, ``model.SubPixelUpsampleBlock``).
   Inputs ``composite`` (N, 3, H, W) linear and ``features`` (N, F, H, W); output
-  ``kernel`` (N, 9, sH, sW).
+  ``kernel`` (N, s*s*9, H, W) in phase layout (``filters.to_phases`` of the (N, 9, sH, sW)
+  kernel).
 
 Warping, the filter paths, the composite and kernel application are not in ONNX: they
 are the runtime's numpy/opencv stage. Spatial sizes are dynamic; H and W must be
@@ -18,6 +20,9 @@ runtime needs; every export ends with a validation of ONNX Runtime against PyTor
 ``convert`` (torch) is imported on first use, so the runtime can read ``prune`` without torch.
 """
 __all__ = ["ExportConfig", "export"]
+
+# manifest "format": 2 = the upsample kernel in phase layout at native resolution
+ARTIFACT_FORMAT = "jnds-artifacts/2"
 
 
 def __getattr__(name):

@@ -11,7 +11,9 @@ import numpy as np
 import torch
 
 from .. import __version__
+from . import ARTIFACT_FORMAT
 from ..errors import ValidationError
+from ..filters import to_phases
 from ..model import CURRENT, HISTORY, N_CURRENT, N_HISTORY, JNDS, quant_ranges, set_quantization
 from .prune import validate_variant, write_variants
 
@@ -109,21 +111,25 @@ def export(cfg: ExportConfig, log=print) -> dict:
     if model.upsample_block is not None:
         comp = torch.rand(1, 3, *current.shape[-2:], generator=torch.Generator().manual_seed(cfg.seed + 1)) * 4
         feats = net_out["features"]
+        s = model.cfg.scale
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", DeprecationWarning)
-            torch.onnx.export(model.upsample_block, (comp, feats), str(out / "upsample.onnx"),
+            torch.onnx.export(model.upsample_block.polyphase(), (comp, feats), str(out / "upsample.onnx"),
                               input_names=["composite", "features"], output_names=["kernel"],
-                              dynamic_axes={"composite": dyn, "features": dyn, "kernel": {2: "sH", 3: "sW"}},
+                              dynamic_axes={"composite": dyn, "features": dyn, "kernel": dyn},
                               opset_version=OPSET, dynamo=False)
         graphs["upsample"] = {
-            "file": "upsample.onnx", "precision": "fp32", "resolution": "target",
+            "file": "upsample.onnx", "precision": "fp32", "resolution": "native",
             "inputs": {"composite": "N,3,H,W float32: albedo*diffuse+specular of the filtered signals, linear",
                        "features": f"N,{feats.shape[1]},H,W float32: network output 'features'"},
-            "outputs": {"kernel": {"shape": ["N", 9, "sH", "sW"],
-                                   "meaning": "3x3 kernel at target resolution, clamped to [-1, 1], applied "
-                                              "to the bilinearly upsampled linear composite, then ReLU"}},
+            "outputs": {"kernel": {"shape": ["N", s * s * 9, "H", "W"], "layout": "phases",
+                                   "meaning": "3x3 kernel of every target pixel, clamped to [-1, 1], applied "
+                                              "to the bilinearly upsampled linear composite, then ReLU; channel "
+                                              "(py * s + px) * 9 + tap at native (i, j) is target pixel "
+                                              "(s*i + py, s*j + px)"}},
         }
-        rows += validate_graph(out / "upsample.onnx", model.upsample_block,
+        # against the reference block, which convolves at target resolution
+        rows += validate_graph(out / "upsample.onnx", lambda c, f: to_phases(model.upsample_block(c, f), s),
                                {"composite": comp, "features": feats}, ["kernel"], cfg.atol)
 
     # pruned variants: the graphs adaptive execution runs when a frame skips a filter path
@@ -142,7 +148,7 @@ def export(cfg: ExportConfig, log=print) -> dict:
     qat = qat_ranges(model, graphs, out, feeds)
     (out / "qat_ranges.json").write_text(json.dumps(qat, indent=1))
     manifest = {
-        "format": "jnds-artifacts/1",
+        "format": ARTIFACT_FORMAT,
         "package_version": __version__,
         "checkpoint": {"path": str(ckpt), "sha256": _file_hash(ckpt)},
         "model_config": asdict(model.cfg),

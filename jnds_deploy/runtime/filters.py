@@ -273,11 +273,49 @@ def composite(albedo: np.ndarray, diffuse: np.ndarray, specular: np.ndarray) -> 
     return albedo * diffuse + specular
 
 
+@njit(parallel=True, cache=True)
+def _apply_phases(x, k, out, s):
+    """out = relu(kernel on x), x at target resolution, the kernel in phase layout
+    (s*s*9, H, W): k[(py * s + px) * 9 + t, i, j] is tap t of target pixel (s*i + py, s*j + px).
+    Each target row's taps are first interleaved into a row buffer (cache-resident), so the
+    tap loop stays contiguous and vectorizes: 19 ms at 2560x1440 where reading the phases
+    in place took 35-48 ms and the target-layout kernel 15 ms."""
+    C, H, W = x.shape
+    w = W // s
+    for y in prange(H):
+        row = np.empty((9, 1, W), np.float32)
+        i, py = y // s, y % s
+        for px in range(s):
+            base = (py * s + px) * 9
+            for t in range(9):
+                for j in range(w):
+                    row[t, 0, j * s + px] = k[base + t, i, j]
+        ya, yc = max(y - 1, 0), min(y + 1, H - 1)
+        for c in range(C):
+            for xx in range(W):
+                v = _taps(x, row, c, ya, y, yc, 0, max(xx - 1, 0), xx, min(xx + 1, W - 1), xx)
+                out[c, y, xx] = max(v, np.float32(0))
+
+
+def from_phases(kernel: np.ndarray, factor: int) -> np.ndarray:
+    """(s*s*C, H, W) phase layout -> (C, sH, sW) (``jnds_deploy.filters.from_phases``)."""
+    _, h, w = kernel.shape
+    s = factor
+    return np.ascontiguousarray(kernel.reshape(s, s, -1, h, w).transpose(2, 3, 0, 4, 1).reshape(-1, h * s, w * s))
+
+
 def upsample_filter(color: np.ndarray, kernel: np.ndarray, factor: int, skip=None, tile: int = 1) -> np.ndarray:
     """Bilinear upsampling of the linear composite, the predicted 3x3 kernel, ReLU; in the
-    native tiles set in ``skip``, the bilinear upsampling alone."""
-    up = upsample(color, factor) if factor > 1 else color
-    return apply_kernel(up, kernel, relu=True, skip=skip, tile=tile * factor)
+    native tiles set in ``skip``, the bilinear upsampling alone. ``kernel`` comes in the
+    upsample graph's phase layout (s*s*9, H, W) at native resolution (factor > 1)."""
+    if factor == 1:
+        return apply_kernel(color, kernel, relu=True, skip=skip, tile=tile)
+    up = upsample(color, factor)
+    if skip is None and _fast(up, kernel):
+        out = np.empty_like(up)
+        _apply_phases(up, kernel, out, factor)
+        return out
+    return apply_kernel(up, from_phases(kernel, factor), relu=True, skip=skip, tile=tile * factor)
 
 
 def _no_skip(skip) -> None:

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from ..errors import JndsError
+from ..export import ARTIFACT_FORMAT
 from ..export.prune import variant_key
 from ..model import CURRENT
 from . import filters as F
@@ -153,8 +154,9 @@ class Pipeline:
         if not mpath.is_file():
             raise ArtifactError(f"{mpath}: missing; run `jnds export --out {root}` first")
         self.manifest = json.loads(mpath.read_text())
-        if self.manifest.get("format") != "jnds-artifacts/1":
-            raise ArtifactError(f"{mpath}: format {self.manifest.get('format')!r}, expected 'jnds-artifacts/1'")
+        if self.manifest.get("format") != ARTIFACT_FORMAT:
+            raise ArtifactError(f"{mpath}: format {self.manifest.get('format')!r}, expected {ARTIFACT_FORMAT!r}; "
+                                "re-run `jnds export` (and `jnds calibrate`) with this version")
         self.scale = int(self.manifest["scale"])
         self.out_scale = 1 if cfg.native_output else self.scale  # output size / input size
         self.multiple = int(self.manifest["pad_multiple"])
@@ -238,14 +240,14 @@ class Pipeline:
         return sess
 
     def _upsample_kernel(self, feeds: dict, tiles) -> np.ndarray:
-        """The upsample block's kernel (9, sH, sW); with empty tiles, computed only on the
-        bounding box of the others (plus UPSAMPLE_HALO), the rest left zero (not read)."""
+        """The upsample block's kernel in phase layout (s*s*9, H, W) (the graph runs at
+        native resolution, export.convert); with empty tiles, computed only on the bounding
+        box of the others (plus UPSAMPLE_HALO), the rest left zero (not read)."""
         sess = self.sessions["upsample"]
         if tiles is None:
             return sess.run(None, feeds)[0][0]
         _, _, h, w = feeds["composite"].shape
-        s = self.scale
-        kernel = np.zeros((9, h * s, w * s), np.float32)
+        kernel = np.zeros((self.scale * self.scale * 9, h, w), np.float32)
         rows, cols = np.flatnonzero(~tiles.all(1)), np.flatnonzero(~tiles.all(0))
         if rows.size == 0:
             return kernel
@@ -254,7 +256,7 @@ class Pipeline:
         if (y1 - y0) * (x1 - x0) == h * w:
             return sess.run(None, feeds)[0][0]
         box = {k: np.ascontiguousarray(v[:, :, y0:y1, x0:x1]) for k, v in feeds.items()}
-        kernel[:, y0 * s:y1 * s, x0 * s:x1 * s] = sess.run(None, box)[0][0]
+        kernel[:, y0:y1, x0:x1] = sess.run(None, box)[0][0]
         return kernel
 
     def fork(self) -> "Pipeline":

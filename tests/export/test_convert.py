@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from jnds_deploy.errors import ValidationError
+from jnds_deploy.filters import to_phases
 from jnds_deploy.export import ExportConfig, export
 from jnds_deploy.export.convert import report_validation, validate_graph
 from jnds_deploy.model import JNDS, ModelConfig
@@ -48,8 +49,8 @@ def test_validation_catches_a_corrupted_graph(tiny_checkpoint, tmp_path):
     net = JNDS(ModelConfig(**torch.load(tiny_checkpoint, weights_only=False)["model_config"]))
     net.load_state_dict(torch.load(tiny_checkpoint, weights_only=False)["model"])
     comp, feats = torch.rand(1, 3, 8, 8), torch.rand(1, 2, 8, 8)
-    rows = validate_graph(tmp_path / "upsample.onnx", net.upsample_block, {"composite": comp, "features": feats},
-                          ["kernel"], 1e-4)
+    rows = validate_graph(tmp_path / "upsample.onnx", lambda c, f: to_phases(net.upsample_block(c, f), 2),
+                          {"composite": comp, "features": feats}, ["kernel"], 1e-4)
     assert not rows[0]["ok"] and rows[0]["max_abs"] > 0.1
     lines = []
     with pytest.raises(ValidationError, match="1 output.* upsample.onnx:kernel max"):

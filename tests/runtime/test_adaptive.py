@@ -114,8 +114,10 @@ def test_upsample_block_on_the_box_equals_the_whole_frame(tiny_artifacts):
     tiles = np.ones((64 // TILE, 96 // TILE), np.uint8)
     tiles[1:3, 2:4] = 0  # native rows 16-47, columns 32-63 used
     whole = pipe.sessions["upsample"].run(None, feeds)[0][0]
-    box = pipe._upsample_kernel(feeds, tiles)
-    np.testing.assert_allclose(box[:, 32:96, 64:128], whole[:, 32:96, 64:128], atol=1e-5)
+    box = pipe._upsample_kernel(feeds, tiles)  # phase layout, native resolution
+    assert box.shape == whole.shape == (4 * 9, 64, 96)
+    np.testing.assert_allclose(box[:, 16:48, 32:64], whole[:, 16:48, 32:64], atol=1e-5)
+    assert not box[:, :, :30].any()  # outside the box and its halo: not computed
 
 
 def test_native_output_is_the_composite_without_the_upsample_block(tiny_artifacts, tmp_path):

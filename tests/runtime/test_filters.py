@@ -91,9 +91,14 @@ def test_upsample_filter_and_composite_match_torch():
     a, d, s = (RNG.random((3, h, w), dtype=np.float32) for _ in range(3))
     c = N.composite(a, d, s)
     np.testing.assert_allclose(c, T.composite(_t(a), _t(d), _t(s))[0].numpy(), rtol=1e-6)
-    k = _kernel(2 * h, 2 * w)
-    np.testing.assert_allclose(N.upsample_filter(c, k, 2), T.upsample_filter(_t(c), _t(k), 2)[0].numpy(),
-                               rtol=1e-5, atol=1e-5)
+    for s in (2, 3):
+        k = _kernel(s * h, s * w)
+        phases = T.to_phases(_t(k), s)[0].numpy()  # the upsample graph's layout
+        ref = T.upsample_filter(_t(c), _t(k), s)[0].numpy()
+        np.testing.assert_allclose(N.upsample_filter(c, phases, s), ref, rtol=1e-5, atol=1e-5)
+        np.testing.assert_array_equal(N.from_phases(phases, s), k)
+        half = N.upsample_filter(c.astype(np.float16), phases.astype(np.float16), s)  # the numpy path
+        np.testing.assert_allclose(half, ref, rtol=2e-2, atol=2e-2)
 
 
 def test_fp16_filter_stays_close_to_fp32():
