@@ -110,6 +110,72 @@ def table(rows: dict) -> str:
     return "\n".join(lines)
 
 
+FILTER_ROWS = ("warp", "filter_diffuse", "filter_specular", "filter_auxiliary", "composite", "upsample_filter")
+
+
+def traffic_bytes(cfg: ModelConfig, w: int, h: int) -> dict[str, float]:
+    """Bytes each filter-stage step must move at the least: its inputs read once and its
+    output written once (float32), as a fully fused loop would; intermediates (the pooled
+    levels, the upsampled composite) not counted. N native pixels, T = s^2 N target pixels.
+    - warp: history 12N + motion 2N read, 12N written;
+    - filter path (diffuse or specular): current 3N + history 3N + native kernels (spatial 9,
+      temporal 9, blend 1, with levels also up 9, up_blend 1) read; level k (N / 4^k pixels)
+      kernels down 9, up 9, up_blend 1 (the coarsest: down only); output 3N written;
+    - auxiliary: albedo and normal, current and history 12N, shared kernels 19N read, 6N written;
+    - composite: 9N read, 3N written;
+    - upsample filter: composite 3N and kernel 9T read, 3T written."""
+    n, t = w * h, w * h * cfg.scale ** 2
+    native = 19 + (10 if cfg.filter_levels > 0 else 0)
+    levels = sum((9 if k == cfg.filter_levels else 19) * n / 4 ** k for k in range(1, cfg.filter_levels + 1))
+    path = (6 + native + 3) * n + levels
+    b = {"warp": 26 * n, "filter_diffuse": path, "filter_specular": path, "filter_auxiliary": 37 * n,
+         "composite": 12 * n, "upsample_filter": 3 * n + 12 * t if cfg.scale > 1 else 0}
+    return {k: 4.0 * v for k, v in b.items()}
+
+
+def copy_bandwidth(threads: int, mbytes: int = 256, runs: int = 9) -> float:
+    """Copy bandwidth (bytes read + bytes written per second, median of ``runs``) of a
+    numba loop over rows on ``threads`` threads, the way the filter stage moves memory."""
+    import numba
+    from numba import njit, prange
+
+    @njit(parallel=True, cache=False)
+    def copy(src, dst):
+        for y in prange(src.shape[0]):
+            for x in range(src.shape[1]):
+                dst[y, x] = src[y, x]
+
+    numba.set_num_threads(threads)
+    src = np.ones((mbytes * 256, 1024), np.float32)  # mbytes MB
+    dst = np.empty_like(src)
+    copy(src, dst)
+    ms = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        copy(src, dst)
+        ms.append(time.perf_counter() - t0)
+    return 2 * src.nbytes / float(np.median(ms))
+
+
+def traffic_table(rows: dict, need: dict, bandwidth: float) -> tuple[str, dict]:
+    lines = ["| step | must move (MB) | bound (ms) | measured median (ms) | measured / bound |",
+             "| --- | ---: | ---: | ---: | ---: |"]
+    result = {}
+    for k in (*FILTER_ROWS, "total"):
+        if k == "total":
+            b = sum(need[r] for r in FILTER_ROWS if r in rows)
+            m = sum(rows[r]["median_ms"] for r in FILTER_ROWS if r in rows)
+        elif k in rows:
+            b, m = need[k], rows[k]["median_ms"]
+        else:
+            continue
+        bound = 1000 * b / bandwidth
+        result[k] = {"bytes": b, "bound_ms": bound, "measured_ms": m, "ratio": m / bound}
+        name = "**filter stage**" if k == "total" else k
+        lines.append(f"| {name} | {b / 1e6:.0f} | {bound:.1f} | {m:.1f} | {m / bound:.2f} |")
+    return "\n".join(lines), result
+
+
 def cpu_times() -> list[int]:
     """The aggregate CPU line of /proc/stat (user, nice, system, idle, iowait, irq, softirq, steal)."""
     with open("/proc/stat") as f:
@@ -133,6 +199,8 @@ def main() -> int:
               "input": str(seq.path), "threads": args.threads, "int8_method": manifest.get("int8_method"),
               "results": {}}
     t_cpu = cpu_times()
+    bandwidth = copy_bandwidth(args.threads)
+    report["copy_bandwidth_gb_s"] = bandwidth / 1e9
     for label, size in (("1280x720", (1280, 720)), (f"{seq.native_size[0]}x{seq.native_size[1]}", None)):
         frames = resized_frames(seq, size)
         w, h = size or seq.native_size
@@ -144,6 +212,8 @@ def main() -> int:
             report["results"][f"{label} {precision}"] = {"native": [w, h], "target": [w * pipe.scale, h * pipe.scale],
                                                          "precision": precision, "graphs": dict(pipe.graph_precision),
                                                          "split": split, "stages": rows}
+            report["results"][f"{label} {precision}"]["traffic"] = traffic_table(rows, traffic_bytes(cfg, w, h),
+                                                                                 bandwidth)[1]
             print(f"{label} {precision}: {rows['total']['median_ms']:.1f} ms/frame", flush=True)
         if size == (1280, 720):
             # the peer users have: OIDN balanced denoising alone at native 1280x720, same
@@ -191,6 +261,13 @@ def main() -> int:
                f"`balanced` denoising alone at native resolution median {o['oidn_balanced_median_ms']:.1f} ms "
                f"(p10–p90 {o['oidn_p10_ms']:.1f}–{o['oidn_p90_ms']:.1f}); per-frame time ratio pipeline/OIDN median "
                f"{o['ratio_median']:.2f} (p10–p90 {o['ratio_p10']:.2f}–{o['ratio_p90']:.2f}).", ""]
+    r = report["results"]["1280x720 int8"]
+    md += ["## The filter stage against its memory-traffic bound (1280x720 → 2560x1440, int8 pipeline)", "",
+           f"Bound = bytes a step must move (its inputs read once, its output written once, float32; "
+           f"`traffic_bytes` says what is counted) ÷ the copy bandwidth measured in this run: "
+           f"{report['copy_bandwidth_gb_s']:.1f} GB/s (read + written, a numba row loop on {args.threads} threads "
+           f"copying 256 MB, median of 9; `copy_bandwidth`).", "",
+           traffic_table(r["stages"], traffic_bytes(cfg, *r["native"]), bandwidth)[0], ""]
     md += ["The int8 pipeline keeps the upsample graph in fp32 (`PipelineConfig.fp32_graphs`): its int8 graph "
            "is slower on this CPU (see `benchmarks/results/calibration.md`).",
            "The filter stage (filter paths, composite, upsample filter) and the reformatting are numba-fused "
