@@ -208,7 +208,8 @@ def render_markdown(r: dict) -> str:
                      f"{t['speedup_vs_fp32']:.2f}× | {t['gmac_per_s']:.1f} | "
                      f"{100 * t['gmac_per_s'] / m['int8_vnni_gmacs']:.1f} |")
     ut = r["upsample_timing"]
-    lines += ["", f"Upsample block graph ({r['upsample_gmac']:.1f} GMAC, kernel at {2 * w}x{2 * h}): fp32 "
+    lines += ["", f"Upsample block graph ({r['upsample_gmac']:.1f} GMAC, the kernel for {2 * w}x{2 * h} from "
+                  f"convolutions at {w}x{h}, sub-pixel form): fp32 "
                   f"{ut['fp32']['median_ms']:.0f} ms, int8 {ut['int8 default']['median_ms']:.0f} ms "
                   f"({ut['fp32']['median_ms'] / ut['int8 default']['median_ms']:.2f}×)."]
     lines += ["", f"Peaks ({m['derivation']}): int8 VNNI {m['int8_vnni_gmacs']:.0f} GMAC/s, "
