@@ -32,12 +32,8 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from . import filters
+from .layout import CURRENT, HISTORY, N_CURRENT, N_HISTORY  # noqa: F401 (re-exported)
 
-# channels of the current inputs and of the history, in order
-CURRENT = (("diffuse", 3), ("specular", 3), ("albedo", 3), ("normal", 3), ("roughness", 1))
-HISTORY = (("diffuse", 3), ("specular", 3), ("albedo", 3), ("normal", 3))
-N_CURRENT = sum(c for _, c in CURRENT)
-N_HISTORY = sum(c for _, c in HISTORY)
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import JndsError
 from ..export import ARTIFACT_FORMAT
 from ..export.prune import variant_key
-from ..model import CURRENT
+from ..layout import CURRENT
 from . import filters as F
 from .reformat import to_chw, to_hwc
 

@@ -57,10 +57,31 @@ def test_pipeline_fp16_filters_close_to_fp32(artifacts):
 
 
 def test_pipeline_errors(tmp_path, artifacts):
+    import json
     with pytest.raises(ArtifactError, match="manifest.json: missing"):
         Pipeline(PipelineConfig(artifacts=str(tmp_path)))
     with pytest.raises(ArtifactError, match="no int8 graph"):
         Pipeline(PipelineConfig(artifacts=str(artifacts[0]), precision="int8"))
+    # artifacts of an older format (upsample kernel at target resolution) are refused
+    manifest = json.loads((artifacts[0] / "manifest.json").read_text())
+    (tmp_path / "manifest.json").write_text(json.dumps({**manifest, "format": "jnds-artifacts/1"}))
+    with pytest.raises(ArtifactError, match="jnds-artifacts/1.*re-run `jnds export`"):
+        Pipeline(PipelineConfig(artifacts=str(tmp_path)))
+
+
+def test_jnds_run_does_not_need_torch(artifacts, tmp_path):
+    """Deploying the ONNX pipeline (jnds run, the server) needs onnxruntime, numpy and
+    opencv, not torch: with torch made unimportable, a run still works."""
+    import subprocess
+    import sys
+    code = ("import sys; sys.modules['torch'] = None\n"
+            "import jnds_deploy.serve\n"
+            "from jnds_deploy.cli import main\n"
+            f"sys.exit(main(['run', '--artifacts', {str(artifacts[0])!r}, '--input', {str(SAMPLE)!r}, "
+            f"'--output', {str(tmp_path / 'out')!r}, '--quiet']))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert (tmp_path / "out" / "0007.exr").is_file()
 
 
 def test_jnds_run_writes_frames_and_report(artifacts, tmp_path):

@@ -1,0 +1,8 @@
+"""The network's input channels, in order: shared by the model (torch) and the runtime
+(numpy, no torch), so that deploying the ONNX pipeline does not need torch."""
+
+# channels of the current inputs and of the history, in order
+CURRENT = (("diffuse", 3), ("specular", 3), ("albedo", 3), ("normal", 3), ("roughness", 1))
+HISTORY = (("diffuse", 3), ("specular", 3), ("albedo", 3), ("normal", 3))
+N_CURRENT = sum(c for _, c in CURRENT)
+N_HISTORY = sum(c for _, c in HISTORY)
