@@ -80,18 +80,20 @@ def _apply(x, k, out, relu, skip=None, tile=1):
 
 
 @njit(inline="always")
-def _lerp_span(a, ka, b, kb, t, out, plain, c, y, ya, yc, i0, i1, W):
+def _lerp_span(a, ka, b, kb, t, out, plain, relu, c, y, ya, yc, i0, i1, W):
     for i in range(i0, i1):
         ia, ic = max(i - 1, 0), min(i + 1, W - 1)
         va = a[c, y, i] if plain else _taps(a, ka, c, ya, y, yc, y, ia, i, ic, i)
         vb = _taps(b, kb, c, ya, y, yc, y, ia, i, ic, i)
-        out[c, y, i] = max(va + t[0, y, i] * (vb - va), np.float32(0))
+        v = va + t[0, y, i] * (vb - va)
+        out[c, y, i] = max(v, np.float32(0)) if relu else v
 
 
 @njit(parallel=True, cache=True)
-def _lerp_taps(a, ka, b, kb, t, out, skip=None, tile=1):
-    """out = relu(A + t * (B - A)), A = a itself if ka is empty else the kernel ka on a,
-    B = the kernel kb on b; where ``skip[y // tile, x // tile]`` is set, out = a."""
+def _lerp_taps(a, ka, b, kb, t, out, skip=None, tile=1, relu=True):
+    """out = relu(A + t * (B - A)) (no ReLU if not ``relu``), A = a itself if ka is empty
+    else the kernel ka on a, B = the kernel kb on b; where ``skip[y // tile, x // tile]``
+    is set, out = a."""
     C, H, W = b.shape
     plain = ka.shape[0] == 0
     for y in prange(H):
@@ -99,7 +101,7 @@ def _lerp_taps(a, ka, b, kb, t, out, skip=None, tile=1):
         spans = skip is not None and skip[y // tile].any()
         for c in range(C):
             if not spans:
-                _lerp_span(a, ka, b, kb, t, out, plain, c, y, ya, yc, 0, W, W)
+                _lerp_span(a, ka, b, kb, t, out, plain, relu, c, y, ya, yc, 0, W, W)
                 continue
             for tx in range(skip.shape[1]):
                 i0, i1 = tx * tile, min((tx + 1) * tile, W)
@@ -107,7 +109,7 @@ def _lerp_taps(a, ka, b, kb, t, out, skip=None, tile=1):
                     for i in range(i0, i1):
                         out[c, y, i] = a[c, y, i]
                 else:
-                    _lerp_span(a, ka, b, kb, t, out, plain, c, y, ya, yc, i0, i1, W)
+                    _lerp_span(a, ka, b, kb, t, out, plain, relu, c, y, ya, yc, i0, i1, W)
 
 
 @njit(parallel=True, cache=True)
@@ -232,15 +234,16 @@ def lerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
     return a + t * (b - a)
 
 
-def spatiotemporal(x, history, k_spatial, k_temporal, blend, skip=None, tile: int = 1) -> np.ndarray:
-    """relu(lerp(kernel k_spatial on x, kernel k_temporal on history, blend)); in the
-    tiles set in ``skip``: x."""
+def spatiotemporal(x, history, k_spatial, k_temporal, blend, skip=None, tile: int = 1, relu: bool = True) -> np.ndarray:
+    """relu(lerp(kernel k_spatial on x, kernel k_temporal on history, blend)) (no ReLU if
+    not ``relu``); in the tiles set in ``skip``: x."""
     if _fast(x, history, k_spatial, k_temporal, blend):
         out = np.empty_like(x)
-        _lerp_taps(x, k_spatial, history, k_temporal, blend, out, skip, tile)
+        _lerp_taps(x, k_spatial, history, k_temporal, blend, out, skip, tile, relu)
         return out
     _no_skip(skip)
-    return relu(lerp(apply_kernel(x, k_spatial), apply_kernel(history, k_temporal), blend))
+    out = lerp(apply_kernel(x, k_spatial), apply_kernel(history, k_temporal), blend)
+    return np.maximum(out, 0, out=out) if relu else out
 
 
 def down_level(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:

@@ -30,6 +30,9 @@ from . import filters as F
 from .reformat import to_chw, to_hwc
 
 HISTORY_LAYERS = ("diffuse", "specular", "albedo", "normal")
+# albedo then normal, adjacent in both the current inputs and the history: filtered in one pass
+AUX = slice(6, 12)
+assert [n for n, _ in CURRENT][2:4] == list(HISTORY_LAYERS[2:4]) == ["albedo", "normal"]
 RADIANCE = ("diffuse", "specular")
 # the float16 filter stage filters radiance at most this bright; brighter frames are scaled
 # down by a power of two (exact in floating point) and back up after filtering. 65504 (the
@@ -345,10 +348,14 @@ class Pipeline:
                            if f"{path}.level{lv}.{k}" in net} for lv in range(1, self.levels + 1)]
                 filtered[path] = F.filter_path(cur[path], hist[path], native, levels, **sk)
         with t("filter_auxiliary"):
+            # albedo and normals in one pass over their 6 adjacent channels. The kernels are
+            # normalized (taps >= 0, summing to 1) and the blend convex, so filtering the
+            # normals as n * 0.5 + 0.5 and mapping back (the model) equals filtering n, and
+            # the ReLU never acts (albedo in [0, 1]): no ReLU and no remapping passes
             ks, kt, b = net["aux.spatial"], net["aux.temporal"], net["aux.blend"]
-            filtered["albedo"] = F.spatiotemporal(cur["albedo"], hist["albedo"], ks, kt, b, **sk)
-            n01 = F.spatiotemporal(cur["normal"] * 0.5 + 0.5, hist["normal"] * 0.5 + 0.5, ks, kt, b, **sk)
-            filtered["normal"] = n01 * 2.0 - 1.0
+            aux = F.spatiotemporal(current[AUX].astype(self.dtype, copy=False),
+                                   warped[AUX].astype(self.dtype, copy=False), ks, kt, b, relu=False, **sk)
+            filtered["albedo"], filtered["normal"] = aux[:3], aux[3:]
         with t("composite"):
             comp = F.composite(filtered["albedo"], filtered["diffuse"], filtered["specular"])
         if self.out_scale > 1:

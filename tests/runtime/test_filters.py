@@ -143,3 +143,25 @@ def test_fused_float32_loops_equal_numpy_formulas(h, w):
     if h % 2 == 0 and w % 2 == 0:
         np.testing.assert_allclose(N.down_level(x, ks[:, ::2, ::2].copy()),
                                    np.maximum(_taps(N.downsample(x), ks[:, ::2, ::2]), 0), rtol=1e-6)
+
+
+def test_one_pass_auxiliary_filter_equals_the_models_normal_mapping():
+    """The pipeline filters albedo and normals in one pass without ReLU and without mapping
+    normals to [0, 1] and back: with normalized kernels and a convex blend that is the
+    model's formula (albedo bit for bit, normals to rounding)."""
+    h, w = 24, 40
+    albedo = RNG.random((3, h, w), dtype=np.float32)
+    normal = RNG.random((3, h, w), dtype=np.float32) * 2 - 1
+    h_albedo = RNG.random((3, h, w), dtype=np.float32)
+    h_normal = RNG.random((3, h, w), dtype=np.float32) * 2 - 1
+    ks, kt = _kernel(h, w, normalized=True), _kernel(h, w, normalized=True)
+    blend = RNG.random((1, h, w), dtype=np.float32)
+    both = N.spatiotemporal(np.concatenate([albedo, normal]), np.concatenate([h_albedo, h_normal]), ks, kt, blend,
+                            relu=False)
+    ref_albedo = T.spatiotemporal(_t(albedo), _t(h_albedo), _t(ks), _t(kt), _t(blend))[0].numpy()
+    ref_normal = T.spatiotemporal(_t(normal * 0.5 + 0.5), _t(h_normal * 0.5 + 0.5), _t(ks), _t(kt),
+                                  _t(blend))[0].numpy() * 2 - 1
+    np.testing.assert_allclose(both[:3], ref_albedo, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(both[3:], ref_normal, rtol=0, atol=2e-6)
+    assert (both[3:] < 0).any()  # negative normals survive: no ReLU
+    assert np.array_equal(both[:3], N.spatiotemporal(albedo, h_albedo, ks, kt, blend))
