@@ -53,13 +53,15 @@ def resized_frames(seq, size: tuple[int, int] | None) -> list[tuple[dict, bool]]
     return frames
 
 
-def time_pipeline(pipe: Pipeline, frames, repeats: int) -> list[dict]:
+def time_pipeline(pipe: Pipeline, frames, repeats: int, between=None) -> list[dict]:
     pipe.reset()
     pipe(*frames[0])  # warm-up (first frame: no history)
     recorded = []
     for _ in range(repeats):
         for layers, cut in frames[1:]:
             recorded.append(pipe(layers, cut)[1])
+            if between:
+                between()
     return recorded
 
 
@@ -133,28 +135,33 @@ def traffic_bytes(cfg: ModelConfig, w: int, h: int) -> dict[str, float]:
     return {k: 4.0 * v for k, v in b.items()}
 
 
-def copy_bandwidth(threads: int, mbytes: int = 256, runs: int = 9) -> float:
-    """Copy bandwidth (bytes read + bytes written per second, median of ``runs``) of a
-    numba loop over rows on ``threads`` threads, the way the filter stage moves memory."""
-    import numba
-    from numba import njit, prange
+class CopyProbe:
+    """Copy bandwidth (bytes read + bytes written per second) of a numba loop over rows on
+    ``threads`` threads copying ``mbytes`` MB, the way the filter stage moves memory. Call
+    it between frames: this VM's bandwidth drifts (8.9-16 GB/s between runs minutes apart),
+    so the bound uses samples taken in the same minutes as the frames it is compared with."""
 
-    @njit(parallel=True, cache=False)
-    def copy(src, dst):
-        for y in prange(src.shape[0]):
-            for x in range(src.shape[1]):
-                dst[y, x] = src[y, x]
+    def __init__(self, threads: int, mbytes: int = 256):
+        import numba
+        from numba import njit, prange
 
-    numba.set_num_threads(threads)
-    src = np.ones((mbytes * 256, 1024), np.float32)  # mbytes MB
-    dst = np.empty_like(src)
-    copy(src, dst)
-    ms = []
-    for _ in range(runs):
+        @njit(parallel=True, cache=False)
+        def copy(src, dst):
+            for y in prange(src.shape[0]):
+                for x in range(src.shape[1]):
+                    dst[y, x] = src[y, x]
+
+        numba.set_num_threads(threads)
+        self.copy = copy
+        self.src = np.ones((mbytes * 256, 1024), np.float32)  # mbytes MB
+        self.dst = np.empty_like(self.src)
+        self.copy(self.src, self.dst)
+        self.samples: list[float] = []
+
+    def __call__(self) -> None:
         t0 = time.perf_counter()
-        copy(src, dst)
-        ms.append(time.perf_counter() - t0)
-    return 2 * src.nbytes / float(np.median(ms))
+        self.copy(self.src, self.dst)
+        self.samples.append(2 * self.src.nbytes / (time.perf_counter() - t0))
 
 
 def traffic_table(rows: dict, need: dict, bandwidth: float) -> tuple[str, dict]:
@@ -199,8 +206,7 @@ def main() -> int:
               "input": str(seq.path), "threads": args.threads, "int8_method": manifest.get("int8_method"),
               "results": {}}
     t_cpu = cpu_times()
-    bandwidth = copy_bandwidth(args.threads)
-    report["copy_bandwidth_gb_s"] = bandwidth / 1e9
+    probe = CopyProbe(args.threads)
     for label, size in (("1280x720", (1280, 720)), (f"{seq.native_size[0]}x{seq.native_size[1]}", None)):
         frames = resized_frames(seq, size)
         w, h = size or seq.native_size
@@ -208,12 +214,19 @@ def main() -> int:
         for precision in args.precisions:
             pipe = Pipeline(PipelineConfig(artifacts=args.artifacts, precision=precision, threads=args.threads))
             split = network_split(pipe, frames, args.threads)
-            rows = summarize(time_pipeline(pipe, frames, args.repeats), split, macs)
+            # copy-bandwidth samples between the frames of the 1280x720 int8 run: the
+            # filter stage's memory-traffic bound (below)
+            probed = size == (1280, 720) and precision == "int8"
+            rows = summarize(time_pipeline(pipe, frames, args.repeats, probe if probed else None), split, macs)
             report["results"][f"{label} {precision}"] = {"native": [w, h], "target": [w * pipe.scale, h * pipe.scale],
                                                          "precision": precision, "graphs": dict(pipe.graph_precision),
                                                          "split": split, "stages": rows}
-            report["results"][f"{label} {precision}"]["traffic"] = traffic_table(rows, traffic_bytes(cfg, w, h),
-                                                                                 bandwidth)[1]
+            if probed:
+                bw = np.array(probe.samples)
+                report["copy_bandwidth_gb_s"] = {"median": float(np.median(bw)) / 1e9, "p10": float(np.percentile(bw, 10)) / 1e9,
+                                                 "p90": float(np.percentile(bw, 90)) / 1e9, "samples": len(bw)}
+                report["results"][f"{label} {precision}"]["traffic"] = traffic_table(
+                    rows, traffic_bytes(cfg, w, h), float(np.median(bw)))[1]
             print(f"{label} {precision}: {rows['total']['median_ms']:.1f} ms/frame", flush=True)
         if size == (1280, 720):
             # the peer users have: OIDN balanced denoising alone at native 1280x720, same
@@ -268,13 +281,13 @@ def main() -> int:
                f"{o['ratio_median']:.2f} (p10–p90 {o['ratio_p10']:.2f}–{o['ratio_p90']:.2f}). OIDN `fast`, timed in "
                f"the same loop: median {o['oidn_fast_median_ms']:.1f} ms, ratio pipeline/OIDN fast "
                f"{o['ratio_fast_median']:.2f} (p10–p90 {o['ratio_fast_p10']:.2f}–{o['ratio_fast_p90']:.2f}).", ""]
-    r = report["results"]["1280x720 int8"]
+    r, bw = report["results"]["1280x720 int8"], report["copy_bandwidth_gb_s"]
     md += ["## The filter stage against its memory-traffic bound (1280x720 → 2560x1440, int8 pipeline)", "",
            f"Bound = bytes a step must move (its inputs read once, its output written once, float32; "
-           f"`traffic_bytes` says what is counted) ÷ the copy bandwidth measured in this run: "
-           f"{report['copy_bandwidth_gb_s']:.1f} GB/s (read + written, a numba row loop on {args.threads} threads "
-           f"copying 256 MB, median of 9; `copy_bandwidth`).", "",
-           traffic_table(r["stages"], traffic_bytes(cfg, *r["native"]), bandwidth)[0], ""]
+           f"`traffic_bytes` says what is counted) ÷ the copy bandwidth measured between the frames of this "
+           f"run: median {bw['median']:.1f} GB/s (p10–p90 {bw['p10']:.1f}–{bw['p90']:.1f}, {bw['samples']} samples; "
+           f"read + written, a numba row loop on {args.threads} threads copying 256 MB; `CopyProbe`).", "",
+           traffic_table(r["stages"], traffic_bytes(cfg, *r["native"]), bw["median"] * 1e9)[0], ""]
     md += ["The int8 pipeline keeps the upsample graph in fp32 (`PipelineConfig.fp32_graphs`): its int8 graph "
            "is slower on this CPU (see `benchmarks/results/calibration.md`).",
            "The filter stage (filter paths, composite, upsample filter) and the reformatting are numba-fused "
