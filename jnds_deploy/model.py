@@ -25,6 +25,7 @@ parts share one range. Filter paths stay float.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 import torch
@@ -33,7 +34,6 @@ import torch.nn.functional as F
 
 from . import filters
 from .layout import CURRENT, HISTORY, N_CURRENT, N_HISTORY  # noqa: F401 (re-exported)
-
 
 
 @dataclass(frozen=True)
@@ -144,6 +144,8 @@ class QConv(nn.Conv2d):
     """A convolution whose input activation and weights are fake-quantized when enabled."""
 
     def __init__(self, cin: int, cout: int, k: int, padding_mode: str = "zeros"):
+        if padding_mode not in ("zeros", "replicate"):
+            raise ValueError(f"padding_mode must be 'zeros' or 'replicate', got {padding_mode!r}")
         super().__init__(cin, cout, k, padding=k // 2, padding_mode=padding_mode)
         self.act_quant = ActQuant()
         self.quantize = False
@@ -407,7 +409,7 @@ def bilinear_taps(scale: int) -> torch.Tensor:
     for p in range(scale):
         for d in (-1, 0, 1):
             u = (p + d + 0.5) / scale - 0.5  # native coordinate relative to i
-            u0 = int(torch.floor(torch.tensor(u)))
+            u0 = math.floor(u)
             f = u - u0
             a[p, d + 1, u0 + 1] += 1 - f
             a[p, d + 1, u0 + 2] += f

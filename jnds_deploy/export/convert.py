@@ -11,10 +11,10 @@ import numpy as np
 import torch
 
 from .. import __version__
-from . import ARTIFACT_FORMAT
 from ..errors import ValidationError
 from ..filters import to_phases
 from ..model import CURRENT, HISTORY, N_CURRENT, N_HISTORY, JNDS, quant_ranges, set_quantization
+from . import ARTIFACT_FORMAT
 from .prune import validate_variant, write_variants
 
 OPSET = 17

@@ -25,14 +25,15 @@ import numpy as np
 from ..errors import JndsError
 from ..export import ARTIFACT_FORMAT
 from ..export.prune import variant_key
-from ..layout import CURRENT
+from ..layout import CURRENT, HISTORY
 from . import filters as F
 from .reformat import to_chw, to_hwc
 
-HISTORY_LAYERS = ("diffuse", "specular", "albedo", "normal")
-# albedo then normal, adjacent in both the current inputs and the history: filtered in one pass
-AUX = slice(6, 12)
-assert [n for n, _ in CURRENT][2:4] == list(HISTORY_LAYERS[2:4]) == ["albedo", "normal"]
+HISTORY_LAYERS = tuple(n for n, _ in HISTORY)  # diffuse, specular, albedo, normal
+# albedo then normal: adjacent and at the same channels in the current inputs and the
+# history (whose layout is the current inputs' first 12 channels), filtered in one pass
+_OFFSET = dict(zip([n for n, _ in CURRENT], np.cumsum([0] + [c for _, c in CURRENT])))
+AUX = slice(int(_OFFSET["albedo"]), int(_OFFSET["normal"]) + 3)
 RADIANCE = ("diffuse", "specular")
 # the float16 filter stage filters radiance at most this bright; brighter frames are scaled
 # down by a power of two (exact in floating point) and back up after filtering. 65504 (the
