@@ -51,65 +51,58 @@ def _taps(src, k, c, ya, yb, yc, y, xa, xb, xc, x):
     return a
 
 
-@njit(inline="always")
-def _apply_span(x, k, out, relu, c, y, ya, yc, i0, i1, W):
-    for i in range(i0, i1):
-        v = _taps(x, k, c, ya, y, yc, y, max(i - 1, 0), i, min(i + 1, W - 1), i)
-        out[c, y, i] = max(v, np.float32(0)) if relu else v
-
-
 @njit(parallel=True, cache=True)
-def _apply(x, k, out, relu, skip=None, tile=1):
-    """out = kernel k on x (ReLU if asked); where ``skip[y // tile, x // tile]`` is set
-    (empty tiles), out = x. Rows without a skipped tile run one plain loop (vectorized)."""
+def _apply(x, k, out, relu):
+    """out = kernel k on x (ReLU if asked)."""
     C, H, W = x.shape
     for y in prange(H):
         ya, yc = max(y - 1, 0), min(y + 1, H - 1)
-        spans = skip is not None and skip[y // tile].any()
         for c in range(C):
-            if not spans:
-                _apply_span(x, k, out, relu, c, y, ya, yc, 0, W, W)
-                continue
-            for tx in range(skip.shape[1]):
-                i0, i1 = tx * tile, min((tx + 1) * tile, W)
-                if skip[y // tile, tx]:
-                    for i in range(i0, i1):
-                        out[c, y, i] = x[c, y, i]
-                else:
-                    _apply_span(x, k, out, relu, c, y, ya, yc, i0, i1, W)
-
-
-@njit(inline="always")
-def _lerp_span(a, ka, b, kb, t, out, plain, relu, c, y, ya, yc, i0, i1, W):
-    for i in range(i0, i1):
-        ia, ic = max(i - 1, 0), min(i + 1, W - 1)
-        va = a[c, y, i] if plain else _taps(a, ka, c, ya, y, yc, y, ia, i, ic, i)
-        vb = _taps(b, kb, c, ya, y, yc, y, ia, i, ic, i)
-        v = va + t[0, y, i] * (vb - va)
-        out[c, y, i] = max(v, np.float32(0)) if relu else v
+            for i in range(W):
+                v = _taps(x, k, c, ya, y, yc, y, max(i - 1, 0), i, min(i + 1, W - 1), i)
+                out[c, y, i] = max(v, np.float32(0)) if relu else v
 
 
 @njit(parallel=True, cache=True)
-def _lerp_taps(a, ka, b, kb, t, out, skip=None, tile=1, relu=True):
+def _lerp_taps(a, ka, b, kb, t, out, relu=True):
     """out = relu(A + t * (B - A)) (no ReLU if not ``relu``), A = a itself if ka is empty
-    else the kernel ka on a, B = the kernel kb on b; where ``skip[y // tile, x // tile]``
-    is set, out = a."""
+    else the kernel ka on a, B = the kernel kb on b."""
     C, H, W = b.shape
     plain = ka.shape[0] == 0
     for y in prange(H):
         ya, yc = max(y - 1, 0), min(y + 1, H - 1)
-        spans = skip is not None and skip[y // tile].any()
         for c in range(C):
-            if not spans:
-                _lerp_span(a, ka, b, kb, t, out, plain, relu, c, y, ya, yc, 0, W, W)
-                continue
-            for tx in range(skip.shape[1]):
-                i0, i1 = tx * tile, min((tx + 1) * tile, W)
-                if skip[y // tile, tx]:
-                    for i in range(i0, i1):
-                        out[c, y, i] = a[c, y, i]
-                else:
-                    _lerp_span(a, ka, b, kb, t, out, plain, relu, c, y, ya, yc, i0, i1, W)
+            for i in range(W):
+                ia, ic = max(i - 1, 0), min(i + 1, W - 1)
+                va = a[c, y, i] if plain else _taps(a, ka, c, ya, y, yc, y, ia, i, ic, i)
+                vb = _taps(b, kb, c, ya, y, yc, y, ia, i, ic, i)
+                v = va + t[0, y, i] * (vb - va)
+                out[c, y, i] = max(v, np.float32(0)) if relu else v
+
+
+@njit(parallel=True, cache=True)
+def _restore_tiles(src, out, skip, tile):
+    """out = src in the tiles set in ``skip`` (``empty_tiles``): they pass through."""
+    C, H, W = out.shape
+    for y in prange(H):
+        row = skip[y // tile]
+        if not row.any():
+            continue
+        for c in range(C):
+            for tx in range(row.shape[0]):
+                if row[tx]:
+                    for i in range(tx * tile, min((tx + 1) * tile, W)):
+                        out[c, y, i] = src[c, y, i]
+
+
+def _pass_tiles(src: np.ndarray, out: np.ndarray, skip, tile: int) -> np.ndarray:
+    """Empty tiles (``skip``, float32 only) take the source's values. The filter loops
+    run over every pixel and the tiles are put back afterwards: loops that skipped the
+    tiles themselves lost their vectorization and ran ~3x slower per pixel (7.6 vs
+    25.5 ms for a 720p spatiotemporal filter with an all-zero mask)."""
+    if skip is not None:
+        _restore_tiles(src, out, skip, tile)
+    return out
 
 
 @njit(parallel=True, cache=True)
@@ -174,8 +167,8 @@ def apply_kernel(x: np.ndarray, kernel: np.ndarray, relu: bool = False, skip=Non
     ``skip`` (float32 only): a tile mask (``empty_tiles``) where out = x."""
     if _fast(x, kernel):
         out = np.empty_like(x)
-        _apply(x, kernel, out, relu, skip, tile)
-        return out
+        _apply(x, kernel, out, relu)
+        return _pass_tiles(x, out, skip, tile)
     _no_skip(skip)
     _, h, w = x.shape
     p = np.pad(x, ((0, 0), (1, 1), (1, 1)), mode="edge")
@@ -239,8 +232,8 @@ def spatiotemporal(x, history, k_spatial, k_temporal, blend, skip=None, tile: in
     not ``relu``); in the tiles set in ``skip``: x."""
     if _fast(x, history, k_spatial, k_temporal, blend):
         out = np.empty_like(x)
-        _lerp_taps(x, k_spatial, history, k_temporal, blend, out, skip, tile, relu)
-        return out
+        _lerp_taps(x, k_spatial, history, k_temporal, blend, out, relu)
+        return _pass_tiles(x, out, skip, tile)
     _no_skip(skip)
     out = lerp(apply_kernel(x, k_spatial), apply_kernel(history, k_temporal), blend)
     return np.maximum(out, 0, out=out) if relu else out
@@ -263,8 +256,8 @@ def up_level(skip: np.ndarray, coarse: np.ndarray, kernel: np.ndarray, blend: np
     up = upsample(coarse)
     if _fast(skip, up, kernel, blend):
         out = np.empty_like(skip)
-        _lerp_taps(skip, _NONE, up, kernel, blend, out, tiles, tile)
-        return out
+        _lerp_taps(skip, _NONE, up, kernel, blend, out)
+        return _pass_tiles(skip, out, tiles, tile)
     _no_skip(tiles)
     return relu(lerp(skip, apply_kernel(up, kernel), blend))
 
@@ -328,10 +321,10 @@ def upsample_filter(color: np.ndarray, kernel: np.ndarray, factor: int, skip=Non
     if factor == 1:
         return apply_kernel(color, kernel, relu=True, skip=skip, tile=tile)
     up = upsample(color, factor)
-    if skip is None and _fast(up, kernel):
+    if _fast(up, kernel):
         out = np.empty_like(up)
         _apply_phases(up, kernel, out, factor)
-        return out
+        return _pass_tiles(up, out, skip, tile * factor)
     return apply_kernel(up, from_phases(kernel, factor), relu=True, skip=skip, tile=tile * factor)
 
 

@@ -108,8 +108,8 @@ class PipelineConfig:
     # features for it) not computed -- for a renderer that already renders at display size
     native_output: bool = False
     # with adaptive: pass empty background tiles through the filter stage (approximate; off by
-    # default: with a tile mask the numba filter loops run ~3x slower per pixel, so it costs
-    # more than it saves, benchmarks/results/adaptive.md)
+    # default: finding the tiles and putting them back costs about what the smaller upsample
+    # box saves, 0.84-1.16x in benchmarks/results/adaptive.md)
     tile_skip: bool = False
 
     def __post_init__(self):
