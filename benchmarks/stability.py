@@ -62,7 +62,7 @@ def long_run(pipe: Pipeline, seq, frames: int) -> dict:
         # the sequence's own cuts are flagged in every loop; the loop seam is not
         out, _ = pipe(inputs[i], camera_cut=t == 0 or seq.frames[i].camera_cut)
         ratio.append(float(np.mean(out, dtype=np.float64) / refs[i]))
-        hist_max = max(hist_max, float(pipe.history[:6].max()))
+        hist_max = max(hist_max, float(pipe.history[..., :6].max()))
         rejected += pipe.rejected
         assert np.isfinite(out).all()
     r = np.array(ratio)

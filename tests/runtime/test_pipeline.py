@@ -23,8 +23,8 @@ def test_pipeline_matches_torch_over_a_sequence(artifacts):
     for i in range(4):
         out, ms = pipe(seq.inputs(i), seq.frames[i].camera_cut)
         assert out.shape == (180, 320, 3) and out.dtype == np.float32
-        # measured: 1e-7 (first frame) to 8e-7 (with history: cv2.remap's 1/32-pixel map
-        # quantization in the warp); tolerance 1e-4 of the mean
+        # measured: 1e-7 (first frame) to 8e-7 (with history, when the warp was cv2.remap
+        # with its 1/32-pixel map quantization); tolerance 1e-4 of the mean
         rel = np.abs(out - ref[i]).mean() / np.abs(ref[i]).mean()
         assert rel < 1e-4, (i, rel)
         assert {"network", "warp", "filter_diffuse", "filter_specular", "upsample_kernel", "total"} <= set(ms)
