@@ -122,7 +122,7 @@ class PipelineConfig:
     native_output: bool = False
     # with adaptive: pass empty background tiles through the filter stage (approximate; off by
     # default: finding the tiles and putting them back costs about what the smaller upsample
-    # box saves, 0.84-1.16x in benchmarks/results/adaptive.md)
+    # box saves, 0.84-1.16x and 0.85-1.09x in benchmarks/results/adaptive.md runs)
     tile_skip: bool = False
     # let malloc reuse freed memory (process-wide, see keep_freed_memory): each frame's
     # large arrays then skip the kernel's page faults
