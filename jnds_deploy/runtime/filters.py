@@ -398,8 +398,22 @@ def filter_path(x: np.ndarray, history: np.ndarray, native: dict, levels: list[d
     return y
 
 
+@njit(parallel=True, cache=True)
+def _composite(a, d, s, out):
+    C, H, W = out.shape
+    for y in prange(H):
+        for c in range(C):
+            for x in range(W):
+                out[c, y, x] = a[c, y, x] * d[c, y, x] + s[c, y, x]
+
+
 def composite(albedo: np.ndarray, diffuse: np.ndarray, specular: np.ndarray) -> np.ndarray:
-    """Eq. 2: albedo * diffuse + specular."""
+    """Eq. 2: albedo * diffuse + specular (float32: one fused pass, the same rounding as
+    numpy's two; numpy wrote a temporary and took 6-9 ms at 1280x720)."""
+    if _fast(albedo, diffuse, specular) and albedo.shape == diffuse.shape == specular.shape:
+        out = np.empty(albedo.shape, np.float32)
+        _composite(np.ascontiguousarray(albedo), np.ascontiguousarray(diffuse), np.ascontiguousarray(specular), out)
+        return out
     return albedo * diffuse + specular
 
 

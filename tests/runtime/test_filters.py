@@ -109,6 +109,7 @@ def test_upsample_filter_and_composite_match_torch():
     a, d, s = (RNG.random((3, h, w), dtype=np.float32) for _ in range(3))
     c = N.composite(a, d, s)
     np.testing.assert_allclose(c, T.composite(_t(a), _t(d), _t(s))[0].numpy(), rtol=1e-6)
+    np.testing.assert_array_equal(c, a * d + s)  # the fused loop rounds as numpy does (no FMA)
     for s in (2, 3):
         k = _kernel(s * h, s * w)
         phases = T.to_phases(_t(k), s)[0].numpy()  # the upsample graph's layout
