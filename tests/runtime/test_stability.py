@@ -229,3 +229,18 @@ def test_history_rejection_restarts_only_runaway_tiles():
     kept = np.ones(history.shape, bool)
     kept[3:6, REJECT_TILE:, :REJECT_TILE] = False
     np.testing.assert_array_equal(runaway[kept], history[kept])
+
+
+def test_history_rejection_partial_tiles_use_their_own_pixels():
+    """The last row and column of tiles are partial: their means are over the pixels they
+    have, so a runaway 5-pixel strip at the bottom restarts, and only it (10x brighter: over
+    the ~18-row areas the opencv area resize used before, it was diluted below the ratio)."""
+    from jnds_deploy.runtime.pipeline import REJECT_TILE, reject_history
+
+    rng = np.random.default_rng(5)
+    h, w = REJECT_TILE + 5, 2 * REJECT_TILE + 3
+    current = rng.exponential(size=(13, h, w)).astype(np.float32)
+    history = current[:12].copy()
+    history[0:3, REJECT_TILE:, REJECT_TILE:2 * REJECT_TILE] *= 10  # diffuse, the partial tile below
+    assert reject_history(current, history) == 1
+    np.testing.assert_array_equal(history, current[:12])
