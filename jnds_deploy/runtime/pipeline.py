@@ -21,7 +21,6 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from ..errors import JndsError
@@ -29,7 +28,7 @@ from ..export import ARTIFACT_FORMAT
 from ..export.prune import variant_key
 from ..layout import CURRENT, HISTORY
 from . import filters as F
-from .reformat import to_chw, to_hwc
+from .reformat import LIMITS, to_chw, to_hwc
 
 HISTORY_LAYERS = tuple(n for n, _ in HISTORY)  # diffuse, specular, albedo, normal
 # albedo then normal: adjacent and at the same channels in the current inputs and the
@@ -58,9 +57,10 @@ FP16_SAFE_MAX = 2048.0
 TILE = 16
 TILE_FLAT = 0.1
 UPSAMPLE_HALO = 2
-# the range each history channel is clamped to after warping (bicubic overshoots)
-_RANGE = {"diffuse": (0.0, F.HDR_MAX), "specular": (0.0, F.HDR_MAX), "albedo": (0.0, 1.0), "normal": (-1.0, 1.0)}
-HISTORY_LO = np.array([_RANGE[n][0] for n, c in HISTORY for _ in range(c)], np.float32)
+# each history channel is clamped after warping (bicubic overshoots) to its input layer's
+# valid range (reformat.LIMITS)
+HISTORY_LO = np.array([LIMITS[n][0] for n, c in HISTORY for _ in range(c)], np.float32)
+HISTORY_HI = np.array([LIMITS[n][1] for n, c in HISTORY for _ in range(c)], np.float32)
 # history values smaller than this are set to 0. The recurrence (temporal blend x history)
 # shrinks a signal that left a pixel geometrically, frame after frame, until it reaches
 # float32's denormals (below 1.2e-38), which the CPU computes with microcode assists:
@@ -68,7 +68,6 @@ HISTORY_LO = np.array([_RANGE[n][0] for n, c in HISTORY for _ in range(c)], np.f
 # took 56.5 ms on that history against 35.1 ms with them zeroed (same process, 7 runs).
 # 1e-30 leaves headroom for the kernels' weights; radiance this small is black in any format
 HISTORY_FLUSH = 1e-30
-HISTORY_HI = np.array([_RANGE[n][1] for n, c in HISTORY for _ in range(c)], np.float32)
 REJECT_TILE = 32
 REJECT_RATIO = 8.0
 REJECT_FLOOR = 0.1
@@ -349,8 +348,8 @@ class Pipeline:
         sess = self.sessions["network"]
         if drops:
             sess = self._session("network", drops)
-            if self._variant("network", drops):
-                self.decisions["network_graph"] = variant_key(self._variant("network", drops))
+            if variant := self._variant("network", drops):
+                self.decisions["network_graph"] = variant_key(variant)
         with t("network"):
             outs = sess.run(None, feeds)
         with t("reformat"):
