@@ -74,8 +74,8 @@ def cmd_train(args) -> int:
 
     cfg = TrainConfig(data=args.data, run=args.run, preset=args.preset, patch=args.patch,
                       unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
-                      qat_steps=args.qat_steps, lr=args.lr, spatial_loss=args.spatial_loss,
-                      feature_net=args.feature_net, val_every=args.val_every,
+                      qat_steps=args.qat_steps, lr=args.lr, qat_lr=args.qat_lr, spatial_loss=args.spatial_loss,
+                      feature_net=args.feature_net, init=args.init, val_every=args.val_every,
                       val_sequences=args.val_sequences, threads=args.threads, seed=args.seed)
     ckpt = train(cfg, progress=not args.quiet)
     print(f"checkpoint: {ckpt}")
@@ -195,9 +195,12 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--batch", type=int, default=4)
     t.add_argument("--fp32-steps", type=int, default=4000)
     t.add_argument("--qat-steps", type=int, default=1500)
-    t.add_argument("--lr", type=float, default=1e-3)
+    t.add_argument("--lr", type=float, default=1e-3, help="fp32 phase learning rate")
+    t.add_argument("--qat-lr", type=float, default=1e-4, help="QAT phase learning rate")
     t.add_argument("--spatial-loss", default="l1", choices=("l1", "feature"))
     t.add_argument("--feature-net", default=None, help="feature-loss network checkpoint")
+    t.add_argument("--init", default=None,
+                   help="start a new run from this checkpoint's weights (e.g. the shipped one) to fine-tune it")
     t.add_argument("--val-every", type=int, default=500)
     t.add_argument("--val-sequences", type=int, default=None)
     t.add_argument("--threads", type=int, default=2)

@@ -48,6 +48,7 @@ class TrainConfig:
     w_spatial: float = 0.2
     spatial_loss: str = "l1"  # l1 | feature
     feature_net: str | None = None  # checkpoint of the feature-loss network
+    init: str | None = None  # start a new run from this checkpoint's weights (fine-tuning)
     observe_batches: int = 8  # batches to observe activation ranges before QAT
     val_every: int = 500
     checkpoint_every: int = 100
@@ -277,6 +278,8 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
         rng.bit_generator.state = data["rng"]
         if state.phase != "fp32":
             set_quantization(model, True)
+    elif cfg.init:
+        state = _init_from(model, cfg)
     (run / "config.json").write_text(json.dumps({"train": asdict(cfg), "model": asdict(model.cfg)}, indent=1))
 
     train_seqs = [load_sequence(p) for p in find_sequences(Path(cfg.data) / "train")]
@@ -333,6 +336,21 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
     save_checkpoint(ckpt, model, opt, state, cfg, rng)
     bar.close()
     return ckpt
+
+
+def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
+    """Weights (and learned activation ranges) of ``cfg.init`` for a new run. A QAT-trained
+    checkpoint with ``fp32_steps == 0`` goes on in the QAT phase with its ranges; with fp32
+    steps it is fine-tuned in full precision first and its ranges are observed afresh."""
+    data = torch.load(cfg.init, weights_only=False)
+    if ModelConfig(**data["model_config"]) != model.cfg:
+        raise ValueError(f"--init {cfg.init}: model config {data['model_config']} is not preset "
+                         f"{cfg.preset!r} ({asdict(model.cfg)})")
+    model.load_state_dict(data["model"])
+    if data.get("quantized") and cfg.fp32_steps == 0:
+        set_quantization(model, True)
+        return TrainState(step=0, phase="qat")
+    return TrainState()
 
 
 @torch.no_grad()

@@ -202,3 +202,35 @@ def test_feature_loss_network_trains_and_scores(tmp_path):
     assert float(net.loss(a, a)) == 0.0
     assert float(net.loss(a, a + 0.1 * torch.randn_like(a))) > 0.0
     assert torch.isfinite(net.layer_weights).all() and (net.layer_weights > 0).all()
+
+
+def test_training_resumes_from_an_init_checkpoint(tmp_path):
+    from jnds_deploy.train import TrainConfig, train
+    from .conftest import SAMPLE
+    data = tmp_path / "data"
+    for split in ("train", "val"):
+        (data / split).mkdir(parents=True)
+        (data / split / "sample").symlink_to(SAMPLE)
+    common = dict(data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1,
+                  val_every=10 ** 6, threads=1)
+    first = train(TrainConfig(run=str(tmp_path / "a"), fp32_steps=2, qat_steps=1, **common), progress=False)
+    a = torch.load(first, weights_only=False)
+    assert a["quantized"] and a["quant_ranges"]
+
+    # no steps: the new run's checkpoint is the init's weights and ranges, in the QAT phase
+    same = train(TrainConfig(run=str(tmp_path / "b"), fp32_steps=0, qat_steps=0, init=str(first), **common),
+                 progress=False)
+    b = torch.load(same, weights_only=False)
+    assert b["quantized"] and b["quant_ranges"] == a["quant_ranges"]
+    assert all(torch.equal(a["model"][k], b["model"][k]) for k in a["model"])
+
+    # one QAT step moves the weights a little, from the init's, not from a fresh model
+    tuned = torch.load(train(TrainConfig(run=str(tmp_path / "c"), fp32_steps=0, qat_steps=1, lr=1e-4,
+                                         init=str(first), **common), progress=False), weights_only=False)
+    assert tuned["state"]["step"] == 1
+    w = "network.output_block.head.weight"
+    assert 0 < (tuned["model"][w] - a["model"][w]).abs().max() < 1e-2
+
+    with pytest.raises(ValueError, match="is not preset"):
+        train(TrainConfig(run=str(tmp_path / "d"), init=str(first), **{**common, "preset": "small"}),
+              progress=False)
