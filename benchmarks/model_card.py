@@ -1,6 +1,12 @@
 """Write the shipped checkpoint and its model card from a finished (or stopped) run.
 
     python benchmarks/model_card.py --run runs/small --eval benchmarks/results/model_eval.json
+    python benchmarks/model_card.py --run runs/ft-l1 --base-run runs/small --model ft-l1 \
+        --compare runs/ft-l1 runs/ft-feature --eval benchmarks/results/model_eval.json
+
+A run started with ``jnds train --init`` (fine-tuning) is described with the run it
+started from (``--base-run``); ``--compare`` adds a table of runs trained on the same
+budget (the L1 / feature-loss comparison of Sec. 3.3).
 
 Copies ``<run>/checkpoint.pt`` (stripped of optimizer state) to
 ``jnds_deploy/checkpoints/jnds-small.pt`` and writes ``MODEL_CARD.md`` beside it with
@@ -26,25 +32,29 @@ def main() -> None:
     ap.add_argument("--run", default="runs/small")
     ap.add_argument("--eval", default="benchmarks/results/model_eval.json")
     ap.add_argument("--command", default="", help="the jnds evaluate command that made --eval")
+    ap.add_argument("--model", default=None, help="the method of --eval that is this run (default: the first)")
+    ap.add_argument("--base-run", default=None, help="the run a fine-tuning run (--init) started from")
+    ap.add_argument("--compare", nargs="*", default=[], help="runs trained on the same budget, to tabulate")
+    ap.add_argument("--cpu", default=_cpu_name(), help="processor the run trained on (default: this one)")
     args = ap.parse_args()
 
     run = Path(args.run)
-    log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines() if line.strip()]
+    log = _log(run)
     ckpt = torch.load(run / "checkpoint.pt", weights_only=False)
     report = json.loads(Path(args.eval).read_text())
+    training = [_training_lines(run, ckpt, log, args.cpu)]
+    if ckpt["train_config"].get("init"):
+        if not args.base_run:
+            raise SystemExit(f"{run} was fine-tuned from {ckpt['train_config']['init']}: pass --base-run")
+        base = Path(args.base_run)
+        base_ckpt = torch.load(base / "checkpoint.pt", weights_only=False)
+        training.insert(0, _training_lines(base, base_ckpt, _log(base), "AMD EPYC, AVX-512 (recorded by hand)"))
     out = export_checkpoint(run / "checkpoint.pt", PKG / "jnds-small.pt", metrics=report)
 
     cfg = ModelConfig(**ckpt["model_config"])
-    tcfg = ckpt["train_config"]
     macs = count_macs(cfg)
-    # wall-clock hours from the log's timestamps, skipping gaps (pauses) longer than 10 min
-    times = [r["time"] for r in log]
-    hours = sum(min(b - a, 600) for a, b in zip(times, times[1:])) / 3600
-    vals = [r for r in log if r.get("event") == "val"]
-    history = "\n".join(f"| {r['step']} | {r['phase']} | {r['mean']['psnr']:.2f} | {r['mean']['ssim']:.4f} | "
-                        f"{r['mean']['flip']:.4f} | {r['mean']['temporal']:.5f} |" for r in vals)
     baselines = {"bicubic", "oidn-fast", "oidn-balanced", "oidn-high"}
-    model_key = next(k for k in report if k not in baselines)
+    model_key = args.model or next(k for k in report if k not in baselines)
     m = report[model_key]["mean"]
     verdict = []
     for b in ("bicubic", "oidn-balanced"):
@@ -55,6 +65,11 @@ def main() -> None:
                            f"({'beats' if m['psnr'] > o['psnr'] and m['flip'] < o['flip'] else 'does not beat'} it "
                            f"in PSNR and FLIP; temporal error {'lower' if m['temporal'] < o['temporal'] else 'higher'})")
     verdict = "\n".join(verdict)
+    steps = sum(t["steps"] for t in training)
+    hours = sum(t["hours"] for t in training)
+    training_text = "\n\n".join(t["text"] for t in training)
+    compare = _compare_table(args.compare, report) if args.compare else ""
+    history = "\n\n".join(t["history"] for t in training)
     text = f"""# Model card: jnds-small
 
 The default checkpoint of `jnds export` and the runtime: the JNDS network
@@ -74,15 +89,12 @@ renders, full precision then quantization-aware (int8 fake quantization).
 
 ## Training
 
-- Data: `jnds dataset --out data` (docs/dataset.md): {tcfg["data"]}/train, 24 sequences x 12 frames at
-  192x108 -> 384x216, reference 64 spp per target pixel.
-- Steps: {ckpt["state"]["step"]} ({tcfg["fp32_steps"]} fp32, then up to {tcfg["qat_steps"]} QAT; phase at save:
-  {ckpt["state"]["phase"]}); batch {tcfg["batch"]} x unroll {tcfg["unroll"]} frames x {tcfg["patch"]}^2 native patches;
-  AdamW, lr {tcfg["lr"]} (QAT {tcfg["qat_lr"]}) decaying x{tcfg["lr_decay"]} per phase.
-- Loss: Eq. 3-5, w_spatial {tcfg["w_spatial"]}, spatial loss `{tcfg["spatial_loss"]}`.
-- Time: {hours:.2f} h of training on 2 CPU cores (AMD EPYC, AVX-512), `jnds train`.
-- Command: `jnds train --data data --run {run} --preset small --fp32-steps {tcfg["fp32_steps"]} --qat-steps {tcfg["qat_steps"]}`
+Data: `jnds dataset --out data` (docs/dataset.md): data/train, 24 sequences x 12 frames at
+192x108 -> 384x216, reference 64 spp per target pixel. In all: {steps} steps, {hours:.2f} h
+on 2 CPU cores.
 
+{training_text}
+{compare}
 ## Validation (data/val: {len(report[model_key]["sequences"])} sequences x 12 frames, unseen seeds, 128 spp references)
 
 Against the 2x reference colour; metrics of `jnds_deploy.metrics` (LDR: Reinhard then
@@ -94,19 +106,73 @@ gamma 2.2); temporal error is Eq. 5 against the reference. {args.command}
 
 {verdict}
 
-Where it falls short of OIDN, what would close the gap: this is 1800 steps (~1 h on 2 CPU
-cores; the paper trains 500 + 500 epochs on GPUs) and PSNR was still rising (see below);
-longer training on the full 6-sequence validation split, the feature loss (Eq. 6,
-`jnds train-feature-net`, not yet compared with L1), and the wider `paper` preset.
+Where it falls short of OIDN, what would close the gap: this is {steps} steps ({hours:.1f} h on 2 CPU
+cores; the paper trains 500 + 500 epochs on GPUs) and validation PSNR was still rising
+(see below); longer training and the wider `paper` preset, which need a GPU.
 
-During training (step, phase, PSNR, SSIM, FLIP, temporal error):
+During training (step, phase, PSNR, SSIM, FLIP, temporal error; validation inside
+`jnds train`, on the sequences present at the time):
 
-| step | phase | PSNR | SSIM | FLIP | temporal |
-| --- | --- | --- | --- | --- | --- |
 {history}
 """
     (PKG / "MODEL_CARD.md").write_text(text)
     print(f"wrote {out} ({out.stat().st_size / 1e3:.0f} kB) and {PKG / 'MODEL_CARD.md'}")
+
+
+def _cpu_name() -> str:
+    for line in Path("/proc/cpuinfo").read_text().splitlines():
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
+    return "unknown processor"
+
+
+def _log(run: Path) -> list[dict]:
+    return [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines() if line.strip()]
+
+
+def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str) -> dict:
+    """One run's part of the card: what it trained, how long, with which command."""
+    tcfg = ckpt["train_config"]
+    # wall-clock hours from the log's timestamps, skipping gaps (pauses) longer than 10 min
+    times = [r["time"] for r in log]
+    hours = sum(min(b - a, 600) for a, b in zip(times, times[1:])) / 3600
+    step = ckpt["state"]["step"]
+    init = tcfg.get("init")
+    cmd = (f"jnds train --data data --run {run} --preset {tcfg['preset']} --fp32-steps {tcfg['fp32_steps']} "
+           f"--qat-steps {tcfg['qat_steps']}")
+    if init:
+        cmd += f" --init {init} --lr {tcfg['lr']} --qat-lr {tcfg['qat_lr']}"
+    if tcfg["spatial_loss"] != "l1":
+        cmd += f" --spatial-loss {tcfg['spatial_loss']} --feature-net {tcfg['feature_net']}"
+    start = f"fine-tuned from `{init}` (the run above)" if init else "from scratch"
+    text = f"""`{run}`, {start}:
+- Steps: {step} ({tcfg["fp32_steps"]} fp32, then up to {tcfg["qat_steps"]} QAT; phase at save:
+  {ckpt["state"]["phase"]}); batch {tcfg["batch"]} x unroll {tcfg["unroll"]} frames x {tcfg["patch"]}^2 native patches;
+  AdamW, lr {tcfg["lr"]} (QAT {tcfg["qat_lr"]}) decaying x{tcfg["lr_decay"]} per phase.
+- Loss: Eq. 3-5, w_spatial {tcfg["w_spatial"]}, spatial loss `{tcfg["spatial_loss"]}`.
+- Time: {hours:.2f} h on 2 CPU cores ({cpu}).
+- Command: `{cmd}`"""
+    vals = [r for r in log if r.get("event") == "val"]
+    history = "\n".join([f"`{run}`:", "", "| step | phase | PSNR | SSIM | FLIP | temporal |",
+                         "| --- | --- | --- | --- | --- | --- |"]
+                        + [f"| {r['step']} | {r['phase']} | {r['mean']['psnr']:.2f} | {r['mean']['ssim']:.4f} | "
+                           f"{r['mean']['flip']:.4f} | {r['mean']['temporal']:.5f} |" for r in vals])
+    return {"text": text, "history": history, "steps": step, "hours": hours}
+
+
+def _compare_table(runs: list[str], report: dict) -> str:
+    """Runs on the same budget from the same start, scored by the same ``jnds evaluate``."""
+    rows = []
+    for r in runs:
+        tcfg = torch.load(Path(r) / "checkpoint.pt", weights_only=False)["train_config"]
+        m = report[Path(r).name]["mean"]
+        rows.append(f"| `{r}` | {tcfg['spatial_loss']} | {m['psnr']:.2f} | {m['ssim']:.4f} | {m['flip']:.4f} | "
+                    f"{m['temporal']:.5f} |")
+    return "\n".join(["", "Spatial loss compared (Sec. 3.3, Eq. 6): the runs below start from the same checkpoint",
+                      "with the same steps, learning rates and seed; only the spatial loss differs (scores from",
+                      "`--eval`, int8 fake quantization).", "",
+                      "| run | spatial loss | PSNR (dB) | SSIM | FLIP | temporal error |",
+                      "| --- | --- | --- | --- | --- | --- |", *rows, ""])
 
 
 if __name__ == "__main__":

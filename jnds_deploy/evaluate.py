@@ -87,6 +87,13 @@ def markdown_table(report: dict) -> str:
     return "\n".join(lines)
 
 
+def method_name(checkpoint: str | Path) -> str:
+    """A checkpoint's name in reports: its file stem, or its run directory's name for a
+    training checkpoint (``runs/ft-l1/checkpoint.pt`` -> ``ft-l1``)."""
+    p = Path(checkpoint)
+    return p.parent.name if p.stem == "checkpoint" and p.parent.name else p.stem
+
+
 def run_evaluation(checkpoints: list[str], data: str, baselines_: list[str], out: str | None,
                    threads: int = 2) -> dict:
     import torch
@@ -99,7 +106,7 @@ def run_evaluation(checkpoints: list[str], data: str, baselines_: list[str], out
     methods = {}
     for ck in checkpoints:
         model = load_model(ck)
-        methods[Path(ck).stem] = lambda p, m=model: model_outputs(m, p)
+        methods[method_name(ck)] = lambda p, m=model: model_outputs(m, p)
     for b in baselines_:
         methods[b] = lambda p, b=b: baseline_outputs(b, p)
     report = evaluate_methods(seqs, methods)

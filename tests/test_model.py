@@ -1,3 +1,6 @@
+import json
+from dataclasses import asdict
+
 import numpy as np
 import pytest
 import torch
@@ -234,3 +237,22 @@ def test_training_resumes_from_an_init_checkpoint(tmp_path):
     with pytest.raises(ValueError, match="is not preset"):
         train(TrainConfig(run=str(tmp_path / "d"), init=str(first), **{**common, "preset": "small"}),
               progress=False)
+
+
+def test_evaluate_names_training_checkpoints_by_run_and_scores_them(tmp_path):
+    from jnds_deploy.evaluate import method_name, run_evaluation
+    from .conftest import SAMPLE
+    assert method_name("runs/ft-l1/checkpoint.pt") == "ft-l1"
+    assert method_name("jnds_deploy/checkpoints/jnds-small.pt") == "jnds-small"
+    torch.manual_seed(0)
+    model = JNDS(ModelConfig.preset("tiny"))
+    ckpt = tmp_path / "runs" / "tiny-a" / "checkpoint.pt"
+    ckpt.parent.mkdir(parents=True)
+    torch.save({"model": model.state_dict(), "model_config": asdict(model.cfg), "quantized": False}, ckpt)
+    report = run_evaluation([str(ckpt)], str(SAMPLE), ["bicubic"], str(tmp_path / "eval.json"), threads=1)
+    assert list(report) == ["tiny-a", "bicubic"]
+    for r in report.values():
+        assert set(r["mean"]) == {"psnr", "ssim", "flip", "temporal"}
+        assert np.isfinite(list(r["mean"].values())).all()
+        assert list(r["sequences"]) == [SAMPLE.name]
+    assert json.loads((tmp_path / "eval.json").read_text()) == report
