@@ -1,11 +1,11 @@
 """Write the shipped checkpoint and its model card from a finished (or stopped) run.
 
     python benchmarks/model_card.py --run runs/small --eval benchmarks/results/model_eval.json
-    python benchmarks/model_card.py --run runs/ft-l1 --base-run runs/small --model ft-l1 \
-        --compare runs/ft-l1 runs/ft-feature --eval benchmarks/results/model_eval.json
+    python benchmarks/model_card.py --run runs/ft-feature-long --base-run runs/small runs/ft-feature \
+        --model ft-feature-long --compare runs/ft-l1 runs/ft-feature --eval benchmarks/results/model_eval.json
 
-A run started with ``jnds train --init`` (fine-tuning) is described with the run it
-started from (``--base-run``); ``--compare`` adds a table of runs trained on the same
+A run started with ``jnds train --init`` (fine-tuning) is described with the runs it
+descends from (``--base-run``); ``--compare`` adds a table of runs trained on the same
 budget (the L1 / feature-loss comparison of Sec. 3.3).
 
 Copies ``<run>/checkpoint.pt`` (stripped of optimizer state) to
@@ -33,9 +33,11 @@ def main() -> None:
     ap.add_argument("--eval", default="benchmarks/results/model_eval.json")
     ap.add_argument("--command", default="", help="the jnds evaluate command that made --eval")
     ap.add_argument("--model", default=None, help="the method of --eval that is this run (default: the first)")
-    ap.add_argument("--base-run", default=None, help="the run a fine-tuning run (--init) started from")
+    ap.add_argument("--base-run", nargs="*", default=[],
+                    help="the runs a fine-tuning run (--init) descends from, from scratch to its parent")
     ap.add_argument("--compare", nargs="*", default=[], help="runs trained on the same budget, to tabulate")
     ap.add_argument("--cpu", default=_cpu_name(), help="processor the run trained on (default: this one)")
+    ap.add_argument("--out-dir", default=str(PKG), help="where the checkpoint and card go (default: the package)")
     args = ap.parse_args()
 
     run = Path(args.run)
@@ -43,13 +45,15 @@ def main() -> None:
     ckpt = torch.load(run / "checkpoint.pt", weights_only=False)
     report = json.loads(Path(args.eval).read_text())
     training = [_training_lines(run, ckpt, log, args.cpu)]
-    if ckpt["train_config"].get("init"):
-        if not args.base_run:
-            raise SystemExit(f"{run} was fine-tuned from {ckpt['train_config']['init']}: pass --base-run")
-        base = Path(args.base_run)
+    if ckpt["train_config"].get("init") and not args.base_run:
+        raise SystemExit(f"{run} was fine-tuned from {ckpt['train_config']['init']}: pass --base-run")
+    for i, base in enumerate(map(Path, args.base_run)):
+        # the first run of the chain trained in an earlier session, on another machine
+        cpu = "AMD EPYC with AVX-512, as recorded by hand then" if i == 0 else args.cpu
         base_ckpt = torch.load(base / "checkpoint.pt", weights_only=False)
-        training.insert(0, _training_lines(base, base_ckpt, _log(base), "AMD EPYC, AVX-512 (recorded by hand)"))
-    out = export_checkpoint(run / "checkpoint.pt", PKG / "jnds-small.pt", metrics=report)
+        training.insert(i, _training_lines(base, base_ckpt, _log(base), cpu))
+    out_dir = Path(args.out_dir)
+    out = export_checkpoint(run / "checkpoint.pt", out_dir / "jnds-small.pt", metrics=report)
 
     cfg = ModelConfig(**ckpt["model_config"])
     macs = count_macs(cfg)
@@ -115,8 +119,8 @@ During training (step, phase, PSNR, SSIM, FLIP, temporal error; validation insid
 
 {history}
 """
-    (PKG / "MODEL_CARD.md").write_text(text)
-    print(f"wrote {out} ({out.stat().st_size / 1e3:.0f} kB) and {PKG / 'MODEL_CARD.md'}")
+    (out_dir / "MODEL_CARD.md").write_text(text)
+    print(f"wrote {out} ({out.stat().st_size / 1e3:.0f} kB) and {out_dir / 'MODEL_CARD.md'}")
 
 
 def _cpu_name() -> str:
@@ -144,12 +148,12 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str) -> dict:
         cmd += f" --init {init} --lr {tcfg['lr']} --qat-lr {tcfg['qat_lr']}"
     if tcfg["spatial_loss"] != "l1":
         cmd += f" --spatial-loss {tcfg['spatial_loss']} --feature-net {tcfg['feature_net']}"
-    start = f"fine-tuned from `{init}` (the run above)" if init else "from scratch"
+    start = f"fine-tuned from `{init}` as it was then: the run above" if init else "trained from scratch"
     text = f"""`{run}`, {start}:
 - Steps: {step} ({tcfg["fp32_steps"]} fp32, then up to {tcfg["qat_steps"]} QAT; phase at save:
   {ckpt["state"]["phase"]}); batch {tcfg["batch"]} x unroll {tcfg["unroll"]} frames x {tcfg["patch"]}^2 native patches;
   AdamW, lr {tcfg["lr"]} (QAT {tcfg["qat_lr"]}) decaying x{tcfg["lr_decay"]} per phase.
-- Loss: Eq. 3-5, w_spatial {tcfg["w_spatial"]}, spatial loss `{tcfg["spatial_loss"]}`.
+- Loss: Eq. 3-5, w_spatial {tcfg["w_spatial"]}, spatial loss `{tcfg["spatial_loss"]}`.{_feature_net_line(tcfg)}
 - Time: {hours:.2f} h on 2 CPU cores ({cpu}).
 - Command: `{cmd}`"""
     vals = [r for r in log if r.get("event") == "val"]
@@ -158,6 +162,15 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str) -> dict:
                         + [f"| {r['step']} | {r['phase']} | {r['mean']['psnr']:.2f} | {r['mean']['ssim']:.4f} | "
                            f"{r['mean']['flip']:.4f} | {r['mean']['temporal']:.5f} |" for r in vals])
     return {"text": text, "history": history, "steps": step, "hours": hours}
+
+
+def _feature_net_line(tcfg: dict) -> str:
+    if tcfg["spatial_loss"] != "feature":
+        return ""
+    f = torch.load(tcfg["feature_net"], weights_only=False)
+    return (f"\n- Feature-loss network (Eq. 6, `jnds_deploy.feature_loss`): `{tcfg['feature_net']}`, "
+            f"`jnds train-feature-net`, {f['config']['steps']} steps predicting the G-buffer from converged "
+            f"renders of data/train, final L1 {f['final_l1']:.4f}.")
 
 
 def _compare_table(runs: list[str], report: dict) -> str:
