@@ -226,8 +226,8 @@ def write_markdown(r: dict, out: Path, args) -> None:
     md += ["", "Before the history rejection test (`REJECT_RATIO` in `jnds_deploy/runtime/pipeline.py`), the same "
            "run grew without bound on procedural-dolly-2001 (brightness ratio 7.4e4 at frame 100, 6.4e17 at 300, "
            "history radiance 7.9e37) and procedural-static-2000 (static camera: 23 at frame 300, Inf by 1000, "
-           "history 6.9e37): the shipped checkpoint's temporal kernels sum to about 2.3 with blend weights about "
-           "0.7, and the 6-frame training unrolls never saw the loop gain exceed 1. The test rejects nothing on "
+           "history 6.9e37): the checkpoint shipped then (runs/small, L1 loss) had temporal kernels summing to "
+           "about 2.3 with blend weights about 0.7, and the 6-frame training unrolls never saw the loop gain exceed 1. The test rejects nothing on "
            "the 12-frame validation sequences (outputs unchanged)."]
     md += ["", "Plot: `stability_drift.png` (output/reference mean brightness per frame).", "",
            "## 2. int8 outside the calibration range", "",
