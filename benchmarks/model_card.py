@@ -37,6 +37,7 @@ def main() -> None:
                     help="the runs a fine-tuning run (--init) descends from, from scratch to its parent")
     ap.add_argument("--compare", nargs="*", default=[], help="runs trained on the same budget, to tabulate")
     ap.add_argument("--cpu", default=_cpu_name(), help="processor the run trained on (default: this one)")
+    ap.add_argument("--limitations", default=None, help="a markdown file of known limitations to include")
     ap.add_argument("--out-dir", default=str(PKG), help="where the checkpoint and card go (default: the package)")
     args = ap.parse_args()
 
@@ -73,6 +74,8 @@ def main() -> None:
     hours = sum(t["hours"] for t in training)
     training_text = "\n\n".join(t["text"] for t in training)
     compare = _compare_table(args.compare, report) if args.compare else ""
+    limitations = (f"Known limitations:\n\n{Path(args.limitations).read_text().strip()}\n\n"
+                   if args.limitations else "")
     history = "\n\n".join(t["history"] for t in training)
     text = f"""# Model card: jnds-small
 
@@ -110,7 +113,7 @@ gamma 2.2); temporal error is Eq. 5 against the reference. {args.command}
 
 {verdict}
 
-Where it falls short of OIDN, what would close the gap: this is {steps} steps ({hours:.1f} h on 2 CPU
+{limitations}Where it falls short of OIDN, what would close the gap: this is {steps} steps ({hours:.1f} h on 2 CPU
 cores; the paper trains 500 + 500 epochs on GPUs) and validation PSNR was still rising
 (see below); longer training and the wider `paper` preset, which need a GPU.
 

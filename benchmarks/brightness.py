@@ -1,0 +1,72 @@
+"""Energy the model keeps: mean linear output against the mean reference, per sequence.
+
+    .venv/bin/python benchmarks/brightness.py --checkpoints runs/small/checkpoint.pt \\
+        runs/ft-feature-long/checkpoint.pt [--data data/val]
+
+PSNR, SSIM and FLIP here compare tonemapped images, where the brightest HDR pixels weigh
+little; this report looks at linear radiance. Per sequence and checkpoint (PyTorch,
+int8 fake quantization for QAT checkpoints, all frames, history carried): the ratio of
+mean output to mean reference luminance over all pixels, over the brightest 1 % of
+reference pixels, over the other 99 %, and the ratio of medians. Writes
+benchmarks/results/brightness.md and .json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from jnds_deploy.evaluate import method_name
+from jnds_deploy.io import find_sequences
+from jnds_deploy.train import infer_sequence, load_model, load_sequence
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def ratios(outs: np.ndarray, refs: np.ndarray) -> dict[str, float]:
+    """outs, refs: (T, H, W) luminance. The brightest 1 % are the top 1 % of reference pixels."""
+    o, r = outs.ravel().astype(np.float64), refs.ravel().astype(np.float64)
+    top = np.argsort(r)[-max(1, r.size // 100):]
+    rest = np.ones(r.size, bool)
+    rest[top] = False
+    return {"mean": o.mean() / r.mean(), "top1": o[top].mean() / r[top].mean(),
+            "rest": o[rest].mean() / r[rest].mean(), "median": float(np.median(o) / np.median(r))}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--checkpoints", nargs="+", required=True)
+    ap.add_argument("--data", default="data/val")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "brightness"))
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    models = {method_name(c): load_model(c) for c in args.checkpoints}
+    report = {}
+    with torch.no_grad():
+        for path in find_sequences(args.data):
+            seq = load_sequence(path)
+            ref = seq.ref["color"].mean(1)  # (T, H, W) luminance (channel mean)
+            report[seq.name] = {name: ratios(np.stack(infer_sequence(m, seq)).mean(-1), ref)
+                                for name, m in models.items()}
+    names = list(models)
+    md = ["# Brightness kept (linear radiance)", "",
+          f"Command: `python benchmarks/brightness.py --checkpoints {' '.join(args.checkpoints)} --data {args.data}`",
+          "", "Mean output / mean reference (luminance = channel mean, all frames), over all pixels, over the "
+          "brightest 1 % of reference pixels and over the rest; and the ratio of medians. 1 = energy kept.", "",
+          "| sequence | checkpoint | all | brightest 1 % | other 99 % | median |", "| --- | --- | ---: | ---: | ---: | ---: |"]
+    for seq, per in report.items():
+        for name in names:
+            x = per[name]
+            md.append(f"| {seq} | {name} | {x['mean']:.3f} | {x['top1']:.3f} | {x['rest']:.3f} | {x['median']:.3f} |")
+    out = Path(args.out)
+    out.with_suffix(".json").write_text(json.dumps(report, indent=1))
+    out.with_suffix(".md").write_text("\n".join(md) + "\n")
+    print("\n".join(md))
+
+
+if __name__ == "__main__":
+    main()
