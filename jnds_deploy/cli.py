@@ -57,12 +57,13 @@ def cmd_dataset(args) -> int:
     from .render.dataset import dataset_specs, render_dataset
 
     if args.list:
-        for rel, cfg in dataset_specs(args.split):
+        for rel, cfg in dataset_specs(args.split, args.train_sequences):
             print(rel, json.dumps({"scene": cfg.scene, "seed": cfg.seed, "camera": cfg.camera,
                                    "frames": cfg.frames, "size": cfg.size, "spp": cfg.spp}))
         return 0
     t0 = time.perf_counter()
-    done = render_dataset(args.out, args.split, args.limit)
+    done = render_dataset(args.out, args.split, args.limit, variant=args.variant,
+                          train_sequences=args.train_sequences, jobs=args.jobs)
     for path, times in done:
         print(f"{path}: inputs {times['inputs']:.2f} s/frame, reference {times['reference']:.2f} s/frame")
     print(f"{len(done)} sequence(s) rendered in {time.perf_counter() - t0:.0f} s")
@@ -76,7 +77,8 @@ def cmd_train(args) -> int:
                       unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
                       qat_steps=args.qat_steps, lr=args.lr, qat_lr=args.qat_lr, spatial_loss=args.spatial_loss,
                       feature_net=args.feature_net, init=args.init, val_every=args.val_every,
-                      val_sequences=args.val_sequences, threads=args.threads, seed=args.seed)
+                      val_sequences=args.val_sequences, threads=args.threads, seed=args.seed,
+                      device=args.device)
     ckpt = train(cfg, progress=not args.quiet)
     print(f"checkpoint: {ckpt}")
     return 0
@@ -184,6 +186,10 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--split", default="all", choices=("train", "val", "all"))
     d.add_argument("--limit", type=int, default=None, help="only the first N sequences")
     d.add_argument("--list", action="store_true", help="print the sequences and exit")
+    d.add_argument("--train-sequences", type=int, default=24,
+                   help="training sequences (seeds 1000, 1001, ...; the first 24 are the default set)")
+    d.add_argument("--jobs", type=int, default=1, help="sequences rendered at once, in separate processes")
+    d.add_argument("--variant", default=None, help="Mitsuba variant, e.g. cuda_ad_rgb on a GPU machine")
     d.set_defaults(func=cmd_dataset)
 
     t = sub.add_parser("train", help="train the network (fp32, then QAT); resumes from <run>/checkpoint.pt")
@@ -197,7 +203,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--qat-steps", type=int, default=1500)
     t.add_argument("--lr", type=float, default=1e-3, help="fp32 phase learning rate")
     t.add_argument("--qat-lr", type=float, default=1e-4, help="QAT phase learning rate")
-    t.add_argument("--spatial-loss", default="l1", choices=("l1", "feature"))
+    t.add_argument("--spatial-loss", default="l1", choices=("l1", "feature", "l1+feature"))
     t.add_argument("--feature-net", default=None, help="feature-loss network checkpoint")
     t.add_argument("--init", default=None,
                    help="start a new run from this checkpoint's weights (e.g. the shipped one) to fine-tune it")
@@ -205,6 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--val-sequences", type=int, default=None)
     t.add_argument("--threads", type=int, default=2)
     t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--device", default="cpu", help="torch device of the training steps: cpu or cuda")
     t.add_argument("--quiet", action="store_true")
     t.set_defaults(func=cmd_train)
 

@@ -65,7 +65,7 @@ class FeatureNet(nn.Module):
 
 
 def load_feature_net(path: str | Path) -> FeatureNet:
-    data = torch.load(path, weights_only=False)
+    data = torch.load(path, weights_only=False, map_location="cpu")
     net = FeatureNet(tuple(data["widths"]))
     net.load_state_dict(data["model"])
     net.eval()

@@ -32,6 +32,9 @@ from .model import (CURRENT, JNDS, ModelConfig, quant_ranges, set_observing, set
                     pad_to_multiple)
 
 
+SPATIAL_LOSSES = ("l1", "feature", "l1+feature")
+
+
 @dataclass
 class TrainConfig:
     data: str = "data"  # holds train/ and val/ sequence directories
@@ -46,7 +49,7 @@ class TrainConfig:
     qat_lr: float = 1e-4
     lr_decay: float = 0.1  # exponential decay to lr * lr_decay over each phase
     w_spatial: float = 0.2
-    spatial_loss: str = "l1"  # l1 | feature
+    spatial_loss: str = "l1"  # l1 | feature | l1+feature (the sum of both)
     feature_net: str | None = None  # checkpoint of the feature-loss network
     init: str | None = None  # start a new run from this checkpoint's weights (fine-tuning)
     observe_batches: int = 8  # batches to observe activation ranges before QAT
@@ -55,12 +58,13 @@ class TrainConfig:
     val_sequences: int | None = None  # limit validation to the first N sequences
     threads: int = 2
     seed: int = 0
+    device: str = "cpu"  # torch device of the training steps (cpu, cuda); data stays on the host
 
     def __post_init__(self):
-        if self.spatial_loss not in ("l1", "feature"):
-            raise ValueError(f"spatial_loss must be l1 or feature, got {self.spatial_loss!r}")
-        if self.spatial_loss == "feature" and not self.feature_net:
-            raise ValueError("spatial_loss=feature needs feature_net")
+        if self.spatial_loss not in SPATIAL_LOSSES:
+            raise ValueError(f"spatial_loss must be one of {', '.join(SPATIAL_LOSSES)}, got {self.spatial_loss!r}")
+        if "feature" in self.spatial_loss and not self.feature_net:
+            raise ValueError(f"spatial_loss={self.spatial_loss} needs feature_net")
         if not 0 <= self.w_spatial <= 1:
             raise ValueError(f"w_spatial must be in [0, 1], got {self.w_spatial}")
 
@@ -113,7 +117,7 @@ class PatchSampler:
         if not self.windows:
             raise ValueError(f"no window of {unroll} frames without a cut in the training data")
 
-    def batch(self, n: int) -> dict[str, torch.Tensor]:
+    def batch(self, n: int, device: str | torch.device = "cpu") -> dict[str, torch.Tensor]:
         """Tensors (T, N, C, H, W): current, motion (native patch), reference color,
         diffuse, specular, albedo (target patch)."""
         out = {k: [] for k in ("current", "motion", "color", "diffuse", "specular", "albedo")}
@@ -130,7 +134,7 @@ class PatchSampler:
             out["motion"].append(s.motion[sl, :, y:y + p, x:x + p])
             for c in ("color", "diffuse", "specular", "albedo"):
                 out[c].append(s.ref[c][sl, :, k * y:k * (y + p), k * x:k * (x + p)])
-        return {k: torch.from_numpy(np.ascontiguousarray(np.stack(v, 1))) for k, v in out.items()}
+        return {k: torch.from_numpy(np.ascontiguousarray(np.stack(v, 1))).to(device) for k, v in out.items()}
 
 
 # ---------------------------------------------------------------------------------------
@@ -154,13 +158,18 @@ class Loss:
         self.w = cfg.w_spatial
         self.scale = scale
         self.feature_net = None
-        if cfg.spatial_loss == "feature":
+        self.with_l1 = cfg.spatial_loss != "feature"
+        if "feature" in cfg.spatial_loss:
             from .feature_loss import load_feature_net
-            self.feature_net = load_feature_net(cfg.feature_net)
+            self.feature_net = load_feature_net(cfg.feature_net).to(cfg.device)
 
     def spatial(self, o: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+        """L1, the feature loss (of 3-channel images), or their sum: the feature loss alone
+        compares tonemapped features and lets bright HDR regions darken
+        (benchmarks/results/brightness.md); the L1 term holds their level."""
         if self.feature_net is not None and o.shape[1] == 3:
-            return self.feature_net.loss(o, r)
+            feat = self.feature_net.loss(o, r)
+            return feat + (o - r).abs().mean() if self.with_l1 else feat
         return (o - r).abs().mean()
 
     def __call__(self, outs: list, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
@@ -177,7 +186,7 @@ class Loss:
             r = r_flat.view(T, N, *r_flat.shape[1:])
             o = torch.stack(o_list)
             l_sp = self.spatial(o.flatten(0, 1), r.flatten(0, 1))
-            l_t = torch.zeros(())
+            l_t = o.new_zeros(())
             if T > 1:
                 mv = batch["motion"][1:].flatten(0, 1)
                 if target_res:
@@ -206,16 +215,18 @@ def run_unroll(model: JNDS, batch: dict) -> list:
 
 @torch.no_grad()
 def infer_sequence(model: JNDS, seq: SequenceArrays) -> list[np.ndarray]:
-    """Run the model over a whole sequence (padding to the model's multiple); HWC outputs."""
+    """Run the model over a whole sequence (padding to the model's multiple, on the model's
+    device); HWC outputs."""
     model.eval()
     outs, history = [], None
     s = model.cfg.scale
+    dev = next(model.parameters()).device
     for t in range(len(seq.cuts)):
-        cur, (h, w) = pad_to_multiple(torch.from_numpy(seq.current[t:t + 1]), model.cfg.pad_multiple)
-        mv, _ = pad_to_multiple(torch.from_numpy(seq.motion[t:t + 1]), model.cfg.pad_multiple)
+        cur, (h, w) = pad_to_multiple(torch.from_numpy(seq.current[t:t + 1]).to(dev), model.cfg.pad_multiple)
+        mv, _ = pad_to_multiple(torch.from_numpy(seq.motion[t:t + 1]).to(dev), model.cfg.pad_multiple)
         out = model(cur, mv, None if (t == 0 or seq.cuts[t]) else history)
         history = out.history()
-        outs.append(out.output[0, :, :h * s, :w * s].permute(1, 2, 0).numpy())
+        outs.append(out.output[0, :, :h * s, :w * s].permute(1, 2, 0).cpu().numpy())
     return outs
 
 
@@ -249,11 +260,24 @@ def _lr(cfg: TrainConfig, state: TrainState) -> float:
 
 def save_checkpoint(path: Path, model: JNDS, opt, state: TrainState, cfg: TrainConfig, rng) -> None:
     tmp = path.with_name(path.name + ".tmp")
-    torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(), "state": asdict(state),
+    # saved on the host, so that a checkpoint trained on a GPU loads anywhere (the
+    # optimizer moves its state back to its parameters' device when it is loaded)
+    torch.save({"model": _on_host(model.state_dict()), "optimizer": _on_host(opt.state_dict()), "state": asdict(state),
                 "train_config": asdict(cfg), "model_config": asdict(model.cfg),
                 "quantized": state.phase != "fp32", "rng": rng.bit_generator.state,
                 "quant_ranges": quant_ranges(model) if state.phase != "fp32" else None}, tmp)
     os.replace(tmp, path)
+
+
+def _on_host(obj):
+    """``obj`` (nested dicts and lists of tensors) with every tensor on the CPU."""
+    if isinstance(obj, torch.Tensor):
+        return obj.cpu()
+    if isinstance(obj, dict):
+        return {k: _on_host(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_on_host(v) for v in obj)
+    return obj
 
 
 def train(cfg: TrainConfig, progress: bool = True) -> Path:
@@ -266,12 +290,12 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
     ckpt = run / "checkpoint.pt"
     log = (run / "log.jsonl").open("a")
 
-    model = JNDS(ModelConfig.preset(cfg.preset))
+    model = JNDS(ModelConfig.preset(cfg.preset)).to(cfg.device)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=0.0)
     rng = np.random.default_rng(cfg.seed)
     state = TrainState()
     if ckpt.exists():
-        data = torch.load(ckpt, weights_only=False)
+        data = torch.load(ckpt, weights_only=False, map_location=cfg.device)
         model.load_state_dict(data["model"])
         opt.load_state_dict(data["optimizer"])
         state = TrainState(step=data["state"]["step"], phase=data["state"]["phase"])
@@ -314,7 +338,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
         model.train()
         for g in opt.param_groups:
             g["lr"] = _lr(cfg, state)
-        batch = sampler.batch(cfg.batch)
+        batch = sampler.batch(cfg.batch, cfg.device)
         loss, parts = loss_fn(run_unroll(model, batch), batch)
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -342,7 +366,7 @@ def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
     """Weights (and learned activation ranges) of ``cfg.init`` for a new run. A QAT-trained
     checkpoint with ``fp32_steps == 0`` goes on in the QAT phase with its ranges; with fp32
     steps it is fine-tuned in full precision first and its ranges are observed afresh."""
-    data = torch.load(cfg.init, weights_only=False)
+    data = torch.load(cfg.init, weights_only=False, map_location=cfg.device)
     if ModelConfig(**data["model_config"]) != model.cfg:
         raise ValueError(f"--init {cfg.init}: model config {data['model_config']} is not preset "
                          f"{cfg.preset!r} ({asdict(model.cfg)})")
@@ -364,14 +388,14 @@ def _start_qat(model: JNDS, sampler: PatchSampler, cfg: TrainConfig) -> None:
             m.hi.fill_(1e-3)
     set_observing(model, True)
     for _ in range(cfg.observe_batches):
-        run_unroll(model, sampler.batch(cfg.batch))
+        run_unroll(model, sampler.batch(cfg.batch, cfg.device))
     set_observing(model, False)
     set_quantization(model, True)
 
 
 def export_checkpoint(ckpt: str | Path, out: str | Path, metrics: dict | None = None) -> Path:
     """Strip a training checkpoint down to what inference needs (weights, configs, ranges)."""
-    data = torch.load(ckpt, weights_only=False)
+    data = torch.load(ckpt, weights_only=False, map_location="cpu")
     slim = {k: data[k] for k in ("model", "model_config", "train_config", "quantized", "quant_ranges")}
     slim["state"] = data["state"]
     slim["metrics"] = metrics
@@ -391,7 +415,7 @@ def default_checkpoint() -> Path:
 
 def load_model(path: str | Path) -> JNDS:
     """A model from a (training or shipped) checkpoint, fake quantization on if it was QAT-trained."""
-    data = torch.load(path, weights_only=False)
+    data = torch.load(path, weights_only=False, map_location="cpu")
     model = JNDS(ModelConfig(**data["model_config"]))
     model.load_state_dict(data["model"])
     if data.get("quantized"):

@@ -1,5 +1,6 @@
 import json
 from dataclasses import asdict
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -256,3 +257,33 @@ def test_evaluate_names_training_checkpoints_by_run_and_scores_them(tmp_path):
         assert np.isfinite(list(r["mean"].values())).all()
         assert list(r["sequences"]) == [SAMPLE.name]
     assert json.loads((tmp_path / "eval.json").read_text()) == report
+
+
+def test_l1_plus_feature_spatial_loss_is_the_sum_of_both():
+    from jnds_deploy.train import Loss, TrainConfig
+    feat = str(Path(__file__).resolve().parents[1] / "runs" / "feature" / "feature_net.pt")
+    o, r = torch.rand(2, 3, 32, 32), torch.rand(2, 3, 32, 32)
+    parts = {k: Loss(TrainConfig(spatial_loss=k, feature_net=None if k == "l1" else feat), scale=2).spatial(o, r)
+             for k in ("l1", "feature", "l1+feature")}
+    assert float(parts["l1"]) > 0 and float(parts["feature"]) > 0
+    torch.testing.assert_close(parts["l1+feature"], parts["l1"] + parts["feature"])
+    with pytest.raises(ValueError, match="needs feature_net"):
+        TrainConfig(spatial_loss="l1+feature")
+    with pytest.raises(ValueError, match="spatial_loss must be one of"):
+        TrainConfig(spatial_loss="l2")
+
+
+def test_checkpoints_hold_host_tensors_and_load_on_the_cpu(tmp_path):
+    """A run trained on a GPU must load where no GPU is: weights are saved on the host."""
+    from jnds_deploy.train import TrainConfig, load_model, train
+    from .conftest import SAMPLE
+    data = tmp_path / "data"
+    for split in ("train", "val"):
+        (data / split).mkdir(parents=True)
+        (data / split / "sample").symlink_to(SAMPLE)
+    ckpt = train(TrainConfig(data=str(data), run=str(tmp_path / "r"), preset="tiny", patch=32, unroll=2, batch=1,
+                             fp32_steps=1, qat_steps=0, val_every=10 ** 6, threads=1, device="cpu"), progress=False)
+    saved = torch.load(ckpt, weights_only=False)
+    assert all(v.device.type == "cpu" for v in saved["model"].values())
+    assert all(v.device.type == "cpu" for st in saved["optimizer"]["state"].values() for v in st.values())
+    assert load_model(ckpt).cfg == ModelConfig.preset("tiny")

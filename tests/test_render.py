@@ -210,3 +210,31 @@ def test_scalar_fallback_matches_llvm(tmp_path):
     np.testing.assert_allclose(a.inputs(0)["normal"], b.inputs(0)["normal"], atol=2e-3)
     ca, cb = a.reference(0)["color"].mean((0, 1)), b.reference(0)["color"].mean((0, 1))
     np.testing.assert_allclose(ca, cb, rtol=0.03)
+
+
+def test_dataset_grows_with_new_training_seeds_only():
+    from jnds_deploy.render.dataset import dataset_specs
+    base, grown = dataset_specs("train"), dataset_specs("train", 40)
+    assert len(base) == 24 and len(grown) == 40 and grown[:24] == base
+    val_seeds = {cfg.seed for _, cfg in dataset_specs("val")}
+    assert not val_seeds & {cfg.seed for _, cfg in dataset_specs("train", 1000)}
+    with pytest.raises(ValueError, match="train_sequences"):
+        dataset_specs("train", 0)
+
+
+def test_dataset_jobs_render_what_one_process_renders(tmp_path, monkeypatch):
+    """--jobs N renders in spawned processes; the sequences are the same bit for bit."""
+    from jnds_deploy.render import RenderConfig, dataset
+    specs = [(f"train/s{i}", RenderConfig(scene="procedural", seed=30 + i, camera="orbit", frames=2,
+                                          size=(32, 18), spp=4)) for i in range(2)]
+    monkeypatch.setattr(dataset, "dataset_specs", lambda split, n: specs)
+    one = dataset.render_dataset(tmp_path / "one", jobs=1)
+    two = dataset.render_dataset(tmp_path / "two", jobs=2)
+    assert [p.name for p, _ in one] == [p.name for p, _ in two] == ["s0", "s1"]
+    for rel, _ in specs:
+        a, b = open_sequence(tmp_path / "one" / rel), open_sequence(tmp_path / "two" / rel)
+        for i in range(2):
+            for k, v in a.inputs(i).items():
+                np.testing.assert_array_equal(b.inputs(i)[k], v, err_msg=f"{rel} frame {i} {k}")
+            np.testing.assert_array_equal(b.reference(i)["color"], a.reference(i)["color"])
+    assert dataset.render_dataset(tmp_path / "two", jobs=2) == []  # finished sequences are kept

@@ -25,10 +25,19 @@ def _specs(split: str, seeds: range, frames: int, spp: int) -> list[tuple[str, R
     return out
 
 
-def dataset_specs(split: str = "all") -> list[tuple[str, RenderConfig]]:
-    """(relative directory, config) of every sequence in a split: train, val or all."""
+TRAIN_SEQUENCES = 24  # the training set's default size; seeds 1000, 1001, ...
+
+
+def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES) -> list[tuple[str, RenderConfig]]:
+    """(relative directory, config) of every sequence in a split: train, val or all.
+
+    ``train_sequences`` grows the training set with further seeds (the first 24 are
+    always the same sequences); validation seeds (2000+) never overlap it.
+    """
+    if not 1 <= train_sequences <= 1000:
+        raise ValueError(f"train_sequences must be in 1..1000, got {train_sequences}")
     specs = {
-        "train": _specs("train", range(1000, 1024), frames=12, spp=64),
+        "train": _specs("train", range(1000, 1000 + train_sequences), frames=12, spp=64),
         "val": _specs("val", range(2000, 2006), frames=12, spp=128),
     }
     if split == "all":
@@ -38,16 +47,31 @@ def dataset_specs(split: str = "all") -> list[tuple[str, RenderConfig]]:
     return specs[split]
 
 
-def render_dataset(out: str | Path, split: str = "all", limit: int | None = None,
-                   variant: str | None = None) -> list[tuple[Path, dict]]:
+def _render_one(job: tuple[RenderConfig, Path]) -> tuple[Path, dict]:
     from .sequence import render_sequence
 
-    done = []
-    for rel, cfg in dataset_specs(split)[:limit]:
+    cfg, path = job
+    return path, render_sequence(cfg, path)
+
+
+def render_dataset(out: str | Path, split: str = "all", limit: int | None = None,
+                   variant: str | None = None, train_sequences: int = TRAIN_SEQUENCES,
+                   jobs: int = 1) -> list[tuple[Path, dict]]:
+    """Render every missing sequence of a split; ``jobs`` > 1 renders that many sequences
+    at once in separate processes (Mitsuba's Python-side tracing is single-threaded, so
+    many cores or a GPU are only kept busy by several sequences at a time)."""
+    todo = []
+    for rel, cfg in dataset_specs(split, train_sequences)[:limit]:
         if variant:
             cfg = replace(cfg, variant=variant)
         path = Path(out) / rel
-        if (path / "sequence.json").exists():
-            continue
-        done.append((path, render_sequence(cfg, path)))
-    return done
+        if not (path / "sequence.json").exists():
+            todo.append((cfg, path))
+    if jobs <= 1 or len(todo) <= 1:
+        return [_render_one(job) for job in todo]
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    # spawn: a forked child would inherit the parent's Dr.Jit/LLVM/CUDA state
+    with ProcessPoolExecutor(min(jobs, len(todo)), mp_context=mp.get_context("spawn")) as pool:
+        return list(pool.map(_render_one, todo))
