@@ -3,6 +3,11 @@
     python benchmarks/model_card.py --run runs/small --eval benchmarks/results/model_eval.json
     python benchmarks/model_card.py --run runs/ft-feature-long --base-run runs/small runs/ft-feature \
         --model ft-feature-long --compare runs/ft-l1 runs/ft-feature --eval benchmarks/results/model_eval.json
+    python benchmarks/model_card.py --run runs/gpu-mixed-from-l1 --base-run runs/small \
+        --compare runs/gpu-feature runs/gpu-mixed runs/gpu-mixed-from-l1 --limitations L.md --gap G.md
+
+A run trained with ``--device cuda`` (``scripts/gpu_train.sh``) is described as trained
+on ``--gpu`` with the data that script renders.
 
 A run started with ``jnds train --init`` (fine-tuning) is described with the runs it
 descends from (``--base-run``); ``--compare`` adds a table of runs trained on the same
@@ -37,7 +42,10 @@ def main() -> None:
                     help="the runs a fine-tuning run (--init) descends from, from scratch to its parent")
     ap.add_argument("--compare", nargs="*", default=[], help="runs trained on the same budget, to tabulate")
     ap.add_argument("--cpu", default=_cpu_name(), help="processor the run trained on (default: this one)")
+    ap.add_argument("--gpu", default="one NVIDIA H100 80GB HBM3 of a lent machine, shared by the 3 runs of "
+                    "scripts/gpu_train.sh", help="the GPU a --device cuda run trained on")
     ap.add_argument("--limitations", default=None, help="a markdown file of known limitations to include")
+    ap.add_argument("--gap", default=None, help="a markdown file: where it falls short of OIDN and why")
     ap.add_argument("--out-dir", default=str(PKG), help="where the checkpoint and card go (default: the package)")
     args = ap.parse_args()
 
@@ -45,14 +53,14 @@ def main() -> None:
     log = _log(run)
     ckpt = torch.load(run / "checkpoint.pt", weights_only=False)
     report = json.loads(Path(args.eval).read_text())
-    training = [_training_lines(run, ckpt, log, args.cpu)]
+    training = [_training_lines(run, ckpt, log, args.cpu, args.gpu)]
     if ckpt["train_config"].get("init") and not args.base_run:
         raise SystemExit(f"{run} was fine-tuned from {ckpt['train_config']['init']}: pass --base-run")
     for i, base in enumerate(map(Path, args.base_run)):
         # the first run of the chain trained in an earlier session, on another machine
         cpu = "AMD EPYC with AVX-512, as recorded by hand then" if i == 0 else args.cpu
         base_ckpt = torch.load(base / "checkpoint.pt", weights_only=False)
-        training.insert(i, _training_lines(base, base_ckpt, _log(base), cpu))
+        training.insert(i, _training_lines(base, base_ckpt, _log(base), cpu, args.gpu))
     out_dir = Path(args.out_dir)
     out = export_checkpoint(run / "checkpoint.pt", out_dir / "jnds-small.pt", metrics=report)
 
@@ -77,6 +85,9 @@ def main() -> None:
     limitations = (f"Known limitations:\n\n{Path(args.limitations).read_text().strip()}\n\n"
                    if args.limitations else "")
     history = "\n\n".join(t["history"] for t in training)
+    gap = (Path(args.gap).read_text().strip() if args.gap else
+           f"Where it falls short of OIDN, what would close the gap: this is {steps} steps ({hours:.1f} h; "
+           "the paper trains 500 + 500 epochs on GPUs); longer training and the wider `paper` preset.")
     text = f"""# Model card: jnds-small
 
 The default checkpoint of `jnds export` and the runtime: the JNDS network
@@ -97,8 +108,8 @@ renders, full precision then quantization-aware (int8 fake quantization).
 ## Training
 
 Data: `jnds dataset --out data` (docs/dataset.md): data/train, 24 sequences x 12 frames at
-192x108 -> 384x216, reference 64 spp per target pixel. In all: {steps} steps, {hours:.2f} h
-on 2 CPU cores.
+192x108 -> 384x216, reference 64 spp per target pixel; runs on a GPU render their own
+copy with more seeds (below). In all: {steps} steps, {hours:.2f} h (machines per run below).
 
 {training_text}
 {compare}
@@ -113,9 +124,7 @@ gamma 2.2); temporal error is Eq. 5 against the reference. {args.command}
 
 {verdict}
 
-{limitations}Where it falls short of OIDN, what would close the gap: this is {steps} steps ({hours:.1f} h on 2 CPU
-cores; the paper trains 500 + 500 epochs on GPUs) and validation PSNR was still rising
-(see below); longer training and the wider `paper` preset, which need a GPU.
+{limitations}{gap}
 
 During training (step, phase, PSNR, SSIM, FLIP, temporal error; validation inside
 `jnds train`, on the sequences present at the time):
@@ -137,7 +146,7 @@ def _log(run: Path) -> list[dict]:
     return [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines() if line.strip()]
 
 
-def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str) -> dict:
+def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str) -> dict:
     """One run's part of the card: what it trained, how long, with which command."""
     tcfg = ckpt["train_config"]
     # wall-clock hours from the log's timestamps, skipping gaps (pauses) longer than 10 min
@@ -145,19 +154,30 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str) -> dict:
     hours = sum(min(b - a, 600) for a, b in zip(times, times[1:])) / 3600
     step = ckpt["state"]["step"]
     init = tcfg.get("init")
-    cmd = (f"jnds train --data data --run {run} --preset {tcfg['preset']} --fp32-steps {tcfg['fp32_steps']} "
+    on_gpu = tcfg.get("device", "cpu") != "cpu"
+    data = "/tmp/data" if on_gpu else "data"
+    cmd = (f"jnds train --data {data} --run {run} --preset {tcfg['preset']} --fp32-steps {tcfg['fp32_steps']} "
            f"--qat-steps {tcfg['qat_steps']}")
+    if tcfg["batch"] != 4:
+        cmd += f" --batch {tcfg['batch']}"
     if init:
         cmd += f" --init {init} --lr {tcfg['lr']} --qat-lr {tcfg['qat_lr']}"
     if tcfg["spatial_loss"] != "l1":
         cmd += f" --spatial-loss {tcfg['spatial_loss']} --feature-net {tcfg['feature_net']}"
+    if on_gpu:
+        cmd += f" --device {tcfg['device']}"
+    where = f"one GPU ({gpu})" if on_gpu else f"2 CPU cores ({cpu})"
+    data_line = ("\n- Data: rendered on that machine by `scripts/gpu_train.sh` (`jnds dataset --train-sequences "
+                 "40 --variant cuda_ad_rgb`): the 24 training sequences and 16 more seeds (1024-1039), "
+                 "same sizes and spp; validation inside the run on its own render of data/val."
+                 if on_gpu else "")
     start = f"fine-tuned from `{init}` as it was then: the run above" if init else "trained from scratch"
     text = f"""`{run}`, {start}:
 - Steps: {step} ({tcfg["fp32_steps"]} fp32, then up to {tcfg["qat_steps"]} QAT; phase at save:
   {ckpt["state"]["phase"]}); batch {tcfg["batch"]} x unroll {tcfg["unroll"]} frames x {tcfg["patch"]}^2 native patches;
   AdamW, lr {tcfg["lr"]} (QAT {tcfg["qat_lr"]}) decaying x{tcfg["lr_decay"]} per phase.
-- Loss: Eq. 3-5, w_spatial {tcfg["w_spatial"]}, spatial loss `{tcfg["spatial_loss"]}`.{_feature_net_line(tcfg)}
-- Time: {hours:.2f} h on 2 CPU cores ({cpu}).
+- Loss: Eq. 3-5, w_spatial {tcfg["w_spatial"]}, spatial loss `{tcfg["spatial_loss"]}`.{_feature_net_line(tcfg)}{data_line}
+- Time: {hours:.2f} h on {where}.
 - Command: `{cmd}`"""
     vals = [r for r in log if r.get("event") == "val"]
     history = "\n".join([f"`{run}`:", "", "| step | phase | PSNR | SSIM | FLIP | temporal |",
@@ -168,7 +188,7 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str) -> dict:
 
 
 def _feature_net_line(tcfg: dict) -> str:
-    if tcfg["spatial_loss"] != "feature":
+    if "feature" not in tcfg["spatial_loss"]:
         return ""
     f = torch.load(tcfg["feature_net"], weights_only=False)
     return (f"\n- Feature-loss network (Eq. 6, `jnds_deploy.feature_loss`): `{tcfg['feature_net']}`, "
@@ -182,13 +202,14 @@ def _compare_table(runs: list[str], report: dict) -> str:
     for r in runs:
         tcfg = torch.load(Path(r) / "checkpoint.pt", weights_only=False)["train_config"]
         m = report[Path(r).name]["mean"]
-        rows.append(f"| `{r}` | {tcfg['spatial_loss']} | {m['psnr']:.2f} | {m['ssim']:.4f} | {m['flip']:.4f} | "
-                    f"{m['temporal']:.5f} |")
-    return "\n".join(["", "Spatial loss compared (Sec. 3.3, Eq. 6): the runs below start from the same checkpoint",
-                      "with the same steps, learning rates and seed; only the spatial loss differs (scores from",
-                      "`--eval`, int8 fake quantization).", "",
-                      "| run | spatial loss | PSNR (dB) | SSIM | FLIP | temporal error |",
-                      "| --- | --- | --- | --- | --- | --- |", *rows, ""])
+        rows.append(f"| `{r}` | `{tcfg.get('init')}` | {tcfg['spatial_loss']} | {m['psnr']:.2f} | {m['ssim']:.4f} | "
+                    f"{m['flip']:.4f} | {m['temporal']:.5f} |")
+    return "\n".join(["", "Runs compared (Sec. 3.3, Eq. 6): the runs below have the same steps, batch, learning",
+                      "rates, seed and data; they differ in the spatial loss and the checkpoint they start from",
+                      "(scores from `--eval`, int8 fake quantization). An init of the shipped checkpoint means",
+                      "the one shipped when the run started.", "",
+                      "| run | init | spatial loss | PSNR (dB) | SSIM | FLIP | temporal error |",
+                      "| --- | --- | --- | --- | --- | --- | --- |", *rows, ""])
 
 
 if __name__ == "__main__":
