@@ -8,7 +8,7 @@
    (activations u8 / s8; quantized operators: Conv only, or Conv plus the pooling, resize
    and concatenation between them; ONNX Runtime graph optimization all / extended),
    median of --runs runs each, all in one process, interleaved. GMAC/s against the int8
-   VNNI and fp32 FMA peaks of this CPU.
+   int8 and fp32 FMA peaks of this CPU (by its instruction set).
 3. Accuracy: every calibration method with the default options: per-tensor SQNR and the
    end-to-end PSNR/FLIP of the int8 pipeline against fp32 and the reference.
 
@@ -49,23 +49,33 @@ VARIANTS = {
 }
 
 
+# int8 and fp32 multiply-accumulates per cycle and core, by the widest int8 dot product
+# the CPU has, assuming two vector multiply ports (server cores of the last years):
+# AVX-512 VNNI vpdpbusd does 64 int8 MACs per instruction (16 lanes x 4) and AVX-VNNI
+# 32; plain AVX2 needs vpmaddubsw + vpmaddwd for 32 MACs (two multiply uops), so 32 per
+# cycle. fp32 FMA does 16 MACs per 512-bit instruction, 8 per 256-bit one.
+INT8_MACS_PER_CYCLE = {"avx512_vnni": 2 * 64, "avx_vnni": 2 * 32, "avx2": 32}
+
+
 def cpu_peaks() -> dict:
-    """Peak multiply-accumulates per second of this CPU, from its core count and clock:
-    AVX-512 VNNI ``vpdpbusd`` does 64 int8 MACs per instruction (16 lanes x 4), two per
-    cycle on server cores with two 512-bit FMA ports; fp32 FMA does 16 per instruction,
-    also two per cycle. The clock is the nominal one /proc/cpuinfo reports (no turbo
-    information under KVM), so the peak is an estimate."""
+    """Peak multiply-accumulates per second of this CPU, from its core count, clock and
+    instruction set (``INT8_MACS_PER_CYCLE``). The clock is the nominal one /proc/cpuinfo
+    reports (no turbo information under KVM), so the peak is an estimate."""
     cores = os.cpu_count()
     mhz = None
     for line in Path("/proc/cpuinfo").read_text().splitlines():
         if line.startswith("cpu MHz"):
             mhz = float(line.split(":")[1])
             break
-    flags = Path("/proc/cpuinfo").read_text()
+    text = Path("/proc/cpuinfo").read_text()
+    flags = set(next((ln.split(":", 1)[1].split() for ln in text.splitlines() if ln.startswith("flags")), []))
     ghz = (mhz or 2000.0) / 1000
+    isa = next((i for i in INT8_MACS_PER_CYCLE if i in flags), "avx2")
+    fp32 = 2 * 16 if "avx512f" in flags else 2 * 8
     return {"cores": cores, "ghz": ghz, "avx512_vnni": "avx512_vnni" in flags, "amx_int8": "amx_int8" in flags,
-            "int8_vnni_gmacs": cores * ghz * 2 * 64, "fp32_fma_gmacs": cores * ghz * 2 * 16,
-            "derivation": "cores x GHz x 2 instructions/cycle x 64 int8 MACs (VNNI) or 16 fp32 MACs (FMA)"}
+            "int8_isa": isa, "int8_gmacs": cores * ghz * INT8_MACS_PER_CYCLE[isa], "fp32_fma_gmacs": cores * ghz * fp32,
+            "derivation": f"cores x GHz x {INT8_MACS_PER_CYCLE[isa]} int8 MACs per cycle ({isa}) or {fp32} fp32 "
+                          f"MACs per cycle (two {'512' if fp32 == 32 else '256'}-bit FMAs)"}
 
 
 def timing_inputs(seq_path: Path, size: tuple[int, int]) -> dict[str, np.ndarray]:
@@ -201,18 +211,18 @@ def render_markdown(r: dict) -> str:
              f"{m['ghz']:.1f} GHz nominal, AVX-512 VNNI {m['avx512_vnni']}, AMX-INT8 {m['amx_int8']}; "
              f"ONNX Runtime CPU execution provider, {r['threads']} intra-op threads.", "",
              f"## Network graph at {w}x{h} native ({r['network_gmac']:.1f} GMAC per frame)", "",
-             "| variant | median ms | min–max ms | speed-up vs fp32 | GMAC/s | % of int8 VNNI peak |",
+             f"| variant | median ms | min–max ms | speed-up vs fp32 | GMAC/s | % of int8 peak ({m['int8_isa']}) |",
              "| --- | ---: | ---: | ---: | ---: | ---: |"]
     for name, t in r["timing"].items():
         lines.append(f"| {name} | {t['median_ms']:.0f} | {t['min_ms']:.0f}–{t['max_ms']:.0f} | "
                      f"{t['speedup_vs_fp32']:.2f}× | {t['gmac_per_s']:.1f} | "
-                     f"{100 * t['gmac_per_s'] / m['int8_vnni_gmacs']:.1f} |")
+                     f"{100 * t['gmac_per_s'] / m['int8_gmacs']:.1f} |")
     ut = r["upsample_timing"]
     lines += ["", f"Upsample block graph ({r['upsample_gmac']:.1f} GMAC, the kernel for {2 * w}x{2 * h} from "
                   f"convolutions at {w}x{h}, sub-pixel form): fp32 "
                   f"{ut['fp32']['median_ms']:.0f} ms, int8 {ut['int8 default']['median_ms']:.0f} ms "
                   f"({ut['fp32']['median_ms'] / ut['int8 default']['median_ms']:.2f}×)."]
-    lines += ["", f"Peaks ({m['derivation']}): int8 VNNI {m['int8_vnni_gmacs']:.0f} GMAC/s, "
+    lines += ["", f"Peaks ({m['derivation']}): int8 {m['int8_gmacs']:.0f} GMAC/s, "
                   f"fp32 FMA {m['fp32_fma_gmacs']:.0f} GMAC/s.", "",
               "### Where the time goes (ONNX Runtime profiler, median of 3 runs, ms)", "",
               "| graph | " + " | ".join(STAGE_COLS) + " |", "| --- |" + " ---: |" * len(STAGE_COLS)]
