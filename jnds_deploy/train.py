@@ -9,7 +9,8 @@ Losses (Sec. 3.3): for each task -- diffuse, specular, auxiliary (albedo), upsam
 ``w_spatial * L_spatial + (1 - w_spatial) * L_temporal`` with w_spatial = 0.2, all task
 weights 1. Native-resolution tasks compare with the 2x2-box-downsampled reference
 component; all radiance is compared after the tonemap of Eq. 1. L_temporal is Eq. 5.
-L_spatial is L1 or the feature loss of ``jnds_deploy.feature_loss``.
+L_spatial is L1, the feature loss of ``jnds_deploy.feature_loss``, or their sum.
+``device`` runs the steps on a GPU (``--device cuda``, docs/gpu-training.md).
 
 Everything needed to resume lives in ``<run>/checkpoint.pt``, written atomically every
 ``checkpoint_every`` steps; ``<run>/log.jsonl`` has one line per log/validation event.
