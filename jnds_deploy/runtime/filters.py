@@ -49,6 +49,29 @@ def _taps(src, k, c, ya, yb, yc, y, xa, xb, xc, x):
     return a
 
 
+# The row loops below filter a row's first and last pixels (whose clamped neighbours are
+# the border) apart from its interior, where the neighbours are i - 1 and i + 1: with
+# clamped indices in the loop LLVM kept it scalar on AVX2 (a 1280x720 spatiotemporal step
+# 56 -> 13.9 ms, the plain lerp 14.6 -> 4.7 ms once split; same sums, bit-equal).
+
+
+@njit(inline="always")
+def _apply_px(x, k, ky, kx, out, relu, c, ya, y, yc, ia, i, ic):
+    v = _taps(x, k, c, ya, y, yc, ky, ia, i, ic, kx)
+    out[c, y, i] = max(v, np.float32(0)) if relu else v
+
+
+@njit(inline="always")
+def _apply_row(x, k, ky, out, relu, c, ya, y, yc):
+    """out[c, y, :] = kernel row k[:, ky, :] on rows (ya, y, yc) of x, columns clamped."""
+    W = x.shape[2]
+    _apply_px(x, k, ky, 0, out, relu, c, ya, y, yc, 0, 0, min(1, W - 1))
+    if W > 1:
+        _apply_px(x, k, ky, W - 1, out, relu, c, ya, y, yc, W - 2, W - 1, W - 1)
+    for i in range(1, W - 1):
+        _apply_px(x, k, ky, i, out, relu, c, ya, y, yc, i - 1, i, i + 1)
+
+
 @njit(parallel=True, cache=True)
 def _apply(x, k, out, relu):
     """out = kernel k on x (ReLU if asked)."""
@@ -56,9 +79,15 @@ def _apply(x, k, out, relu):
     for y in prange(H):
         ya, yc = max(y - 1, 0), min(y + 1, H - 1)
         for c in range(C):
-            for i in range(W):
-                v = _taps(x, k, c, ya, y, yc, y, max(i - 1, 0), i, min(i + 1, W - 1), i)
-                out[c, y, i] = max(v, np.float32(0)) if relu else v
+            _apply_row(x, k, y, out, relu, c, ya, y, yc)
+
+
+@njit(inline="always")
+def _lerp_px(a, ka, b, kb, t, out, relu, plain, c, ya, y, yc, ia, i, ic):
+    va = a[c, y, i] if plain else _taps(a, ka, c, ya, y, yc, y, ia, i, ic, i)
+    vb = _taps(b, kb, c, ya, y, yc, y, ia, i, ic, i)
+    v = va + t[0, y, i] * (vb - va)
+    out[c, y, i] = max(v, np.float32(0)) if relu else v
 
 
 @njit(parallel=True, cache=True)
@@ -70,12 +99,16 @@ def _lerp_taps(a, ka, b, kb, t, out, relu=True):
     for y in prange(H):
         ya, yc = max(y - 1, 0), min(y + 1, H - 1)
         for c in range(C):
-            for i in range(W):
-                ia, ic = max(i - 1, 0), min(i + 1, W - 1)
-                va = a[c, y, i] if plain else _taps(a, ka, c, ya, y, yc, y, ia, i, ic, i)
-                vb = _taps(b, kb, c, ya, y, yc, y, ia, i, ic, i)
-                v = va + t[0, y, i] * (vb - va)
-                out[c, y, i] = max(v, np.float32(0)) if relu else v
+            _lerp_px(a, ka, b, kb, t, out, relu, plain, c, ya, y, yc, 0, 0, min(1, W - 1))
+            if W > 1:
+                _lerp_px(a, ka, b, kb, t, out, relu, plain, c, ya, y, yc, W - 2, W - 1, W - 1)
+            # one interior loop per case, so that neither carries the branch
+            if plain:
+                for i in range(1, W - 1):
+                    _lerp_px(a, ka, b, kb, t, out, relu, True, c, ya, y, yc, i - 1, i, i + 1)
+            else:
+                for i in range(1, W - 1):
+                    _lerp_px(a, ka, b, kb, t, out, relu, False, c, ya, y, yc, i - 1, i, i + 1)
 
 
 @njit(parallel=True, cache=True)
@@ -437,9 +470,7 @@ def _apply_phases(x, k, out, s):
                     row[t, 0, j * s + px] = k[base + t, i, j]
         ya, yc = max(y - 1, 0), min(y + 1, H - 1)
         for c in range(C):
-            for xx in range(W):
-                v = _taps(x, row, c, ya, y, yc, 0, max(xx - 1, 0), xx, min(xx + 1, W - 1), xx)
-                out[c, y, xx] = max(v, np.float32(0))
+            _apply_row(x, row, 0, out, True, c, ya, y, yc)
 
 
 def from_phases(kernel: np.ndarray, factor: int) -> np.ndarray:
