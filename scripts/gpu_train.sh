@@ -35,6 +35,7 @@ if [ "$mode" = start ]; then
     local name=$1; shift
     setsid nohup python3 -m jnds_deploy train $common --run "$RUNS/$name" "$@" > "$RUNS/$name.log" 2>&1 &
   }
+  # $ship is the checkpoint shipped at the time: on 2026-11-23 runs/ft-feature-long
   start_run gpu-mixed --init $ship --spatial-loss l1+feature $feat
   start_run gpu-feature --init $ship --spatial-loss feature $feat
   start_run gpu-mixed-from-l1 --init runs/small/checkpoint.pt --spatial-loss l1+feature $feat
