@@ -44,6 +44,10 @@ class RenderError(JndsError):
     """The renderer cannot run with the given configuration."""
 
 
+class TrainError(JndsError):
+    """Training cannot start with the given configuration (e.g. a device that is not here)."""
+
+
 class ValidationError(JndsError):
     """ONNX Runtime and PyTorch disagree beyond tolerance; lists every failing output."""
 

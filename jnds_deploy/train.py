@@ -286,6 +286,9 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
 
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
+    if torch.device(cfg.device).type == "cuda" and not torch.cuda.is_available():
+        from .errors import TrainError
+        raise TrainError(f"--device {cfg.device}: torch {torch.__version__} sees no CUDA device here")
     run = Path(cfg.run)
     run.mkdir(parents=True, exist_ok=True)
     ckpt = run / "checkpoint.pt"

@@ -287,3 +287,10 @@ def test_checkpoints_hold_host_tensors_and_load_on_the_cpu(tmp_path):
     assert all(v.device.type == "cpu" for v in saved["model"].values())
     assert all(v.device.type == "cpu" for st in saved["optimizer"]["state"].values() for v in st.values())
     assert load_model(ckpt).cfg == ModelConfig.preset("tiny")
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the error where no GPU is")
+def test_train_on_a_missing_gpu_is_a_one_line_error(tmp_path):
+    from jnds_deploy.cli import main
+    rc = main(["train", "--data", str(tmp_path), "--run", str(tmp_path / "r"), "--device", "cuda", "--quiet"])
+    assert rc == 2 and not (tmp_path / "r").exists()
