@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
+import sys
 from pathlib import Path
 
 import torch
@@ -130,6 +132,8 @@ During training (step, phase, PSNR, SSIM, FLIP, temporal error; validation insid
 `jnds train`, on the sequences present at the time):
 
 {history}
+
+This card: `python benchmarks/model_card.py {" ".join(shlex.quote(a) for a in sys.argv[1:])}`.
 """
     (out_dir / "MODEL_CARD.md").write_text(text)
     print(f"wrote {out} ({out.stat().st_size / 1e3:.0f} kB) and {out_dir / 'MODEL_CARD.md'}")

@@ -155,6 +155,7 @@ def cmd_serve(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from .render.camera import CAMERA_PATHS
+    from .render.dataset import TRAIN_SEQUENCES
     from .render.scene import SCENE_KINDS
 
     p = argparse.ArgumentParser(prog="jnds", description="Joint neural denoising and supersampling, deployed.")
@@ -186,7 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--split", default="all", choices=("train", "val", "all"))
     d.add_argument("--limit", type=int, default=None, help="only the first N sequences")
     d.add_argument("--list", action="store_true", help="print the sequences and exit")
-    d.add_argument("--train-sequences", type=int, default=24,
+    d.add_argument("--train-sequences", type=int, default=TRAIN_SEQUENCES,
                    help="training sequences (seeds 1000, 1001, ...; the first 24 are the default set)")
     d.add_argument("--jobs", type=int, default=1, help="sequences rendered at once, in separate processes")
     d.add_argument("--variant", default=None, help="Mitsuba variant, e.g. cuda_ad_rgb on a GPU machine")
