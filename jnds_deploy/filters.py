@@ -11,6 +11,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from .layout import BACKGROUND, REJECT_COS
+
 HDR_MAX = 65535.0  # inputs are clamped to [0, HDR_MAX] before tonemapping (paper, Sec. 3.2.1)
 
 
@@ -51,6 +53,38 @@ def warp(x: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
     py = ys + 0.5 + motion[:, 1]
     grid = torch.stack([2 * px / w - 1, 2 * py / h - 1], dim=-1)
     return F.grid_sample(x, grid, mode="bicubic", padding_mode="border", align_corners=False)
+
+
+# Geometric history rejection, not in the paper (its network gets the warped history and
+# must learn where not to trust it): the per-pixel normal test of SVGF (Schied et al.
+# 2017) with a 3x3 tolerance. Without it the shipped model pulled an area light's
+# radiance across the black background next to it and kept the ghost frame after frame:
+# on the orbit validation sequence history cost 3.1 dB against no history at all.
+
+
+def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor) -> torch.Tensor:
+    """(N, 1, H, W) bool: where the warped history must not be used, from the current
+    normals and the warped history's (N, 3, H, W; background 0).
+
+    - The current sample sees background: its radiance is exact, there is nothing to
+      accumulate, and the history there may hold a surface's radiance warped across a
+      silhouette.
+    - The history holds a surface whose normal is further than acos(REJECT_COS) from the
+      normal of every current pixel in the 3x3 neighbourhood (a disocclusion). The
+      neighbourhood tolerates the one-pixel silhouette shifts of the jittered, aliased
+      G-buffer; without it every silhouette pixel lost its history (-0.13 dB).
+    """
+    h, w = normal.shape[-2:]
+    background = normal.abs().sum(1, keepdim=True) < BACKGROUND
+    length = torch.sqrt((warped_normal * warped_normal).sum(1, keepdim=True))
+    p = F.pad(normal, (1, 1, 1, 1), mode="replicate")
+    best = None
+    for i in range(9):
+        dy, dx = divmod(i, 3)
+        d = (p[:, :, dy:dy + h, dx:dx + w] * warped_normal).sum(1, keepdim=True)
+        best = d if best is None else torch.maximum(best, d)
+    surface = warped_normal.abs().sum(1, keepdim=True) >= BACKGROUND
+    return background | (surface & (best < REJECT_COS * length))
 
 
 def downsample(x: torch.Tensor) -> torch.Tensor:

@@ -6,3 +6,9 @@ CURRENT = (("diffuse", 3), ("specular", 3), ("albedo", 3), ("normal", 3), ("roug
 HISTORY = (("diffuse", 3), ("specular", 3), ("albedo", 3), ("normal", 3))
 N_CURRENT = sum(c for _, c in CURRENT)
 N_HISTORY = sum(c for _, c in HISTORY)
+
+# geometric history rejection (jnds_deploy.filters.disoccluded): a history normal further
+# than acos(REJECT_COS) ~ 46 deg from every current normal in the 3x3 neighbourhood is
+# another surface; a normal with |x| + |y| + |z| below BACKGROUND is background (unit: >= 1)
+REJECT_COS = 0.7
+BACKGROUND = 0.5

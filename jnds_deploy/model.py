@@ -500,6 +500,10 @@ class JNDS(nn.Module):
             w = split_history(warped)
             warped = torch.cat([w["diffuse"].clamp_min(0), w["specular"].clamp_min(0),
                                 w["albedo"].clamp(0, 1), w["normal"].clamp(-1, 1)], 1)
+            # where the history shows another surface, or the pixel sees background, the
+            # current inputs stand in for it, as in the first frame
+            cur_hist = torch.cat([cur[n] for n, _ in HISTORY], 1)
+            warped = torch.where(filters.disoccluded(cur["normal"], w["normal"].clamp(-1, 1)), cur_hist, warped)
         net = self.network(current, warped)
         hist = split_history(warped)
         paths = {}

@@ -26,7 +26,7 @@ import numpy as np
 from ..errors import JndsError
 from ..export import ARTIFACT_FORMAT
 from ..export.prune import variant_key
-from ..layout import CURRENT, HISTORY
+from ..layout import BACKGROUND, CURRENT, HISTORY, REJECT_COS
 from . import filters as F
 from .reformat import LIMITS, to_chw, to_hwc
 
@@ -241,6 +241,7 @@ class Pipeline:
         self.on_feeds = None
         self.nonfinite: dict[str, int] = {}  # per input layer, NaN/Inf met in the last frame
         self.rejected = 0  # history tiles restarted from the current frame in the last frame
+        self.disoccluded = 0  # history pixels replaced by the current inputs (filters.disoccluded)
         # what adaptive execution decided for the last frame (all False with adaptive off):
         # static: zero motion everywhere, the history is used as it is (no resampling);
         # skip_diffuse / skip_specular: that signal is zero in the frame and its history, so
@@ -321,7 +322,7 @@ class Pipeline:
             motion = to_chw(layers, ["motion"], padded, self.nonfinite)
         if camera_cut or self.history is None or self.size != (w, h):
             self.history = None
-        self.rejected = 0
+        self.rejected = self.disoccluded = 0
         adaptive = self.cfg.adaptive
         self.decisions = {"static": False, "skip_diffuse": False, "skip_specular": False}
         with t("warp"):
@@ -334,6 +335,7 @@ class Pipeline:
                     np.clip(self.history.transpose(2, 0, 1), HISTORY_LO[:, None, None], HISTORY_HI[:, None, None], out=warped)
                 else:
                     warped = F.warp_channels_last(self.history, motion, HISTORY_LO, HISTORY_HI)
+                self.disoccluded = F.reject_disoccluded(current, warped, REJECT_COS, BACKGROUND)
                 self.rejected = reject_history(current, warped)
         # a signal that is zero in the frame and its history has a zero filter path: the
         # network variant without its kernels runs, and the path is not filtered

@@ -186,3 +186,53 @@ def test_one_pass_auxiliary_filter_equals_the_models_normal_mapping():
     np.testing.assert_allclose(both[3:], ref_normal, rtol=0, atol=2e-6)
     assert (both[3:] < 0).any()  # negative normals survive: no ReLU
     assert np.array_equal(both[:3], N.spatiotemporal(albedo, h_albedo, ks, kt, blend))
+
+
+def _normals(h, w):
+    n = RNG.normal(size=(3, h, w)).astype(np.float32)
+    n /= np.linalg.norm(n, axis=0)
+    return n
+
+
+def test_disoccluded_background_and_other_surfaces():
+    n = np.zeros((3, 5, 7), np.float32)
+    n[2] = 1.0  # a plane facing +z
+    n[:, :, 0] = 0.0  # background in column 0
+    hist = n.copy()
+    hist[:, 2, 3] = (1.0, 0.0, 0.0)  # another surface, 90 degrees off
+    hist[:, 4, 6] = (0.0, 0.6, 0.8)  # 37 degrees off: the same surface
+    hist[:, 1, 5] = 0.0  # background in the history, a surface now
+    got = T.disoccluded(_t(n), _t(hist))[0, 0].numpy()
+    want = np.zeros((5, 7), bool)
+    want[:, 0] = True  # background now: the current inputs are exact there
+    want[2, 3] = True
+    assert (got == want).all(), np.argwhere(got != want)
+
+
+def test_disoccluded_tolerates_a_one_pixel_silhouette_shift():
+    n = np.zeros((3, 6, 8), np.float32)
+    n[2, :, :4] = 1.0
+    n[0, :, 4:] = 1.0  # two planes meeting at column 4
+    hist = np.roll(n, 1, axis=2)  # the silhouette one pixel to the right in the history
+    hist[:, :, 0] = n[:, :, 0]
+    assert not T.disoccluded(_t(n), _t(hist)).any()
+    assert T.disoccluded(_t(n), _t(np.roll(n, 2, axis=2))).any()  # two pixels: rejected
+
+
+@pytest.mark.parametrize("h,w", [(1, 1), (3, 2), (17, 23)])
+def test_reject_disoccluded_matches_torch(h, w):
+    from jnds_deploy.layout import BACKGROUND, REJECT_COS
+
+    current = RNG.random((13, h, w), dtype=np.float32)
+    current[9:12] = _normals(h, w)
+    warped = RNG.random((12, h, w), dtype=np.float32) * 3
+    warped[9:12] = _normals(h, w) * RNG.random((h, w), dtype=np.float32)  # filtered: shorter
+    warped[9:12, ::3] = current[9:12, ::3]  # some agree
+    current[9:12, :, ::4] = 0.0  # background columns
+    warped[9:12, 1::5] = 0.0
+    mask = T.disoccluded(_t(current[9:12]), _t(warped[9:12]))[0, 0].numpy()
+    want = np.where(mask, current[:12], warped)
+    got = warped.copy()
+    n = N.reject_disoccluded(current, got, REJECT_COS, BACKGROUND)
+    assert n == mask.sum() and 0 < n < h * w or h * w < 4
+    np.testing.assert_array_equal(got, want)
