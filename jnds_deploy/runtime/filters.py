@@ -26,6 +26,8 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
+from ..layout import BACKGROUND, REJECT_COS
+
 HDR_MAX = 65535.0
 
 
@@ -240,16 +242,20 @@ WARP_CHANNELS = 12  # channels per pass of the warp loop (the history's 12)
 
 
 @njit(parallel=True, cache=True)
-def _warp_rows(src, motion, lo, hi, out):
+def _warp_rows(src, motion, lo, hi, out, current, cos, background, counts):
     """out[c, y, x] = clamp(bicubic sample of src (H, W, 12, channels last) at (x + mx,
     y + my), lo[c], hi[c]), taps clamped to the frame (border replicate). The 12 channels of
     a pixel are 12 explicit sums over the same taps: LLVM's SLP vectorizer turns them into
     vector loads and FMAs over adjacent channels (``NUMBA_SLP_VECTORIZE``, set in
     ``jnds_deploy/__init__``). Each row is written channels-last into a row buffer first
-    and transposed from there (cache-resident)."""
+    and transposed from there (cache-resident). With ``current`` (13, H, W) rather than
+    an empty array, the pixels that fail ``_disoccluded_row`` take the current inputs'
+    12 channels (``reject_disoccluded`` fused into the same pass); counts[y] says how many."""
     H, W, _ = src.shape
+    reject = current.shape[1] == H
     for y in prange(H):
         row = np.empty((W, WARP_CHANNELS), np.float32)
+        bad = np.zeros(W, np.bool_)
         for x in range(W):
             # clamped before the integer conversion: beyond 2 px outside, every tap is the edge
             sx = min(max(np.float32(x) + motion[0, y, x], np.float32(-3)), np.float32(W + 2))
@@ -268,10 +274,12 @@ def _warp_rows(src, motion, lo, hi, out):
                  _bicubic(r0, r1, r2, r3, xs, wx, wy, 8), _bicubic(r0, r1, r2, r3, xs, wx, wy, 9),
                  _bicubic(r0, r1, r2, r3, xs, wx, wy, 10), _bicubic(r0, r1, r2, r3, xs, wx, wy, 11))
             for c in range(WARP_CHANNELS):
-                row[x, c] = v[c]
+                row[x, c] = min(max(v[c], lo[c]), hi[c])
+        if reject:
+            counts[y] = _disoccluded_row(current, row, y, cos, background, bad)
         for c in range(out.shape[0]):
             for x in range(W):
-                out[c, y, x] = min(max(row[x, c], lo[c]), hi[c])
+                out[c, y, x] = current[c, y, x] if bad[x] else row[x, c]
 
 
 @njit(inline="always")
@@ -327,21 +335,51 @@ def tile_sums(x, c0, tile):
     return out
 
 
-def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None) -> np.ndarray:
+def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None, current=None):
     """Bicubic resampling of the previous frame ``x`` (H, W, 12, channels last) along motion
     (2, H, W): out(x, y) = x_prev(x + mx, y + my), pixel centres at integers, taps beyond
     the border replicate it (``jnds_deploy.filters.warp``, exact coordinates: no 1/32-pixel
     quantization as in cv2.remap). Returns (12, H, W) float32, channel c clamped to
     [lo[c], hi[c]] if given. 1280x720, 12 channels: 25-46 ms, where 12 cv2.remap calls
-    took 70-103 ms in the same runs (/tmp scripts, 9 runs each)."""
+    took 70-103 ms in the same runs (/tmp scripts, 9 runs each).
+
+    With ``current`` (the frame's (13, H, W) inputs), the geometric rejection runs in the
+    same pass (``reject_disoccluded``) and the result is (warped, pixels rejected)."""
     h, w, c = x.shape
     if c != WARP_CHANNELS:
         raise ValueError(f"warp_channels_last takes {WARP_CHANNELS} channels, got {c}")
     lo = np.full(c, -np.inf, np.float32) if lo is None else np.asarray(lo, np.float32)
     hi = np.full(c, np.inf, np.float32) if hi is None else np.asarray(hi, np.float32)
     out = np.empty((c, h, w), np.float32)
-    _warp_rows(np.ascontiguousarray(x, np.float32), np.ascontiguousarray(motion, np.float32), lo, hi, out)
-    return out
+    counts = np.zeros(h, np.int64)
+    cur = np.zeros((13, 0, 0), np.float32) if current is None else np.ascontiguousarray(current, np.float32)
+    _warp_rows(np.ascontiguousarray(x, np.float32), np.ascontiguousarray(motion, np.float32), lo, hi, out,
+               cur, np.float32(REJECT_COS), np.float32(BACKGROUND), counts)
+    return out if current is None else (out, int(counts.sum()))
+
+
+@njit(inline="always")
+def _disoccluded_row(current, hist, y, cos, background, bad):
+    """bad[x] = ``jnds_deploy.filters.disoccluded`` at row y, from current (13, H, W) and
+    hist[x, c], the warped (clamped) history's row y. Returns the count."""
+    _, h, w = current.shape
+    n = 0
+    for x in range(w):
+        b = abs(current[9, y, x]) + abs(current[10, y, x]) + abs(current[11, y, x]) < background
+        hx, hy, hz = hist[x, 9], hist[x, 10], hist[x, 11]
+        if not b and abs(hx) + abs(hy) + abs(hz) >= background:
+            # bad unless some normal of the 3x3 neighbourhood (clamped: the replicated
+            # border adds no new one) is close enough; the centre is tried first
+            limit = cos * np.sqrt(hx * hx + hy * hy + hz * hz)
+            b = current[9, y, x] * hx + current[10, y, x] * hy + current[11, y, x] * hz < limit
+            if b:
+                for yy in range(max(y - 1, 0), min(y + 2, h)):
+                    for xx in range(max(x - 1, 0), min(x + 2, w)):
+                        if current[9, yy, xx] * hx + current[10, yy, xx] * hy + current[11, yy, xx] * hz >= limit:
+                            b = False
+        bad[x] = b
+        n += b
+    return n
 
 
 @njit(parallel=True, cache=True)
@@ -349,21 +387,7 @@ def _reject_rows(current, warped, cos, background, counts):
     _, h, w = warped.shape
     for y in prange(h):
         bad = np.empty(w, np.bool_)
-        for x in range(w):
-            b = abs(current[9, y, x]) + abs(current[10, y, x]) + abs(current[11, y, x]) < background
-            hx, hy, hz = warped[9, y, x], warped[10, y, x], warped[11, y, x]
-            if not b and abs(hx) + abs(hy) + abs(hz) >= background:
-                # bad unless some normal of the 3x3 neighbourhood (clamped: the replicated
-                # border adds no new one) is close enough; the centre is tried first
-                limit = cos * np.sqrt(hx * hx + hy * hy + hz * hz)
-                b = current[9, y, x] * hx + current[10, y, x] * hy + current[11, y, x] * hz < limit
-                if b:
-                    for yy in range(max(y - 1, 0), min(y + 2, h)):
-                        for xx in range(max(x - 1, 0), min(x + 2, w)):
-                            if current[9, yy, xx] * hx + current[10, yy, xx] * hy + current[11, yy, xx] * hz >= limit:
-                                b = False
-            bad[x] = b
-        counts[y] = bad.sum()
+        counts[y] = _disoccluded_row(current, warped[:, y, :].T, y, cos, background, bad)
         if counts[y]:
             # one channel at a time: the planes of a 1280x720 frame are 900 x 4 KiB apart,
             # and touching all 25 per pixel thrashed the cache (27 ms against ~3)
@@ -373,7 +397,8 @@ def _reject_rows(current, warped, cos, background, counts):
                         warped[c, y, x] = current[c, y, x]
 
 
-def reject_disoccluded(current: np.ndarray, warped: np.ndarray, cos: float, background: float) -> int:
+def reject_disoccluded(current: np.ndarray, warped: np.ndarray, cos: float = REJECT_COS,
+                       background: float = BACKGROUND) -> int:
     """``jnds_deploy.filters.disoccluded`` applied in place: where the current sample sees
     background or the warped history shows another surface, the history's 12 channels
     become the current inputs' (current (13, H, W), warped (12, H, W) float32, normals at

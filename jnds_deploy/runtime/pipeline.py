@@ -26,7 +26,7 @@ import numpy as np
 from ..errors import JndsError
 from ..export import ARTIFACT_FORMAT
 from ..export.prune import variant_key
-from ..layout import BACKGROUND, CURRENT, HISTORY, REJECT_COS
+from ..layout import CURRENT, HISTORY
 from . import filters as F
 from .reformat import LIMITS, to_chw, to_hwc
 
@@ -333,9 +333,10 @@ class Pipeline:
                     self.decisions["static"] = True
                     warped = np.empty(current[:12].shape, np.float32)
                     np.clip(self.history.transpose(2, 0, 1), HISTORY_LO[:, None, None], HISTORY_HI[:, None, None], out=warped)
-                else:
-                    warped = F.warp_channels_last(self.history, motion, HISTORY_LO, HISTORY_HI)
-                self.disoccluded = F.reject_disoccluded(current, warped, REJECT_COS, BACKGROUND)
+                    self.disoccluded = F.reject_disoccluded(current, warped)
+                else:  # with the geometric rejection fused into the warp's pass
+                    warped, self.disoccluded = F.warp_channels_last(self.history, motion, HISTORY_LO, HISTORY_HI,
+                                                                    current)
                 self.rejected = reject_history(current, warped)
         # a signal that is zero in the frame and its history has a zero filter path: the
         # network variant without its kernels runs, and the path is not filtered

@@ -236,3 +236,19 @@ def test_reject_disoccluded_matches_torch(h, w):
     n = N.reject_disoccluded(current, got, REJECT_COS, BACKGROUND)
     assert n == mask.sum() and 0 < n < h * w or h * w < 4
     np.testing.assert_array_equal(got, want)
+
+
+def test_warp_with_rejection_fused_equals_warp_then_reject():
+    h, w = 19, 26
+    current = RNG.random((13, h, w), dtype=np.float32)
+    current[9:12] = _normals(h, w)
+    current[9:12, :, :5] = 0.0  # background
+    hist = RNG.random((h, w, 12), dtype=np.float32)
+    hist[..., 9:12] = np.where(RNG.random((h, w, 1)) < 0.5, current[9:12].transpose(1, 2, 0), _normals(h, w).transpose(1, 2, 0))
+    mv = RNG.normal(scale=1.5, size=(2, h, w)).astype(np.float32)
+    lo, hi = np.full(12, -1, np.float32), np.full(12, 1, np.float32)
+    want = N.warp_channels_last(hist, mv, lo, hi)
+    n_want = N.reject_disoccluded(current, want)
+    got, n = N.warp_channels_last(hist, mv, lo, hi, current)
+    assert n == n_want > 0
+    np.testing.assert_array_equal(got, want)
