@@ -255,7 +255,6 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, counts):
     reject = current.shape[1] == H
     for y in prange(H):
         row = np.empty((W, WARP_CHANNELS), np.float32)
-        bad = np.zeros(W, np.bool_)
         for x in range(W):
             # clamped before the integer conversion: beyond 2 px outside, every tap is the edge
             sx = min(max(np.float32(x) + motion[0, y, x], np.float32(-3)), np.float32(W + 2))
@@ -274,12 +273,20 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, counts):
                  _bicubic(r0, r1, r2, r3, xs, wx, wy, 8), _bicubic(r0, r1, r2, r3, xs, wx, wy, 9),
                  _bicubic(r0, r1, r2, r3, xs, wx, wy, 10), _bicubic(r0, r1, r2, r3, xs, wx, wy, 11))
             for c in range(WARP_CHANNELS):
-                row[x, c] = min(max(v[c], lo[c]), hi[c])
-        if reject:
-            counts[y] = _disoccluded_row(current, row, y, cos, background, bad)
+                row[x, c] = v[c]
         for c in range(out.shape[0]):
             for x in range(W):
-                out[c, y, x] = current[c, y, x] if bad[x] else row[x, c]
+                out[c, y, x] = min(max(row[x, c], lo[c]), hi[c])
+        if reject:
+            # on the clamped row just written (cache-resident); a select in the loop above
+            # kept LLVM from vectorizing it (2.1x the warp without rejection)
+            bad = np.empty(W, np.bool_)
+            counts[y] = _disoccluded_row(current, out[:, y, :].T, y, cos, background, bad)
+            if counts[y]:
+                for c in range(out.shape[0]):
+                    for x in range(W):
+                        if bad[x]:
+                            out[c, y, x] = current[c, y, x]
 
 
 @njit(inline="always")
