@@ -281,7 +281,7 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, counts):
             # on the clamped row just written (cache-resident); a select in the loop above
             # kept LLVM from vectorizing it (2.1x the warp without rejection)
             bad = np.empty(W, np.bool_)
-            counts[y] = _disoccluded_row(current, out[:, y, :].T, y, cos, background, bad)
+            counts[y] = _disoccluded_row(current, out[9, y], out[10, y], out[11, y], y, cos, background, bad)
             if counts[y]:
                 for c in range(out.shape[0]):
                     for x in range(W):
@@ -366,26 +366,30 @@ def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None, curr
 
 
 @njit(inline="always")
-def _disoccluded_row(current, hist, y, cos, background, bad):
+def _disoccluded_row(current, hx, hy, hz, y, cos, background, bad):
     """bad[x] = ``jnds_deploy.filters.disoccluded`` at row y, from current (13, H, W) and
-    hist[x, c], the warped (clamped) history's row y. Returns the count."""
+    the warped (clamped) history's normal at row y (hx, hy, hz: (W,) each). Returns the
+    count. The first loop, branch-free, settles every pixel but those whose own normal
+    fails the test; only those look at their neighbours."""
     _, h, w = current.shape
+    cx, cy, cz = current[9, y], current[10, y], current[11, y]
+    for x in range(w):
+        limit = cos * np.sqrt(hx[x] * hx[x] + hy[x] * hy[x] + hz[x] * hz[x])
+        background_now = abs(cx[x]) + abs(cy[x]) + abs(cz[x]) < background
+        surface_before = abs(hx[x]) + abs(hy[x]) + abs(hz[x]) >= background
+        far = cx[x] * hx[x] + cy[x] * hy[x] + cz[x] * hz[x] < limit
+        bad[x] = background_now | (surface_before & far)
     n = 0
     for x in range(w):
-        b = abs(current[9, y, x]) + abs(current[10, y, x]) + abs(current[11, y, x]) < background
-        hx, hy, hz = hist[x, 9], hist[x, 10], hist[x, 11]
-        if not b and abs(hx) + abs(hy) + abs(hz) >= background:
+        if bad[x] and abs(cx[x]) + abs(cy[x]) + abs(cz[x]) >= background:
             # bad unless some normal of the 3x3 neighbourhood (clamped: the replicated
-            # border adds no new one) is close enough; the centre is tried first
-            limit = cos * np.sqrt(hx * hx + hy * hy + hz * hz)
-            b = current[9, y, x] * hx + current[10, y, x] * hy + current[11, y, x] * hz < limit
-            if b:
-                for yy in range(max(y - 1, 0), min(y + 2, h)):
-                    for xx in range(max(x - 1, 0), min(x + 2, w)):
-                        if current[9, yy, xx] * hx + current[10, yy, xx] * hy + current[11, yy, xx] * hz >= limit:
-                            b = False
-        bad[x] = b
-        n += b
+            # border adds no new one) is close enough
+            limit = cos * np.sqrt(hx[x] * hx[x] + hy[x] * hy[x] + hz[x] * hz[x])
+            for yy in range(max(y - 1, 0), min(y + 2, h)):
+                for xx in range(max(x - 1, 0), min(x + 2, w)):
+                    if current[9, yy, xx] * hx[x] + current[10, yy, xx] * hy[x] + current[11, yy, xx] * hz[x] >= limit:
+                        bad[x] = False
+        n += bad[x]
     return n
 
 
@@ -394,7 +398,7 @@ def _reject_rows(current, warped, cos, background, counts):
     _, h, w = warped.shape
     for y in prange(h):
         bad = np.empty(w, np.bool_)
-        counts[y] = _disoccluded_row(current, warped[:, y, :].T, y, cos, background, bad)
+        counts[y] = _disoccluded_row(current, warped[9, y], warped[10, y], warped[11, y], y, cos, background, bad)
         if counts[y]:
             # one channel at a time: the planes of a 1280x720 frame are 900 x 4 KiB apart,
             # and touching all 25 per pixel thrashed the cache (27 ms against ~3)
