@@ -129,7 +129,8 @@ gamma 2.2); temporal error is Eq. 5 against the reference. {args.command}
 {limitations}{gap}
 
 During training (step, phase, PSNR, SSIM, FLIP, temporal error; validation inside
-`jnds train`, on the sequences present at the time):
+`jnds train`, on the sequences present at the time, by the model code of the time:
+runs before 2026-11-23 had no geometric history rejection):
 
 {history}
 

@@ -119,7 +119,8 @@ def traffic_bytes(cfg: ModelConfig, w: int, h: int) -> dict[str, float]:
     """Bytes each filter-stage step must move at the least: its inputs read once and its
     output written once (float32), as a fully fused loop would; intermediates (the pooled
     levels, the upsampled composite) not counted. N native pixels, T = s^2 N target pixels.
-    - warp: history 12N + motion 2N read, 12N written;
+    - warp: history 12N + motion 2N + the current normals 3N (geometric rejection) read,
+      12N written (a rejected pixel also reads the current inputs' 12 channels: not counted);
     - filter path (diffuse or specular): current 3N + history 3N + native kernels (spatial 9,
       temporal 9, blend 1, with levels also up 9, up_blend 1) read; level k (N / 4^k pixels)
       kernels down 9, up 9, up_blend 1 (the coarsest: down only); output 3N written;
@@ -130,7 +131,7 @@ def traffic_bytes(cfg: ModelConfig, w: int, h: int) -> dict[str, float]:
     native = 19 + (10 if cfg.filter_levels > 0 else 0)
     levels = sum((9 if k == cfg.filter_levels else 19) * n / 4 ** k for k in range(1, cfg.filter_levels + 1))
     path = (6 + native + 3) * n + levels
-    b = {"warp": 26 * n, "filter_diffuse": path, "filter_specular": path, "filter_auxiliary": 37 * n,
+    b = {"warp": 29 * n, "filter_diffuse": path, "filter_specular": path, "filter_auxiliary": 37 * n,
          "composite": 12 * n, "upsample_filter": 3 * n + 12 * t if cfg.scale > 1 else 0}
     return {k: 4.0 * v for k, v in b.items()}
 
