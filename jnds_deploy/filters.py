@@ -59,9 +59,8 @@ def warp(x: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
 # must learn where not to trust it): the per-pixel normal test of SVGF (Schied et al.
 # 2017) with a 3x3 tolerance. Without it the shipped model pulled an area light's
 # radiance across the black background next to it and kept the ghost frame after frame:
-# on the orbit validation sequence history cost 3.1 dB against no history at all.
-
-
+# on the orbit validation sequence history cost 3.1 dB against no history at all
+# (benchmarks/results/history_gain.md).
 def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor) -> torch.Tensor:
     """(N, 1, H, W) bool: where the warped history must not be used, from the current
     normals and the warped history's (N, 3, H, W; background 0).

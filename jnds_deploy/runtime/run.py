@@ -38,13 +38,14 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
     pipe = Pipeline(cfg)
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
-    frames, scores, nonfinite, decisions = [], [], [], []
+    frames, scores, nonfinite, decisions, rejected = [], [], [], [], []
     for i in tqdm(range(len(seq)), desc=f"run {seq.path.name}", unit="frame", disable=not progress):
         color, ms = pipe(seq.inputs(i), seq.frames[i].camera_cut)
         write_exr(out / f"{i:04d}.exr", {"color": color}, OUTPUT_LAYERS)
         frames.append(ms)
         nonfinite.append(dict(pipe.nonfinite))
         decisions.append({k: v for k, v in pipe.decisions.items() if v})
+        rejected.append({"pixels": pipe.disoccluded, "tiles": pipe.rejected})
         if metrics and seq.has_reference:
             from ..metrics import flip, psnr
 
@@ -66,6 +67,9 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
         "nonfinite": nonfinite,
         # adaptive execution per frame: what was skipped (Pipeline.decisions)
         "adaptive": cfg.adaptive, "native_output": cfg.native_output, "decisions": decisions,
+        # history replaced by the current inputs per frame: pixels by the geometric test
+        # (filters.disoccluded), 32x32 tiles by the brightness test (reject_history)
+        "history_rejected": rejected,
     }
     if scores:
         report["metrics"] = {"psnr": float(np.mean([s["psnr"] for s in scores])),

@@ -98,6 +98,11 @@ def test_jnds_run_writes_frames_and_report(artifacts, tmp_path):
     report = json.loads((out / "run.json").read_text())
     assert report["frames"] == 8 and len(report["frame_ms"]) == 8 and report["output_size"] == [320, 180]
     assert report["metrics"]["psnr"] > 0 and 0 <= report["metrics"]["flip"] <= 1
+    # the geometric test replaces the history at least wherever the frame sees background
+    seq = open_sequence(SAMPLE)
+    background = [int((np.abs(seq.inputs(i)["normal"]).sum(-1) < 0.5).sum()) for i in range(8)]
+    rejected = [r["pixels"] for r in report["history_rejected"]]
+    assert rejected[0] == 0 and all(r >= b > 0 for r, b in zip(rejected[1:], background[1:])), (rejected, background)
     from jnds_deploy.io import OUTPUT_LAYERS, read_layers
     frame = read_layers(out / "0007.exr", (320, 180), OUTPUT_LAYERS)["color"]
     assert np.isfinite(frame).all() and (frame >= 0).all()
