@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,27 +27,20 @@ from jnds_deploy import filters  # noqa: E402
 from jnds_deploy.evaluate import score_frames  # noqa: E402
 from jnds_deploy.io import expand_sequences  # noqa: E402
 from jnds_deploy.metrics import psnr  # noqa: E402
-from jnds_deploy.model import pad_to_multiple  # noqa: E402
-from jnds_deploy.train import default_checkpoint, load_model, load_sequence  # noqa: E402
+from jnds_deploy.train import default_checkpoint, infer_sequence, load_model, load_sequence  # noqa: E402
 
 MODES = ("no history", "history, no rejection", "history + rejection (default)")
 
 
-@torch.no_grad()
 def run(model, seq, mode: str) -> list[np.ndarray]:
+    """``train.infer_sequence`` in one of MODES: no history is every frame a cut."""
+    if mode == MODES[0]:
+        return infer_sequence(model, replace(seq, cuts=[True] * len(seq.cuts)))
     keep = filters.disoccluded
     if mode == MODES[1]:
         filters.disoccluded = lambda n, w: torch.zeros_like(n[:, :1], dtype=torch.bool)
     try:
-        outs, history, s = [], None, model.cfg.scale
-        for t in range(len(seq.cuts)):
-            cur, (h, w) = pad_to_multiple(torch.from_numpy(seq.current[t:t + 1]), model.cfg.pad_multiple)
-            mv, _ = pad_to_multiple(torch.from_numpy(seq.motion[t:t + 1]), model.cfg.pad_multiple)
-            first = t == 0 or seq.cuts[t] or mode == MODES[0]
-            out = model(cur, mv, None if first else history)
-            history = out.history()
-            outs.append(out.output[0, :, :h * s, :w * s].permute(1, 2, 0).numpy())
-        return outs
+        return infer_sequence(model, seq)
     finally:
         filters.disoccluded = keep
 

@@ -280,13 +280,7 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, counts):
         if reject:
             # on the clamped row just written (cache-resident); a select in the loop above
             # kept LLVM from vectorizing it (2.1x the warp without rejection)
-            bad = np.empty(W, np.bool_)
-            counts[y] = _disoccluded_row(current, out[9, y], out[10, y], out[11, y], y, cos, background, bad)
-            if counts[y]:
-                for c in range(out.shape[0]):
-                    for x in range(W):
-                        if bad[x]:
-                            out[c, y, x] = current[c, y, x]
+            counts[y] = _reject_row(current, out, y, cos, background)
 
 
 @njit(inline="always")
@@ -393,19 +387,26 @@ def _disoccluded_row(current, hx, hy, hz, y, cos, background, bad):
     return n
 
 
+@njit(inline="always")
+def _reject_row(current, warped, y, cos, background):
+    """Row y of ``reject_disoccluded``; returns how many pixels were replaced."""
+    w = warped.shape[2]
+    bad = np.empty(w, np.bool_)
+    n = _disoccluded_row(current, warped[9, y], warped[10, y], warped[11, y], y, cos, background, bad)
+    if n:
+        # one channel at a time: the planes of a 1280x720 frame are 900 x 4 KiB apart,
+        # and touching all 25 per pixel thrashed the cache (27 ms against ~3)
+        for c in range(WARP_CHANNELS):
+            for x in range(w):
+                if bad[x]:
+                    warped[c, y, x] = current[c, y, x]
+    return n
+
+
 @njit(parallel=True, cache=True)
 def _reject_rows(current, warped, cos, background, counts):
-    _, h, w = warped.shape
-    for y in prange(h):
-        bad = np.empty(w, np.bool_)
-        counts[y] = _disoccluded_row(current, warped[9, y], warped[10, y], warped[11, y], y, cos, background, bad)
-        if counts[y]:
-            # one channel at a time: the planes of a 1280x720 frame are 900 x 4 KiB apart,
-            # and touching all 25 per pixel thrashed the cache (27 ms against ~3)
-            for c in range(12):
-                for x in range(w):
-                    if bad[x]:
-                        warped[c, y, x] = current[c, y, x]
+    for y in prange(warped.shape[1]):
+        counts[y] = _reject_row(current, warped, y, cos, background)
 
 
 def reject_disoccluded(current: np.ndarray, warped: np.ndarray, cos: float = REJECT_COS,
