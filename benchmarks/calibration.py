@@ -62,12 +62,8 @@ def cpu_peaks() -> dict:
     instruction set (``INT8_MACS_PER_CYCLE``). The clock is the nominal one /proc/cpuinfo
     reports (no turbo information under KVM), so the peak is an estimate."""
     cores = os.cpu_count()
-    mhz = None
-    for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("cpu MHz"):
-            mhz = float(line.split(":")[1])
-            break
     text = Path("/proc/cpuinfo").read_text()
+    mhz = next((float(ln.split(":")[1]) for ln in text.splitlines() if ln.startswith("cpu MHz")), None)
     flags = set(next((ln.split(":", 1)[1].split() for ln in text.splitlines() if ln.startswith("flags")), []))
     ghz = (mhz or 2000.0) / 1000
     isa = next((i for i in INT8_MACS_PER_CYCLE if i in flags), "avx2")
