@@ -73,7 +73,8 @@ def cmd_dataset(args) -> int:
 def cmd_train(args) -> int:
     from .train import TrainConfig, train
 
-    cfg = TrainConfig(data=args.data, run=args.run, preset=args.preset, patch=args.patch,
+    cfg = TrainConfig(data=args.data, run=args.run, preset=args.preset, upsample_root=args.upsample_root,
+                      patch=args.patch,
                       unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
                       qat_steps=args.qat_steps, lr=args.lr, qat_lr=args.qat_lr, spatial_loss=args.spatial_loss,
                       feature_net=args.feature_net, init=args.init, val_every=args.val_every,
@@ -197,6 +198,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--data", default="data", help="directory with train/ and val/ sequences")
     t.add_argument("--run", default="runs/small", help="output directory (checkpoint, log, config)")
     t.add_argument("--preset", default="small")
+    t.add_argument("--upsample-root", type=int, default=1, choices=(1, 2, 4, 8),
+                   help="the upsample filter interpolates the composite's root of this degree (1: linear, "
+                        "the paper)")
     t.add_argument("--patch", type=int, default=64, help="native patch side")
     t.add_argument("--unroll", type=int, default=6, help="consecutive frames per sample")
     t.add_argument("--batch", type=int, default=4)

@@ -12,3 +12,7 @@ N_HISTORY = sum(c for _, c in HISTORY)
 # another surface; a normal with |x| + |y| + |z| below BACKGROUND is background (unit: >= 1)
 REJECT_COS = 0.7
 BACKGROUND = 0.5
+
+# the upsample filter's root interpolation (jnds_deploy.filters.upsample_filter) raises the
+# composite to this floor first: the derivative of x^(1/root) is infinite at 0
+ROOT_FLOOR = 1e-10

@@ -36,6 +36,9 @@ from . import filters
 from .layout import CURRENT, HISTORY, N_CURRENT, N_HISTORY  # noqa: F401 (re-exported)
 
 
+UPSAMPLE_ROOTS = (1, 2, 4, 8)
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """Widths and depths of the network. Presets: ``ModelConfig.preset("small")``."""
@@ -48,6 +51,9 @@ class ModelConfig:
     upsample_width: int = 8  # upsample block hidden features at target resolution
     filter_levels: int = 3  # levels below native in the diffuse/specular filter paths
     scale: int = 2  # target = scale x native; 1 = denoise only (no upsample block)
+    # the upsample block's filter interpolates the composite's root of this degree and raises
+    # the result back (filters.upsample_filter): 1 = linear, as in the paper
+    upsample_root: int = 1
 
     def __post_init__(self):
         object.__setattr__(self, "encoder_widths", tuple(self.encoder_widths))
@@ -57,6 +63,8 @@ class ModelConfig:
         if not 0 <= self.filter_levels <= depth + 1:
             raise ValueError(f"filter_levels must be in [0, {depth + 1}] for U-Net depth {depth}, "
                              f"got {self.filter_levels}")
+        if self.upsample_root not in UPSAMPLE_ROOTS:
+            raise ValueError(f"upsample_root must be one of {UPSAMPLE_ROOTS}, got {self.upsample_root!r}")
         if not isinstance(self.scale, int) or self.scale < 1:
             raise ValueError(f"scale must be an integer >= 1, got {self.scale!r}")
         for name, v in asdict(self).items():
@@ -521,7 +529,7 @@ class JNDS(nn.Module):
         comp = filters.composite(albedo, paths["diffuse"], paths["specular"])
         if self.upsample_block is not None:
             kernel = self.upsample_block(comp, net["features"])
-            output = filters.upsample_filter(comp, kernel, self.cfg.scale)
+            output = filters.upsample_filter(comp, kernel, self.cfg.scale, self.cfg.upsample_root)
         else:
             output = comp
         return FrameOutput(paths["diffuse"], paths["specular"], albedo, normal, comp, output)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +41,7 @@ class TrainConfig:
     data: str = "data"  # holds train/ and val/ sequence directories
     run: str = "runs/small"
     preset: str = "small"
+    upsample_root: int = 1  # ModelConfig.upsample_root of the trained model
     patch: int = 64  # native patch side, a multiple of the model's pad multiple
     unroll: int = 6  # consecutive frames per sample
     batch: int = 4
@@ -294,7 +295,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
     ckpt = run / "checkpoint.pt"
     log = (run / "log.jsonl").open("a")
 
-    model = JNDS(ModelConfig.preset(cfg.preset)).to(cfg.device)
+    model = JNDS(ModelConfig.preset(cfg.preset, upsample_root=cfg.upsample_root)).to(cfg.device)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=0.0)
     rng = np.random.default_rng(cfg.seed)
     state = TrainState()
@@ -371,7 +372,8 @@ def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
     checkpoint with ``fp32_steps == 0`` goes on in the QAT phase with its ranges; with fp32
     steps it is fine-tuned in full precision first and its ranges are observed afresh."""
     data = torch.load(cfg.init, weights_only=False, map_location=cfg.device)
-    if ModelConfig(**data["model_config"]) != model.cfg:
+    # upsample_root changes no weight: a checkpoint can be fine-tuned with another
+    if replace(ModelConfig(**data["model_config"]), upsample_root=model.cfg.upsample_root) != model.cfg:
         raise ValueError(f"--init {cfg.init}: model config {data['model_config']} is not preset "
                          f"{cfg.preset!r} ({asdict(model.cfg)})")
     model.load_state_dict(data["model"])

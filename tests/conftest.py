@@ -51,10 +51,7 @@ def make_sequence(tmp_path):
     return make
 
 
-@pytest.fixture(scope="session")
-def tiny_artifacts(tmp_path_factory):
-    """fp32 artifacts of a randomly initialized `tiny` model (heads perturbed away from the
-    identity init so every path matters), and the model."""
+def _tiny_artifacts(tmp_path_factory, **config):
     import torch
 
     from jnds_deploy.export import ExportConfig, export
@@ -62,7 +59,7 @@ def tiny_artifacts(tmp_path_factory):
 
     d = tmp_path_factory.mktemp("artifacts")
     torch.manual_seed(1)
-    model = JNDS(ModelConfig.preset("tiny"))
+    model = JNDS(ModelConfig.preset("tiny", **config))
     for name, p in model.named_parameters():
         if "head" in name:
             p.data += 0.3 * torch.randn_like(p)
@@ -71,3 +68,16 @@ def tiny_artifacts(tmp_path_factory):
                 "quantized": False, "quant_ranges": None, "state": {}}, ckpt)
     export(ExportConfig(checkpoint=str(ckpt), out=str(d / "a")), log=lambda s: None)
     return d / "a", model
+
+
+@pytest.fixture(scope="session")
+def tiny_artifacts(tmp_path_factory):
+    """fp32 artifacts of a randomly initialized `tiny` model (heads perturbed away from the
+    identity init so every path matters), and the model."""
+    return _tiny_artifacts(tmp_path_factory)
+
+
+@pytest.fixture(scope="session")
+def tiny_artifacts_root4(tmp_path_factory):
+    """The same with ``upsample_root=4``."""
+    return _tiny_artifacts(tmp_path_factory, upsample_root=4)

@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
-from ..layout import BACKGROUND, REJECT_COS
+from ..layout import BACKGROUND, REJECT_COS, ROOT_FLOOR
 
 HDR_MAX = 65535.0
 
@@ -556,18 +556,35 @@ def from_phases(kernel: np.ndarray, factor: int) -> np.ndarray:
     return np.ascontiguousarray(kernel.reshape(s, s, -1, h, w).transpose(2, 3, 0, 4, 1).reshape(-1, h * s, w * s))
 
 
-def upsample_filter(color: np.ndarray, kernel: np.ndarray, factor: int, skip=None, tile: int = 1) -> np.ndarray:
-    """Bilinear upsampling of the linear composite, the predicted 3x3 kernel, ReLU; in the
-    native tiles set in ``skip``, the bilinear upsampling alone. ``kernel`` comes in the
-    upsample graph's phase layout (s*s*9, H, W) at native resolution (factor > 1)."""
+def upsample_filter(color: np.ndarray, kernel: np.ndarray, factor: int, skip=None, tile: int = 1,
+                    root: int = 1) -> np.ndarray:
+    """Bilinear upsampling of the linear composite (of its ``root``-th root, raised back to
+    the power ``root``: ``jnds_deploy.filters.upsample_filter``), the predicted 3x3 kernel,
+    ReLU; in the native tiles set in ``skip``, the upsampling alone. ``kernel`` comes in
+    the upsample graph's phase layout (s*s*9, H, W) at native resolution (factor > 1)."""
     if factor == 1:
         return apply_kernel(color, kernel, relu=True, skip=skip, tile=tile)
-    up = upsample(color, factor)
+    if root == 1:
+        up = upsample(color, factor)
+    else:  # roots and powers of two by square roots and squares: no pow() (model.UPSAMPLE_ROOTS)
+        up = upsample(_roots(np.maximum(color, ROOT_FLOOR, dtype=np.float32), root), factor)
+        for _ in range(root.bit_length() - 1):
+            np.multiply(up, up, out=up)
+        up = up.astype(color.dtype, copy=False)
     if _fast(up, kernel):
         out = np.empty_like(up)
         _apply_phases(up, kernel, out, factor)
         return _pass_tiles(up, out, skip, tile * factor)
     return apply_kernel(up, from_phases(kernel, factor), relu=True, skip=skip, tile=tile * factor)
+
+
+def _roots(x: np.ndarray, root: int) -> np.ndarray:
+    """x^(1/root) for root a power of two, in place."""
+    if root & (root - 1):
+        raise ValueError(f"upsample root must be a power of two, got {root}")
+    for _ in range(root.bit_length() - 1):
+        np.sqrt(x, out=x)
+    return x
 
 
 def _no_skip(skip) -> None:

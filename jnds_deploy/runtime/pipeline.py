@@ -197,6 +197,9 @@ class Pipeline:
         self.out_scale = 1 if cfg.native_output else self.scale  # output size / input size
         self.multiple = int(self.manifest["pad_multiple"])
         self.levels = int(self.manifest["filter_paths"]["levels"])
+        # the upsample filter's interpolation (model.ModelConfig.upsample_root; artifacts of
+        # checkpoints from before it was a choice have no entry: linear)
+        self.upsample_root = int(self.manifest["model_config"].get("upsample_root", 1))
         self.dtype = np.dtype(cfg.filter_dtype)
         if cfg.keep_freed_memory:
             keep_freed_memory()
@@ -402,7 +405,8 @@ class Pipeline:
             with t("upsample_kernel"):
                 kernel = self._upsample_kernel(feeds, tiles)
             with t("upsample_filter"):
-                out = F.upsample_filter(comp, kernel.astype(self.dtype, copy=False), self.scale, **sk)
+                out = F.upsample_filter(comp, kernel.astype(self.dtype, copy=False), self.scale, **sk,
+                                        root=self.upsample_root)
         else:
             out = comp
         with t("reformat"):

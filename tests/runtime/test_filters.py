@@ -118,6 +118,11 @@ def test_upsample_filter_and_composite_match_torch():
         np.testing.assert_array_equal(N.from_phases(phases, s), k)
         half = N.upsample_filter(c.astype(np.float16), phases.astype(np.float16), s)  # the numpy path
         np.testing.assert_allclose(half, ref, rtol=2e-2, atol=2e-2)
+        hdr = c * RNG.exponential(20.0, size=c.shape).astype(np.float32)
+        for root in (2, 4, 8):  # interpolating roots
+            ref = T.upsample_filter(_t(hdr), _t(k), s, root)[0].numpy()
+            np.testing.assert_allclose(N.upsample_filter(hdr.copy(), phases, s, root=root), ref, rtol=1e-4, atol=1e-4)
+            assert not np.allclose(ref, T.upsample_filter(_t(hdr), _t(k), s)[0].numpy(), rtol=1e-2)
 
 
 def test_fp16_filter_stays_close_to_fp32():

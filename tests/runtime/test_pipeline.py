@@ -15,8 +15,10 @@ def artifacts(tiny_artifacts):
     return tiny_artifacts
 
 
-def test_pipeline_matches_torch_over_a_sequence(artifacts):
-    path, model = artifacts
+@pytest.mark.parametrize("root", [1, 4])
+def test_pipeline_matches_torch_over_a_sequence(artifacts, tiny_artifacts_root4, root):
+    path, model = artifacts if root == 1 else tiny_artifacts_root4
+    assert Pipeline(PipelineConfig(artifacts=str(path))).upsample_root == root
     seq = open_sequence(SAMPLE)
     ref = infer_sequence(model, load_sequence(SAMPLE))[:4]
     pipe = Pipeline(PipelineConfig(artifacts=str(path)))
