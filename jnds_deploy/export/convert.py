@@ -124,7 +124,9 @@ def export(cfg: ExportConfig, log=print) -> dict:
                        "features": f"N,{feats.shape[1]},H,W float32: network output 'features'"},
             "outputs": {"kernel": {"shape": ["N", s * s * 9, "H", "W"], "layout": "phases",
                                    "meaning": "3x3 kernel of every target pixel, clamped to [-1, 1], applied "
-                                              "to the bilinearly upsampled linear composite, then ReLU; channel "
+                                              "to the bilinearly upsampled linear composite (with "
+                                              "model_config.upsample_root r > 1: its r-th root upsampled, "
+                                              "raised back to the power r), then ReLU; channel "
                                               "(py * s + px) * 9 + tap at native (i, j) is target pixel "
                                               "(s*i + py, s*j + px)"}},
         }
