@@ -17,7 +17,8 @@ For scale, the reference colour itself is pooled to native and upsampled back wi
 nearest, bilinear and bicubic interpolation (cv2.resize), and bilinearly in fourth roots
 (``ModelConfig.upsample_root`` 4): what is lost there is detail finer than a native
 pixel, which no native-resolution signal holds. OIDN balanced + bicubic
-(``baselines.oidn_bicubic``, the baseline of issue 3) is scored on the same frames.
+(``baselines.oidn_bicubic``, the baseline of issue 3) is scored on the same frames, and
+OIDN's output upsampled in 4th roots too.
 Writes benchmarks/results/error_sources.md and .json.
 """
 from __future__ import annotations
@@ -82,9 +83,15 @@ def resized_reference(refs: list[np.ndarray], scale: int) -> dict[str, list[np.n
         native = cv2.resize(r, (w // scale, h // scale), interpolation=cv2.INTER_AREA)
         for name, interp in RESIZE.items():
             out[name].append(np.maximum(cv2.resize(native, (w, h), interpolation=interp), 0))
-        roots = np.sqrt(np.sqrt(np.maximum(native, 0)))
-        out["bilinear, 4th roots"].append(cv2.resize(roots, (w, h), interpolation=cv2.INTER_LINEAR) ** 4)
+        out["bilinear, 4th roots"].append(root_upsample(native, scale))
     return out
+
+
+def root_upsample(image: np.ndarray, scale: int) -> np.ndarray:
+    """Bilinear upsampling of an HWC image's 4th roots, raised back to the 4th power."""
+    h, w = image.shape[:2]
+    roots = np.sqrt(np.sqrt(np.maximum(image, 0)))
+    return cv2.resize(roots, (w * scale, h * scale), interpolation=cv2.INTER_LINEAR) ** 4
 
 
 def main() -> int:
@@ -103,8 +110,9 @@ def main() -> int:
         refs = [r.transpose(1, 2, 0) for r in seq.ref["color"]]
         raw = open_sequence(path)
         methods = {f"model, {r} replaced": o for r, o in replaced_outputs(model, seq).items()}
-        methods["OIDN balanced + bicubic"] = [baselines.oidn_bicubic(raw.inputs(i), seq.scale, quality="balanced")
-                                              for i in range(len(raw))]
+        denoised = [baselines.oidn(raw.inputs(i), quality="balanced") for i in range(len(raw))]
+        methods["OIDN balanced + bicubic"] = [baselines.bicubic(d, seq.scale) for d in denoised]
+        methods["OIDN balanced + bilinear of 4th roots"] = [root_upsample(d, seq.scale) for d in denoised]
         methods.update({f"reference pooled, {k} up": o for k, o in resized_reference(refs, seq.scale).items()})
         name = f"{Path(path).parent.name}/{Path(path).name}"
         result["sequences"][name] = {k: float(np.mean([psnr(o, r) for o, r in zip(v, refs)]))

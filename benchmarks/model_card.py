@@ -163,8 +163,12 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str) 
     data = "/tmp/data" if on_gpu else "data"
     cmd = (f"jnds train --data {data} --run {run} --preset {tcfg['preset']} --fp32-steps {tcfg['fp32_steps']} "
            f"--qat-steps {tcfg['qat_steps']}")
+    if tcfg.get("upsample_root", 1) != 1:
+        cmd += f" --upsample-root {tcfg['upsample_root']}"
     if tcfg["batch"] != 4:
         cmd += f" --batch {tcfg['batch']}"
+    if tcfg.get("threads", 2) != 2:
+        cmd += f" --threads {tcfg['threads']}"
     if init:
         cmd += f" --init {init} --lr {tcfg['lr']} --qat-lr {tcfg['qat_lr']}"
     if tcfg["spatial_loss"] != "l1":
