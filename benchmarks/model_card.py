@@ -211,14 +211,15 @@ def _compare_table(runs: list[str], report: dict) -> str:
     for r in runs:
         tcfg = torch.load(Path(r) / "checkpoint.pt", weights_only=False)["train_config"]
         m = report[Path(r).name]["mean"]
-        rows.append(f"| `{r}` | `{tcfg.get('init')}` | {tcfg['spatial_loss']} | {m['psnr']:.2f} | {m['ssim']:.4f} | "
-                    f"{m['flip']:.4f} | {m['temporal']:.5f} |")
+        rows.append(f"| `{r}` | `{tcfg.get('init')}` | {tcfg['spatial_loss']} | {tcfg.get('upsample_root', 1)} | "
+                    f"{m['psnr']:.2f} | {m['ssim']:.4f} | {m['flip']:.4f} | {m['temporal']:.5f} |")
     return "\n".join(["", "Runs compared (Sec. 3.3, Eq. 6): the runs below have the same steps, batch, learning",
-                      "rates, seed and data; they differ in the spatial loss and the checkpoint they start from",
-                      "(scores from `--eval`, int8 fake quantization). An init of the shipped checkpoint means",
-                      "the one shipped when the run started.", "",
-                      "| run | init | spatial loss | PSNR (dB) | SSIM | FLIP | temporal error |",
-                      "| --- | --- | --- | --- | --- | --- | --- |", *rows, ""])
+                      "rates, seed and data; they differ in the spatial loss, the upsample filter's",
+                      "interpolation (`upsample_root`, 1 = linear as in the paper) and the checkpoint they",
+                      "start from (scores from `--eval`, int8 fake quantization). An init of the shipped",
+                      "checkpoint means the one shipped when the run started.", "",
+                      "| run | init | spatial loss | upsample root | PSNR (dB) | SSIM | FLIP | temporal error |",
+                      "| --- | --- | --- | ---: | --- | --- | --- | --- |", *rows, ""])
 
 
 if __name__ == "__main__":
