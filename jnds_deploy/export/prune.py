@@ -26,8 +26,9 @@ import onnx
 from onnx import numpy_helper
 
 GROUPS = ("diffuse", "specular", "features")
-# (max, mean) |variant - full| allowed for int8 graphs (see validate_variant)
-INT8_VARIANT_TOL = (1e-2, 1e-6)
+# (max, mean) |variant - full| allowed for int8 graphs (see validate_variant). Kernels
+# and blend weights lie in [-1, 1]; a broken variant is off by far more than this
+INT8_VARIANT_TOL = (1e-2, 1e-5)
 
 
 def group_of(output: str) -> str | None:
@@ -135,7 +136,9 @@ def validate_variant(full: Path, variant: Path, feeds: dict[str, np.ndarray], at
     fp32 variants are bit-equal in practice. In int8 QDQ graphs ONNX Runtime may group
     QDQ nodes into int8 kernels differently once a tensor loses a consumer, which can move
     a rare value by a quantization step (seen: a tiny test graph with percentile ranges,
-    max 1.6e-3, mean 4e-8): ``calibrate`` validates them with ``INT8_VARIANT_TOL``."""
+    max 1.6e-3, mean 4e-8; the shipped checkpoint of 2026-11-23 with minmax and entropy
+    int8 ranges from the bundled sample, variants without both filter paths: max 4.3e-3,
+    mean 3.9e-6): ``calibrate`` validates them with ``INT8_VARIANT_TOL``."""
     import onnxruntime as ort
 
     a = ort.InferenceSession(str(full), providers=["CPUExecutionProvider"])
