@@ -74,8 +74,7 @@ def cmd_train(args) -> int:
     from .train import TrainConfig, train
 
     cfg = TrainConfig(data=args.data, run=args.run, preset=args.preset, upsample_root=args.upsample_root,
-                      patch=args.patch,
-                      unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
+                      patch=args.patch, unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
                       qat_steps=args.qat_steps, lr=args.lr, qat_lr=args.qat_lr, spatial_loss=args.spatial_loss,
                       feature_net=args.feature_net, init=args.init, val_every=args.val_every,
                       val_sequences=args.val_sequences, threads=args.threads, seed=args.seed,
