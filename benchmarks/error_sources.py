@@ -69,7 +69,7 @@ def replaced_outputs(model, seq) -> dict[str, list[np.ndarray]]:
                     if r in (c, "all three"):
                         sig[c] = ref[c]
                 comp = filters.composite(sig["albedo"], sig["diffuse"], sig["specular"])
-                y = filters.upsample_filter(comp, model.upsample_block(comp, net["features"]), s, model.cfg.upsample_root)
+                y = model.upsample(comp, net["features"])
                 outs[r].append(y[0, :, :h * s, :w * s].permute(1, 2, 0).numpy())
     finally:
         hook.remove()

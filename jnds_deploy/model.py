@@ -527,12 +527,16 @@ class JNDS(nn.Module):
                for x, h in ((cur["albedo"], hist["albedo"]), (cur["normal"] * 0.5 + 0.5, hist["normal"] * 0.5 + 0.5))]
         albedo, normal = aux[0], aux[1] * 2.0 - 1.0
         comp = filters.composite(albedo, paths["diffuse"], paths["specular"])
-        if self.upsample_block is not None:
-            kernel = self.upsample_block(comp, net["features"])
-            output = filters.upsample_filter(comp, kernel, self.cfg.scale, self.cfg.upsample_root)
-        else:
-            output = comp
-        return FrameOutput(paths["diffuse"], paths["specular"], albedo, normal, comp, output)
+        return FrameOutput(paths["diffuse"], paths["specular"], albedo, normal, comp,
+                           self.upsample(comp, net.get("features")))
+
+    def upsample(self, composite: torch.Tensor, features: torch.Tensor | None) -> torch.Tensor:
+        """The upsample block and its filter: the target-resolution output of a native
+        composite and the output block's features (the composite itself at scale 1)."""
+        if self.upsample_block is None:
+            return composite
+        kernel = self.upsample_block(composite, features)
+        return filters.upsample_filter(composite, kernel, self.cfg.scale, self.cfg.upsample_root)
 
 
 def pad_to_multiple(x: torch.Tensor, multiple: int) -> tuple[torch.Tensor, tuple[int, int]]:

@@ -199,7 +199,10 @@ class Pipeline:
         self.levels = int(self.manifest["filter_paths"]["levels"])
         # the upsample filter's interpolation (model.ModelConfig.upsample_root; artifacts of
         # checkpoints from before it was a choice have no entry: linear)
-        self.upsample_root = int(self.manifest["model_config"].get("upsample_root", 1))
+        self.upsample_root = self.manifest["model_config"].get("upsample_root", 1)
+        if self.upsample_root not in (1, 2, 4, 8):  # model.UPSAMPLE_ROOTS (the runtime has no torch)
+            raise ArtifactError(f"{mpath}: model_config.upsample_root is {self.upsample_root!r}, "
+                                "expected 1, 2, 4 or 8")
         self.dtype = np.dtype(cfg.filter_dtype)
         if cfg.keep_freed_memory:
             keep_freed_memory()

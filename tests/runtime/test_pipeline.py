@@ -69,6 +69,10 @@ def test_pipeline_errors(tmp_path, artifacts):
     (tmp_path / "manifest.json").write_text(json.dumps({**manifest, "format": "jnds-artifacts/1"}))
     with pytest.raises(ArtifactError, match="jnds-artifacts/1.*re-run `jnds export`"):
         Pipeline(PipelineConfig(artifacts=str(tmp_path)))
+    bad = {**manifest, "model_config": {**manifest["model_config"], "upsample_root": 3}}
+    (tmp_path / "manifest.json").write_text(json.dumps(bad))
+    with pytest.raises(ArtifactError, match="upsample_root is 3"):
+        Pipeline(PipelineConfig(artifacts=str(tmp_path)))
 
 
 def test_jnds_run_does_not_need_torch(artifacts, tmp_path):
