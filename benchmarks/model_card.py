@@ -10,8 +10,8 @@ A run trained with ``--device cuda`` (``scripts/gpu_train.sh``) is described as 
 on ``--gpu`` with the data that script renders.
 
 A run started with ``jnds train --init`` (fine-tuning) is described with the runs it
-descends from (``--base-run``); ``--compare`` adds a table of runs trained on the same
-budget (the L1 / feature-loss comparison of Sec. 3.3).
+descends from (``--base-run``); ``--compare`` adds a table of runs and the training
+settings they differ in (e.g. the L1 / feature-loss comparison of Sec. 3.3).
 
 Copies ``<run>/checkpoint.pt`` (stripped of optimizer state) to
 ``jnds_deploy/checkpoints/jnds-small.pt`` and writes ``MODEL_CARD.md`` beside it with
@@ -42,7 +42,7 @@ def main() -> None:
     ap.add_argument("--model", default=None, help="the method of --eval that is this run (default: the first)")
     ap.add_argument("--base-run", nargs="*", default=[],
                     help="the runs a fine-tuning run (--init) descends from, from scratch to its parent")
-    ap.add_argument("--compare", nargs="*", default=[], help="runs trained on the same budget, to tabulate")
+    ap.add_argument("--compare", nargs="*", default=[], help="runs to tabulate with the training settings they differ in")
     ap.add_argument("--cpu", default=_cpu_name(), help="processor the run trained on (default: this one)")
     ap.add_argument("--gpu", default="one NVIDIA H100 80GB HBM3 of a lent machine, shared by the 3 runs of "
                     "scripts/gpu_train.sh", help="the GPU a --device cuda run trained on")
@@ -165,8 +165,9 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str) 
            f"--qat-steps {tcfg['qat_steps']}")
     if tcfg.get("upsample_root", 1) != 1:
         cmd += f" --upsample-root {tcfg['upsample_root']}"
-    if tcfg["batch"] != 4:
-        cmd += f" --batch {tcfg['batch']}"
+    for key, default in (("batch", 4), ("patch", 64), ("unroll", 6), ("seed", 0)):
+        if tcfg.get(key, default) != default:
+            cmd += f" --{key} {tcfg[key]}"
     if tcfg.get("threads", 2) != 2:
         cmd += f" --threads {tcfg['threads']}"
     if init:
@@ -206,20 +207,25 @@ def _feature_net_line(tcfg: dict) -> str:
 
 
 def _compare_table(runs: list[str], report: dict) -> str:
-    """Runs on the same budget from the same start, scored by the same ``jnds evaluate``."""
+    """Runs scored by the same ``jnds evaluate``, with the training settings they differ in
+    (read from their checkpoints, so the sentence cannot go stale)."""
+    tcfgs = [torch.load(Path(r) / "checkpoint.pt", weights_only=False)["train_config"] for r in runs]
+    keys = sorted({k for t in tcfgs for k in t} - {"run"})
+    differ = [k for k in keys if len({json.dumps(t.get(k), sort_keys=True) for t in tcfgs}) > 1]
     rows = []
-    for r in runs:
-        tcfg = torch.load(Path(r) / "checkpoint.pt", weights_only=False)["train_config"]
+    for r, tcfg in zip(runs, tcfgs):
         m = report[Path(r).name]["mean"]
         rows.append(f"| `{r}` | `{tcfg.get('init')}` | {tcfg['spatial_loss']} | {tcfg.get('upsample_root', 1)} | "
-                    f"{m['psnr']:.2f} | {m['ssim']:.4f} | {m['flip']:.4f} | {m['temporal']:.5f} |")
-    return "\n".join(["", "Runs compared (Sec. 3.3, Eq. 6): the runs below have the same steps, batch, learning",
-                      "rates, seed and data; they differ in the spatial loss, the upsample filter's",
-                      "interpolation (`upsample_root`, 1 = linear as in the paper) and the checkpoint they",
-                      "start from (scores from `--eval`, int8 fake quantization). An init of the shipped",
-                      "checkpoint means the one shipped when the run started.", "",
-                      "| run | init | spatial loss | upsample root | PSNR (dB) | SSIM | FLIP | temporal error |",
-                      "| --- | --- | --- | ---: | --- | --- | --- | --- |", *rows, ""])
+                    f"{tcfg['fp32_steps']} + {tcfg['qat_steps']} | {tcfg['batch']} x {tcfg['unroll']} x "
+                    f"{tcfg['patch']}^2 | {m['psnr']:.2f} | {m['ssim']:.4f} | {m['flip']:.4f} | "
+                    f"{m['temporal']:.5f} |")
+    same = ", ".join(f"`{k}`" for k in differ) or "nothing"
+    return "\n".join(["", "Runs compared (scores from `--eval`, int8 fake quantization). Their training",
+                      f"settings (`train_config` in the checkpoints) differ only in: {same}. An init",
+                      "of the shipped checkpoint means the one shipped when the run started.", "",
+                      "| run | init | spatial loss | upsample root | steps (fp32 + QAT) | batch x unroll x patch "
+                      "| PSNR (dB) | SSIM | FLIP | temporal error |",
+                      "| --- | --- | --- | ---: | --- | --- | --- | --- | --- | --- |", *rows, ""])
 
 
 if __name__ == "__main__":
