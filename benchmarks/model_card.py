@@ -110,8 +110,9 @@ renders, full precision then quantization-aware (int8 fake quantization).
 ## Training
 
 Data: `jnds dataset --out data` (docs/dataset.md): data/train, 24 sequences x 12 frames at
-192x108 -> 384x216, reference 64 spp per target pixel; runs on a GPU render their own
-copy with more seeds (below). In all: {steps} steps, {hours:.2f} h (machines per run below).
+192x108 -> 384x216 by default, reference 64 spp per target pixel; `--train-sequences`
+adds seeds (a run below that had more says so), and runs on a GPU render their own
+copy. In all: {steps} steps, {hours:.2f} h (machines per run below).
 
 {training_text}
 {compare}
@@ -180,7 +181,7 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str) 
     data_line = ("\n- Data: rendered on that machine by `scripts/gpu_train.sh` (`jnds dataset --train-sequences "
                  "40 --variant cuda_ad_rgb`): the 24 training sequences and 16 more seeds (1024-1039), "
                  "same sizes and spp; validation inside the run on its own render of data/val."
-                 if on_gpu else "")
+                 if on_gpu else _data_line(ckpt.get("train_sequences")))
     start = f"fine-tuned from `{init}` as it was then: the run above" if init else "trained from scratch"
     text = f"""`{run}`, {start}:
 - Steps: {step} ({tcfg["fp32_steps"]} fp32, then up to {tcfg["qat_steps"]} QAT; phase at save:
@@ -195,6 +196,16 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str) 
                         + [f"| {r['step']} | {r['phase']} | {r['mean']['psnr']:.2f} | {r['mean']['ssim']:.4f} | "
                            f"{r['mean']['flip']:.4f} | {r['mean']['temporal']:.5f} |" for r in vals])
     return {"text": text, "history": history, "steps": step, "hours": hours}
+
+
+def _data_line(names: list[str] | None) -> str:
+    """The training sequences a CPU run sampled from, as its checkpoint recorded them
+    (older checkpoints did not record them: they sampled the default 24)."""
+    if not names:
+        return ""
+    seeds = sorted(int(n.rsplit("-", 1)[1]) for n in names)
+    return (f"\n- Data: {len(names)} sequences of data/train (seeds {seeds[0]}-{seeds[-1]}, "
+            f"`jnds dataset --out data --split train --train-sequences {len(names)}`).")
 
 
 def _feature_net_line(tcfg: dict) -> str:

@@ -260,14 +260,18 @@ def _lr(cfg: TrainConfig, state: TrainState) -> float:
     return base * cfg.lr_decay ** frac
 
 
-def save_checkpoint(path: Path, model: JNDS, opt, state: TrainState, cfg: TrainConfig, rng) -> None:
+def save_checkpoint(path: Path, model: JNDS, opt, state: TrainState, cfg: TrainConfig, rng,
+                    train_sequences: list[str] | None = None) -> None:
+    """``train_sequences``: names of the sequences the run sampled from (data/train grows
+    with ``jnds dataset --train-sequences``, so the config alone does not say)."""
     tmp = path.with_name(path.name + ".tmp")
     # saved on the host, so that a checkpoint trained on a GPU loads anywhere (the
     # optimizer moves its state back to its parameters' device when it is loaded)
     torch.save({"model": _on_host(model.state_dict()), "optimizer": _on_host(opt.state_dict()), "state": asdict(state),
                 "train_config": asdict(cfg), "model_config": asdict(model.cfg),
                 "quantized": state.phase != "fp32", "rng": rng.bit_generator.state,
-                "quant_ranges": quant_ranges(model) if state.phase != "fp32" else None}, tmp)
+                "quant_ranges": quant_ranges(model) if state.phase != "fp32" else None,
+                "train_sequences": train_sequences}, tmp)
     os.replace(tmp, path)
 
 
@@ -309,9 +313,10 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
             set_quantization(model, True)
     elif cfg.init:
         state = _init_from(model, cfg)
-    (run / "config.json").write_text(json.dumps({"train": asdict(cfg), "model": asdict(model.cfg)}, indent=1))
-
     train_seqs = [load_sequence(p) for p in find_sequences(Path(cfg.data) / "train")]
+    names = [s.name for s in train_seqs]
+    (run / "config.json").write_text(json.dumps({"train": asdict(cfg), "model": asdict(model.cfg),
+                                                 "train_sequences": names}, indent=1))
     val_seqs: dict[Path, SequenceArrays] = {}
 
     def validation_set() -> list[SequenceArrays]:
@@ -360,9 +365,9 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
             if seqs:
                 emit(event="val", n_sequences=len(seqs), **evaluate(model, seqs))
         if state.step % cfg.checkpoint_every == 0 or state.step == total_steps:
-            save_checkpoint(ckpt, model, opt, state, cfg, rng)
+            save_checkpoint(ckpt, model, opt, state, cfg, rng, names)
     state.phase = "done"
-    save_checkpoint(ckpt, model, opt, state, cfg, rng)
+    save_checkpoint(ckpt, model, opt, state, cfg, rng, names)
     bar.close()
     return ckpt
 

@@ -220,6 +220,7 @@ def test_training_resumes_from_an_init_checkpoint(tmp_path):
     first = train(TrainConfig(run=str(tmp_path / "a"), fp32_steps=2, qat_steps=1, **common), progress=False)
     a = torch.load(first, weights_only=False)
     assert a["quantized"] and a["quant_ranges"]
+    assert a["train_sequences"] == ["sample"]
 
     # no steps: the new run's checkpoint is the init's weights and ranges, in the QAT phase
     same = train(TrainConfig(run=str(tmp_path / "b"), fp32_steps=0, qat_steps=0, init=str(first), **common),
