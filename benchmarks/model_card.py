@@ -220,13 +220,15 @@ def _feature_net_line(tcfg: dict) -> str:
 def _compare_table(runs: list[str], report: dict) -> str:
     """Runs scored by the same ``jnds evaluate``, with the training settings they differ in
     (read from their checkpoints, so the sentence cannot go stale)."""
-    tcfgs = [torch.load(Path(r) / "checkpoint.pt", weights_only=False)["train_config"] for r in runs]
+    ckpts = [torch.load(Path(r) / "checkpoint.pt", weights_only=False) for r in runs]
+    tcfgs = [c["train_config"] for c in ckpts]
+    seqs = [len(c["train_sequences"]) if c.get("train_sequences") else "not recorded" for c in ckpts]
     keys = sorted({k for t in tcfgs for k in t} - {"run"})
     differ = [k for k in keys if len({json.dumps(t.get(k), sort_keys=True) for t in tcfgs}) > 1]
     rows = []
-    for r, tcfg in zip(runs, tcfgs):
+    for r, tcfg, n in zip(runs, tcfgs, seqs):
         m = report[Path(r).name]["mean"]
-        rows.append(f"| `{r}` | `{tcfg.get('init')}` | {tcfg['spatial_loss']} | {tcfg.get('upsample_root', 1)} | "
+        rows.append(f"| `{r}` | `{tcfg.get('init')}` | {n} | {tcfg['spatial_loss']} | {tcfg.get('upsample_root', 1)} | "
                     f"{tcfg['fp32_steps']} + {tcfg['qat_steps']} | {tcfg['batch']} x {tcfg['unroll']} x "
                     f"{tcfg['patch']}^2 | {m['psnr']:.2f} | {m['ssim']:.4f} | {m['flip']:.4f} | "
                     f"{m['temporal']:.5f} |")
@@ -234,9 +236,11 @@ def _compare_table(runs: list[str], report: dict) -> str:
     return "\n".join(["", "Runs compared (scores from `--eval`, int8 fake quantization). Their training",
                       f"settings (`train_config` in the checkpoints) differ only in: {same}. An init",
                       "of the shipped checkpoint means the one shipped when the run started.", "",
-                      "| run | init | spatial loss | upsample root | steps (fp32 + QAT) | batch x unroll x patch "
-                      "| PSNR (dB) | SSIM | FLIP | temporal error |",
-                      "| --- | --- | --- | ---: | --- | --- | --- | --- | --- | --- |", *rows, ""])
+                      "Training sequences: the number in data/train when the run sampled it (checkpoints",
+                      "record it since 2026-11-23; earlier CPU runs sampled the default 24, GPU runs 40).", "",
+                      "| run | init | training sequences | spatial loss | upsample root | steps (fp32 + QAT) "
+                      "| batch x unroll x patch | PSNR (dB) | SSIM | FLIP | temporal error |",
+                      "| --- | --- | ---: | --- | ---: | --- | --- | --- | --- | --- | --- |", *rows, ""])
 
 
 if __name__ == "__main__":
