@@ -203,9 +203,11 @@ def _data_line(names: list[str] | None) -> str:
     (older checkpoints did not record them: they sampled the default 24)."""
     if not names:
         return ""
-    seeds = sorted(int(n.rsplit("-", 1)[1]) for n in names)
-    return (f"\n- Data: {len(names)} sequences of data/train (seeds {seeds[0]}-{seeds[-1]}, "
-            f"`jnds dataset --out data --split train --train-sequences {len(names)}`).")
+    tails = [n.rsplit("-", 1)[-1] for n in names]
+    seeds = sorted(int(t) for t in tails if t.isdigit())
+    which = f"seeds {seeds[0]}-{seeds[-1]}" if len(seeds) == len(names) else ", ".join(names)
+    return (f"\n- Data: {len(names)} sequences of data/train ({which}; "
+            f"`jnds dataset --out data --split train --train-sequences {len(names)}` renders seeds 1000 on).")
 
 
 def _feature_net_line(tcfg: dict) -> str:

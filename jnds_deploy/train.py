@@ -408,6 +408,7 @@ def export_checkpoint(ckpt: str | Path, out: str | Path, metrics: dict | None = 
     """Strip a training checkpoint down to what inference needs (weights, configs, ranges)."""
     data = torch.load(ckpt, weights_only=False, map_location="cpu")
     slim = {k: data[k] for k in ("model", "model_config", "train_config", "quantized", "quant_ranges")}
+    slim["train_sequences"] = data.get("train_sequences")
     slim["state"] = data["state"]
     slim["metrics"] = metrics
     out = Path(out)

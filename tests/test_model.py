@@ -221,6 +221,9 @@ def test_training_resumes_from_an_init_checkpoint(tmp_path):
     a = torch.load(first, weights_only=False)
     assert a["quantized"] and a["quant_ranges"]
     assert a["train_sequences"] == ["sample"]
+    from jnds_deploy.train import export_checkpoint
+    slim = torch.load(export_checkpoint(first, tmp_path / "slim.pt"), weights_only=False)
+    assert slim["train_sequences"] == ["sample"] and "optimizer" not in slim
 
     # no steps: the new run's checkpoint is the init's weights and ranges, in the QAT phase
     same = train(TrainConfig(run=str(tmp_path / "b"), fp32_steps=0, qat_steps=0, init=str(first), **common),
