@@ -71,7 +71,8 @@ def cmd_dataset(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from .train import TrainConfig, train
+    from .training.config import TrainConfig
+    from .training.train import train
 
     cfg = TrainConfig(data=args.data, run=args.run, preset=args.preset, upsample_root=args.upsample_root,
                       patch=args.patch, unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
@@ -85,7 +86,7 @@ def cmd_train(args) -> int:
 
 
 def cmd_train_feature_net(args) -> int:
-    from .feature_loss import FeatureNetConfig, train_feature_net
+    from .training.feature_loss import FeatureNetConfig, train_feature_net
 
     out = train_feature_net(FeatureNetConfig(data=args.data, out=args.out, steps=args.steps,
                                              threads=args.threads), progress=not args.quiet)
@@ -94,7 +95,7 @@ def cmd_train_feature_net(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from .evaluate import markdown_table, run_evaluation
+    from .training.evaluate import markdown_table, run_evaluation
 
     report = run_evaluation(args.checkpoint, args.data, args.baselines, args.out, args.threads)
     print(markdown_table(report))
@@ -105,30 +106,33 @@ def cmd_export(args) -> int:
     from .export import ExportConfig, export
 
     manifest = export(ExportConfig(checkpoint=args.checkpoint, out=args.out))
-    print(f"wrote {', '.join(g['file'] for g in manifest['graphs'].values())} and manifest.json to {args.out}")
+    print(f"wrote {', '.join(g.file for g in manifest.graphs.values())} and manifest.json to {args.out}")
     return 0
 
 
 def cmd_calibrate(args) -> int:
     from .calibration import CalibrateConfig, calibrate
     from .io import expand_sequences
+    from .runtime import tune_numba
 
+    tune_numba()
     cfg = CalibrateConfig(artifacts=args.artifacts, data=tuple(map(str, expand_sequences(args.data))),
                           method=args.method, activation_type=args.activation_type, frames=args.frames,
                           checkpoint=args.checkpoint, threads=args.threads)
     manifest = calibrate(cfg)
-    files = ", ".join(g["int8"][args.method]["file"] for g in manifest["graphs"].values())
+    files = ", ".join(g.int8[args.method].file for g in manifest.graphs.values())
     print(f"wrote {files} and calibration.{args.method}.json to {args.artifacts} (int8 default: {args.method})")
     return 0
 
 
 def cmd_run(args) -> int:
-    from .runtime.pipeline import PipelineConfig
+    from .runtime import PipelineConfig, tune_numba
     from .runtime.run import run_sequence, stage_table
 
+    tune_numba()
     cfg = PipelineConfig(artifacts=args.artifacts, precision=args.precision,
                          filter_dtype=args.filter_dtype, threads=args.threads, adaptive=not args.no_adaptive,
-                         native_output=args.native)
+                         native_output=args.native, keep_freed_memory=True)
     report = run_sequence(cfg, args.input, args.output, progress=not args.quiet)
     med = report["median_ms"]
     print(f"{report['frames']} frames -> {args.output}: median {med['total']:.1f} ms/frame "
@@ -143,12 +147,14 @@ def cmd_run(args) -> int:
 def cmd_serve(args) -> int:
     import logging
 
+    from .runtime import tune_numba
     from .serve import ServeConfig, serve
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    tune_numba()
     cfg = ServeConfig(artifacts=args.artifacts, host=args.host, port=args.port, precision=args.precision,
                       threads=args.threads, workers=args.workers, queue=args.queue,
-                      max_streams=args.max_streams, idle_timeout=args.idle_timeout)
+                      max_streams=args.max_streams, idle_timeout=args.idle_timeout, keep_freed_memory=True)
     serve(cfg, ready=lambda h, p: print(f"jnds serve: listening on http://{h}:{p}", flush=True))
     return 0
 

@@ -1,4 +1,6 @@
-"""Typed exceptions of jnds_deploy. Only the CLI turns them into exit codes."""
+"""Every typed exception of jnds_deploy, in one place. The library raises them with a
+message naming the bad file, layer, channel or value; only the CLI turns them into a
+one-line message and exit code 2."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -40,6 +42,30 @@ class ExrReadError(SequenceError):
     """An EXR file is unreadable: not OpenEXR, truncated or corrupted."""
 
 
+class ConfigError(JndsError, ValueError):
+    """A configuration value is out of range or unknown (a preset, a split, a precision)."""
+
+
+class CheckpointError(JndsError):
+    """A checkpoint is missing or is not one this package wrote."""
+
+    def __init__(self, path: str | Path, problem: str):
+        self.path = Path(path)
+        super().__init__(f"{self.path}: {problem}")
+
+
+class ArtifactError(JndsError):
+    """The artifact directory is missing files or has an unsupported manifest."""
+
+
+class FrameError(JndsError):
+    """A frame handed to the pipeline lacks a layer or has the wrong shape."""
+
+
+class CalibrationError(JndsError):
+    """Calibration cannot run: missing artifacts, no data, unknown method."""
+
+
 class RenderError(JndsError):
     """The renderer cannot run with the given configuration."""
 
@@ -58,3 +84,20 @@ class ValidationError(JndsError):
                  + (f" (mean tol {f['mean_tol']:.3g})" if f.get("mean_tol") is not None else ""))
                  for f in failures]
         super().__init__(f"{len(failures)} output(s) failed validation: " + "; ".join(lines))
+
+
+class BadRequest(JndsError):
+    """The server refuses a request: ``status`` is the HTTP status to answer with."""
+
+    def __init__(self, status: int, message: str, retry_after: float | None = None):
+        self.status, self.retry_after = status, retry_after
+        super().__init__(message)
+
+
+class ServerError(JndsError):
+    """The server refused a request (client side); ``status`` is the HTTP status, ``kind``
+    its error type."""
+
+    def __init__(self, status: int, message: str, kind: str = ""):
+        self.status, self.kind = status, kind
+        super().__init__(f"HTTP {status}: {message}")

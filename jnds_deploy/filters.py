@@ -11,10 +11,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from .layout import BACKGROUND, REJECT_COS, ROOT_FLOOR
-
-HDR_MAX = 65535.0  # inputs are clamped to [0, HDR_MAX] before tonemapping (paper, Sec. 3.2.1)
-
+from .layout import BACKGROUND, HDR_MAX, REJECT_COS, ROOT_FLOOR
 
 TONEMAP_FLOOR = 1e-10  # log(x + 1) below this is raised to it: d/dx of t^(1/2.2) is infinite at 0
 

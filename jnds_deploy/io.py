@@ -26,18 +26,12 @@ from .errors import (
     ImageSizeError,
     SequenceFormatError,
 )
+from .layout import LAYERS
 
 FORMAT = "jnds-sequence/1"
 
 # layer name -> channel suffixes, in the order they are stacked on the last axis
-INPUT_LAYERS: dict[str, tuple[str, ...]] = {
-    "diffuse": ("R", "G", "B"),
-    "specular": ("R", "G", "B"),
-    "albedo": ("R", "G", "B"),
-    "normal": ("X", "Y", "Z"),
-    "roughness": ("",),
-    "motion": ("X", "Y"),
-}
+INPUT_LAYERS: dict[str, tuple[str, ...]] = {layer.name: layer.suffixes for layer in LAYERS}
 OPTIONAL_INPUT_LAYERS: dict[str, tuple[str, ...]] = {"depth": ("",)}
 REFERENCE_LAYERS: dict[str, tuple[str, ...]] = {"color": ("R", "G", "B")}
 OPTIONAL_REFERENCE_LAYERS: dict[str, tuple[str, ...]] = {

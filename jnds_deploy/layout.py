@@ -1,11 +1,59 @@
-"""The network's input channels, in order: shared by the model (torch) and the runtime
-(numpy, no torch), so that deploying the ONNX pipeline does not need torch."""
+"""The one table of the network's input layers: their channels, their EXR channel
+suffixes in ``jnds-sequence/1`` and the range the runtime clamps them into. Shared by
+the sequence I/O, the model (torch) and the runtime (numpy, no torch), so that deploying
+the ONNX pipeline does not need torch, and every channel index is derived from here.
+"""
+from __future__ import annotations
 
-# channels of the current inputs and of the history, in order
-CURRENT = (("diffuse", 3), ("specular", 3), ("albedo", 3), ("normal", 3), ("roughness", 1))
-HISTORY = (("diffuse", 3), ("specular", 3), ("albedo", 3), ("normal", 3))
+from dataclasses import dataclass
+
+# radiance is clamped to [0, HDR_MAX] before tonemapping (paper, Sec. 3.2.1)
+HDR_MAX = 65535.0
+
+
+@dataclass(frozen=True)
+class Layer:
+    name: str
+    suffixes: tuple[str, ...]  # EXR channels <name>.<suffix> ("" : the bare name)
+    lo: float  # valid range: NaN becomes 0, everything else is clamped into [lo, hi]
+    hi: float
+    unit_vector: bool = False  # renormalized after clamping (normals)
+
+    @property
+    def channels(self) -> int:
+        return len(self.suffixes)
+
+
+# the inputs of one frame, in the order the network stacks them (motion is not stacked:
+# it drives the warp). Negative radiance becomes 0; motion beyond +-HDR_MAX pixels is
+# off-screen either way.
+LAYERS = (
+    Layer("diffuse", ("R", "G", "B"), 0.0, HDR_MAX),
+    Layer("specular", ("R", "G", "B"), 0.0, HDR_MAX),
+    Layer("albedo", ("R", "G", "B"), 0.0, 1.0),
+    Layer("normal", ("X", "Y", "Z"), -1.0, 1.0, unit_vector=True),
+    Layer("roughness", ("",), 0.0, 1.0),
+    Layer("motion", ("X", "Y"), -HDR_MAX, HDR_MAX),
+)
+LAYER = {layer.name: layer for layer in LAYERS}
+INPUT_CHANNELS = {layer.name: layer.channels for layer in LAYERS}  # what a frame must hold
+
+# channels of the current inputs and of the history, in order: (name, channel count)
+CURRENT = tuple((layer.name, layer.channels) for layer in LAYERS if layer.name != "motion")
+HISTORY = CURRENT[:4]  # diffuse, specular, albedo, normal: the filtered outputs kept
 N_CURRENT = sum(c for _, c in CURRENT)
 N_HISTORY = sum(c for _, c in HISTORY)
+
+
+def channels(name: str, layout=CURRENT) -> slice:
+    """The channels of layer ``name`` in a stacked ``layout`` (CURRENT or HISTORY)."""
+    start = 0
+    for n, c in layout:
+        if n == name:
+            return slice(start, start + c)
+        start += c
+    raise KeyError(f"layer {name!r} is not in {[n for n, _ in layout]}")
+
 
 # geometric history rejection (jnds_deploy.filters.disoccluded): a history normal further
 # than acos(REJECT_COS) ~ 46 deg from every current normal in the 3x3 neighbourhood is

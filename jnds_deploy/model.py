@@ -33,6 +33,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from . import filters
+from .errors import ConfigError
 from .layout import CURRENT, HISTORY, N_CURRENT, N_HISTORY  # noqa: F401 (re-exported)
 
 
@@ -59,17 +60,17 @@ class ModelConfig:
         object.__setattr__(self, "encoder_widths", tuple(self.encoder_widths))
         depth = len(self.encoder_widths)
         if depth < 1:
-            raise ValueError("encoder_widths needs at least one U-Net level")
+            raise ConfigError("encoder_widths needs at least one U-Net level")
         if not 0 <= self.filter_levels <= depth + 1:
-            raise ValueError(f"filter_levels must be in [0, {depth + 1}] for U-Net depth {depth}, "
+            raise ConfigError(f"filter_levels must be in [0, {depth + 1}] for U-Net depth {depth}, "
                              f"got {self.filter_levels}")
         if self.upsample_root not in UPSAMPLE_ROOTS:
-            raise ValueError(f"upsample_root must be one of {UPSAMPLE_ROOTS}, got {self.upsample_root!r}")
+            raise ConfigError(f"upsample_root must be one of {UPSAMPLE_ROOTS}, got {self.upsample_root!r}")
         if not isinstance(self.scale, int) or self.scale < 1:
-            raise ValueError(f"scale must be an integer >= 1, got {self.scale!r}")
+            raise ConfigError(f"scale must be an integer >= 1, got {self.scale!r}")
         for name, v in asdict(self).items():
             if name != "encoder_widths" and isinstance(v, int) and v < 0:
-                raise ValueError(f"{name} must be >= 0, got {v}")
+                raise ConfigError(f"{name} must be >= 0, got {v}")
 
     @property
     def depth(self) -> int:
@@ -94,7 +95,7 @@ class ModelConfig:
                          upsample_features=2, upsample_width=4, filter_levels=2),
         }
         if name not in presets:
-            raise ValueError(f"unknown preset {name!r}, expected one of {', '.join(presets)}")
+            raise ConfigError(f"unknown preset {name!r}, expected one of {', '.join(presets)}")
         return ModelConfig(**{**presets[name], **overrides})
 
 

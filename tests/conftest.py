@@ -4,6 +4,11 @@ import numpy as np
 import pytest
 
 from jnds_deploy.io import FrameInfo, SequenceWriter
+from jnds_deploy.runtime import tune_numba
+
+# the numba settings `jnds run` and `jnds serve` opt into (the server tests run streams
+# concurrently, which numba's default threading layer may not survive)
+tune_numba()
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "samples" / "orbit-160x90"

@@ -172,7 +172,10 @@ def test_quantized_model_stays_close_to_float():
 
 
 def test_one_training_step_decreases_loss(tmp_path):
-    from jnds_deploy.train import Loss, PatchSampler, TrainConfig, load_sequence, run_unroll
+    from jnds_deploy.training.config import TrainConfig
+    from jnds_deploy.training.data import PatchSampler, load_sequence
+    from jnds_deploy.training.losses import Loss
+    from jnds_deploy.training.train import run_unroll
     from .conftest import SAMPLE
     torch.manual_seed(0)
     seq = load_sequence(SAMPLE)
@@ -194,7 +197,7 @@ def test_one_training_step_decreases_loss(tmp_path):
 
 
 def test_feature_loss_network_trains_and_scores(tmp_path):
-    from jnds_deploy.feature_loss import FeatureNetConfig, load_feature_net, train_feature_net
+    from jnds_deploy.training.feature_loss import FeatureNetConfig, load_feature_net, train_feature_net
     data = tmp_path / "data"
     (data / "train").mkdir(parents=True)
     from .conftest import SAMPLE
@@ -209,7 +212,8 @@ def test_feature_loss_network_trains_and_scores(tmp_path):
 
 
 def test_training_resumes_from_an_init_checkpoint(tmp_path):
-    from jnds_deploy.train import TrainConfig, train
+    from jnds_deploy.training.config import TrainConfig
+    from jnds_deploy.training.train import train
     from .conftest import SAMPLE
     data = tmp_path / "data"
     for split in ("train", "val"):
@@ -221,8 +225,8 @@ def test_training_resumes_from_an_init_checkpoint(tmp_path):
     a = torch.load(first, weights_only=False)
     assert a["quantized"] and a["quant_ranges"]
     assert a["train_sequences"] == ["sample"]
-    from jnds_deploy.train import export_checkpoint
-    slim = torch.load(export_checkpoint(first, tmp_path / "slim.pt"), weights_only=False)
+    from jnds_deploy.checkpoint import ship_checkpoint
+    slim = torch.load(ship_checkpoint(first, tmp_path / "slim.pt"), weights_only=False)
     assert slim["train_sequences"] == ["sample"] and "optimizer" not in slim
 
     # no steps: the new run's checkpoint is the init's weights and ranges, in the QAT phase
@@ -245,7 +249,7 @@ def test_training_resumes_from_an_init_checkpoint(tmp_path):
 
 
 def test_evaluate_names_training_checkpoints_by_run_and_scores_them(tmp_path):
-    from jnds_deploy.evaluate import method_name, run_evaluation
+    from jnds_deploy.training.evaluate import method_name, run_evaluation
     from .conftest import SAMPLE
     assert method_name("runs/ft-l1/checkpoint.pt") == "ft-l1"
     assert method_name("jnds_deploy/checkpoints/jnds-small.pt") == "jnds-small"
@@ -264,7 +268,8 @@ def test_evaluate_names_training_checkpoints_by_run_and_scores_them(tmp_path):
 
 
 def test_l1_plus_feature_spatial_loss_is_the_sum_of_both():
-    from jnds_deploy.train import Loss, TrainConfig
+    from jnds_deploy.training.config import TrainConfig
+    from jnds_deploy.training.losses import Loss
     feat = str(Path(__file__).resolve().parents[1] / "runs" / "feature" / "feature_net.pt")
     o, r = torch.rand(2, 3, 32, 32), torch.rand(2, 3, 32, 32)
     parts = {k: Loss(TrainConfig(spatial_loss=k, feature_net=None if k == "l1" else feat), scale=2).spatial(o, r)
@@ -279,7 +284,9 @@ def test_l1_plus_feature_spatial_loss_is_the_sum_of_both():
 
 def test_checkpoints_hold_host_tensors_and_load_on_the_cpu(tmp_path):
     """A run trained on a GPU must load where no GPU is: weights are saved on the host."""
-    from jnds_deploy.train import TrainConfig, load_model, train
+    from jnds_deploy.checkpoint import load_model
+    from jnds_deploy.training.config import TrainConfig
+    from jnds_deploy.training.train import train
     from .conftest import SAMPLE
     data = tmp_path / "data"
     for split in ("train", "val"):

@@ -31,7 +31,8 @@ import numpy as np
 import onnx
 from onnx import numpy_helper
 
-from ..errors import JndsError
+from ..artifacts import MANIFEST, Int8Graph, Manifest, file_hash, write_json
+from ..errors import CalibrationError
 from ..export.prune import INT8_VARIANT_TOL, validate_variant, write_variants
 from .reader import FeedReader, collect_feeds
 
@@ -49,10 +50,6 @@ FLOAT_NODES = ("/network/output_block/head/Conv", "/head/Conv")
 # blend weights in [0, 1]; a mean error above this means a broken range, not rounding
 INT8_ATOL = 1.0
 INT8_MEAN_TOL = 0.03
-
-
-class CalibrationError(JndsError):
-    """Calibration cannot run: missing artifacts, no data, unknown method."""
 
 
 @dataclass(frozen=True)
@@ -89,13 +86,18 @@ def quantize_graph(fp32_path: Path, out_path: Path, feeds: list[dict[str, np.nda
     if overrides:
         extra["TensorQuantOverrides"] = overrides
     act = QuantType.QUInt8 if activation_type == "u8" else QuantType.QInt8
+    # ONNX Runtime warns on the root logger to "consider pre-processing" (shape inference,
+    # not needed here): that one message is dropped, the logger's level is left alone
     root_logger = logging.getLogger()
-    level = root_logger.level
-    root_logger.setLevel(logging.ERROR)  # "consider pre-processing": shape inference is not needed here
+    root_logger.addFilter(_drop_preprocessing_advice)
     try:
         _quantize_static(fp32_path, out_path, feeds, calib, act, op_types, exclude, extra)
     finally:
-        root_logger.setLevel(level)
+        root_logger.removeFilter(_drop_preprocessing_advice)
+
+
+def _drop_preprocessing_advice(record: logging.LogRecord) -> bool:
+    return not str(record.msg).startswith("Please consider")
 
 
 def _quantize_static(fp32_path, out_path, feeds, calib, act, op_types, exclude, extra) -> None:
@@ -157,23 +159,18 @@ def op_counts(path: Path) -> dict[str, int]:
     return counts
 
 
-def _write_json(path: Path, data) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=1))
-    os.replace(tmp, path)
-
-
-def validate_int8(root: Path, manifest: dict, method: str, feeds: dict[str, list], checkpoint: str | None) -> list[dict]:
+def validate_int8(root: Path, manifest: Manifest, method: str, feeds: dict[str, list],
+                  checkpoint: str | None) -> list[dict]:
     """Each int8 graph against PyTorch fp32 on up to three recorded inputs (first frame,
     middle, last), per output max/mean |diff| against INT8_ATOL / INT8_MEAN_TOL."""
     import torch
 
+    from ..checkpoint import load_model
     from ..export.convert import validate_graph
     from ..filters import to_phases
     from ..model import set_quantization
-    from ..train import load_model
 
-    ckpt = Path(checkpoint or manifest["checkpoint"]["path"])
+    ckpt = Path(checkpoint or manifest.checkpoint["path"])
     if not ckpt.is_file():
         raise CalibrationError(f"{ckpt}: checkpoint of these artifacts not found; pass --checkpoint")
     model = load_model(ckpt)
@@ -182,8 +179,8 @@ def validate_int8(root: Path, manifest: dict, method: str, feeds: dict[str, list
     fns = {"network": lambda names: (lambda c, h: tuple(model.network(c, h)[k] for k in names)),
            "upsample": lambda names: (lambda c, f: to_phases(model.upsample_block(c, f), model.cfg.scale))}
     rows = []
-    for name, g in manifest["graphs"].items():
-        path = root / g["int8"][method]["file"]
+    for name, g in manifest.graphs.items():
+        path = root / g.int8[method].file
         names = [o.name for o in onnx.load(str(path)).graph.output]
         recorded = feeds[name]
         for i in sorted({0, len(recorded) // 2, len(recorded) - 1}):
@@ -192,56 +189,51 @@ def validate_int8(root: Path, manifest: dict, method: str, feeds: dict[str, list
     return rows
 
 
-def calibrate(cfg: CalibrateConfig, log=print) -> dict:
+def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
     """Write the int8 graphs of one method; returns the updated manifest."""
-    from ..export.convert import _file_hash, report_validation
+    from ..export.convert import report_validation
 
     root = Path(cfg.artifacts)
-    mpath = root / "manifest.json"
-    if not mpath.is_file():
-        raise CalibrationError(f"{mpath}: missing; run `jnds export --out {root}` first")
-    manifest = json.loads(mpath.read_text())
+    if not (root / MANIFEST).is_file():
+        raise CalibrationError(f"{root / MANIFEST}: missing; run `jnds export --out {root}` first")
+    manifest = Manifest.load(root)
     overrides = {}
     if cfg.method == "qat":
-        qpath = root / manifest.get("qat_ranges", "qat_ranges.json")
+        qpath = root / manifest.qat_ranges
         if not qpath.is_file():
             raise CalibrationError(f"{qpath}: missing; re-export with this version of `jnds export`")
         overrides = json.loads(qpath.read_text())
 
     feeds = collect_feeds(root, list(cfg.data), cfg.frames, cfg.threads)
     ranges, vrows = {}, []
-    for name, g in manifest["graphs"].items():
+    for name, g in manifest.graphs.items():
         if not feeds[name]:
             raise CalibrationError(f"no calibration inputs recorded for graph {name!r}")
-        file = f"{Path(g['file']).stem}.int8.{cfg.method}.onnx"
-        log(f"quantizing {g['file']} -> {file} ({cfg.method}, {cfg.activation_type} activations, "
+        file = f"{Path(g.file).stem}.int8.{cfg.method}.onnx"
+        log(f"quantizing {g.file} -> {file} ({cfg.method}, {cfg.activation_type} activations, "
             f"{len(feeds[name])} calibration frames)")
-        learned = follow_shared_ranges(root / g["file"], overrides.get(name, {}), cfg.op_types)
-        quantize_graph(root / g["file"], root / file, feeds[name], cfg.method, cfg.activation_type,
+        learned = follow_shared_ranges(root / g.file, overrides.get(name, {}), cfg.op_types)
+        quantize_graph(root / g.file, root / file, feeds[name], cfg.method, cfg.activation_type,
                        cfg.op_types, qat_overrides(learned), cfg.percentile, cfg.float_nodes)
         ranges[name] = quantized_tensors(root / file)
         if cfg.method == "qat":
             _check_overrides(file, learned, ranges[name])
-        g.setdefault("int8", {})[cfg.method] = {
-            "file": file, "sha256": _file_hash(root / file), "activation_type": cfg.activation_type,
-            "weights": "int8 per output channel, symmetric", "op_types": list(cfg.op_types),
-            "float_nodes": list(cfg.float_nodes),
-            "ranges": f"calibration.{cfg.method}.json"}
         variants = write_variants(root, file, file[:-len(".onnx")])
         for v in variants.values():
-            vrows += validate_variant(root / file, root / v["file"], feeds[name][0], *INT8_VARIANT_TOL)
-            v["sha256"] = _file_hash(root / v["file"])
-        if variants:
-            g["int8"][cfg.method]["variants"] = variants
-        g["int8_file"] = file
-    _write_json(root / f"calibration.{cfg.method}.json",
-                {"method": cfg.method, "activation_type": cfg.activation_type,
-                 "data": [str(d) for d in cfg.data], "frames_per_sequence": cfg.frames,
-                 "frames": {k: len(v) for k, v in feeds.items()}, "tensors": ranges})
-    manifest["int8_method"] = cfg.method
+            vrows += validate_variant(root / file, root / v.file, feeds[name][0], *INT8_VARIANT_TOL)
+            v.sha256 = file_hash(root / v.file)
+        g.int8[cfg.method] = Int8Graph(
+            file=file, sha256=file_hash(root / file), activation_type=cfg.activation_type,
+            weights="int8 per output channel, symmetric", op_types=list(cfg.op_types),
+            float_nodes=list(cfg.float_nodes), ranges=f"calibration.{cfg.method}.json", variants=variants)
+    write_json(root / f"calibration.{cfg.method}.json",
+               {"method": cfg.method, "activation_type": cfg.activation_type,
+                "data": [str(d) for d in cfg.data], "frames_per_sequence": cfg.frames,
+                "frames": {k: len(v) for k, v in feeds.items()}, "tensors": ranges})
+    manifest.int8_method = cfg.method
     rows = validate_int8(root, manifest, cfg.method, feeds, cfg.checkpoint) + vrows
-    manifest.setdefault("int8_validation", {})[cfg.method] = rows
-    _write_json(mpath, manifest)
+    manifest.int8_validation[cfg.method] = rows
+    manifest.save(root)
     report_validation(rows, log)
     return manifest
 

@@ -12,17 +12,15 @@
 
 Warping, the filter paths, the composite and kernel application are not in ONNX: they
 are the runtime's numpy/opencv stage. Spatial sizes are dynamic; H and W must be
-multiples of ``pad_multiple`` (the runtime pads). ``manifest.json`` says everything a
-runtime needs; every export ends with a validation of ONNX Runtime against PyTorch.
+multiples of ``pad_multiple`` (the runtime pads). ``manifest.json`` (``artifacts.Manifest``)
+says everything a runtime needs; every export ends with a validation of ONNX Runtime
+against PyTorch.
 - ``network.no-<groups>.onnx``: pruned variants without the diffuse or specular path's
   kernels or the upsample features (``prune``), for adaptive execution.
 
 ``convert`` (torch) is imported on first use, so the runtime can read ``prune`` without torch.
 """
 __all__ = ["ExportConfig", "export"]
-
-# manifest "format": 2 = the upsample kernel in phase layout at native resolution
-ARTIFACT_FORMAT = "jnds-artifacts/2"
 
 
 def __getattr__(name):

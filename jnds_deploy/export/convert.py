@@ -1,7 +1,6 @@
 """PyTorch -> ONNX conversion of the two graphs, their pruned variants, the manifest, and validation."""
 from __future__ import annotations
 
-import hashlib
 import json
 import warnings
 from dataclasses import asdict, dataclass
@@ -11,10 +10,11 @@ import numpy as np
 import torch
 
 from .. import __version__
+from ..artifacts import Graph, Manifest, file_hash, write_json
+from ..checkpoint import default_checkpoint, load_model
 from ..errors import ValidationError
 from ..filters import to_phases
 from ..model import CURRENT, HISTORY, N_CURRENT, N_HISTORY, JNDS, quant_ranges, set_quantization
-from . import ARTIFACT_FORMAT
 from .prune import validate_variant, write_variants
 
 OPSET = 17
@@ -37,10 +37,6 @@ class _NetworkGraph(torch.nn.Module):
     def forward(self, current, history):
         out = self.network(current, history)
         return tuple(out[k] for k in self.names)
-
-
-def _file_hash(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
 
 
 def _validation_inputs(cfg: ExportConfig, model: JNDS):
@@ -75,10 +71,8 @@ def validate_graph(onnx_path: Path, torch_fn, feeds: dict[str, torch.Tensor], na
     return rows
 
 
-def export(cfg: ExportConfig, log=print) -> dict:
+def export(cfg: ExportConfig, log=print) -> Manifest:
     """Write network.onnx, upsample.onnx (if scale > 1) and manifest.json; validate."""
-    from ..train import load_model, default_checkpoint
-
     ckpt = Path(cfg.checkpoint) if cfg.checkpoint else default_checkpoint()
     model = load_model(ckpt)
     set_quantization(model, False)  # fp32 graphs; int8 comes from `jnds calibrate`
@@ -98,13 +92,12 @@ def export(cfg: ExportConfig, log=print) -> dict:
                           input_names=["current", "history"], output_names=names,
                           dynamic_axes={"current": dyn, "history": dyn, **{n: dyn for n in names}},
                           opset_version=OPSET, dynamo=False)
-    graphs["network"] = {
-        "file": "network.onnx", "precision": "fp32", "resolution": "native",
-        "inputs": {"current": _layout(CURRENT, "native, linear as stored"),
-                   "history": _layout(HISTORY, "native, warped previous filtered outputs, linear")},
-        "outputs": {n: {"shape": ["N", int(net_out[n].shape[1]), _res(net_out[n], current), ""],
-                        "meaning": _meaning(n)} for n in names},
-    }
+    graphs["network"] = Graph(
+        file="network.onnx",
+        inputs={"current": _layout(CURRENT, "native, linear as stored"),
+                "history": _layout(HISTORY, "native, warped previous filtered outputs, linear")},
+        outputs={n: {"shape": ["N", int(net_out[n].shape[1]), _res(net_out[n], current), ""],
+                     "meaning": _meaning(n)} for n in names})
     rows = validate_graph(out / "network.onnx", lambda c, h: tuple(model.network(c, h)[k] for k in names),
                           {"current": current, "history": history}, names, cfg.atol)
 
@@ -118,18 +111,17 @@ def export(cfg: ExportConfig, log=print) -> dict:
                               input_names=["composite", "features"], output_names=["kernel"],
                               dynamic_axes={"composite": dyn, "features": dyn, "kernel": dyn},
                               opset_version=OPSET, dynamo=False)
-        graphs["upsample"] = {
-            "file": "upsample.onnx", "precision": "fp32", "resolution": "native",
-            "inputs": {"composite": "N,3,H,W float32: albedo*diffuse+specular of the filtered signals, linear",
-                       "features": f"N,{feats.shape[1]},H,W float32: network output 'features'"},
-            "outputs": {"kernel": {"shape": ["N", s * s * 9, "H", "W"], "layout": "phases",
-                                   "meaning": "3x3 kernel of every target pixel, clamped to [-1, 1], applied "
-                                              "to the bilinearly upsampled linear composite (with "
-                                              "model_config.upsample_root r > 1: its r-th root upsampled, "
-                                              "raised back to the power r), then ReLU; channel "
-                                              "(py * s + px) * 9 + tap at native (i, j) is target pixel "
-                                              "(s*i + py, s*j + px)"}},
-        }
+        graphs["upsample"] = Graph(
+            file="upsample.onnx",
+            inputs={"composite": "N,3,H,W float32: albedo*diffuse+specular of the filtered signals, linear",
+                    "features": f"N,{feats.shape[1]},H,W float32: network output 'features'"},
+            outputs={"kernel": {"shape": ["N", s * s * 9, "H", "W"], "layout": "phases",
+                                "meaning": "3x3 kernel of every target pixel, clamped to [-1, 1], applied "
+                                           "to the bilinearly upsampled linear composite (with "
+                                           "model_config.upsample_root r > 1: its r-th root upsampled, "
+                                           "raised back to the power r), then ReLU; channel "
+                                           "(py * s + px) * 9 + tap at native (i, j) is target pixel "
+                                           "(s*i + py, s*j + px)"}})
         # against the reference block, which convolves at target resolution
         rows += validate_graph(out / "upsample.onnx", lambda c, f: to_phases(model.upsample_block(c, f), s),
                                {"composite": comp, "features": feats}, ["kernel"], cfg.atol)
@@ -137,50 +129,26 @@ def export(cfg: ExportConfig, log=print) -> dict:
     # pruned variants: the graphs adaptive execution runs when a frame skips a filter path
     # or the upsample block (export.prune)
     net_feeds = {"current": current.numpy(), "history": history.numpy()}
-    graphs["network"]["variants"] = write_variants(out, "network.onnx", "network")
-    for v in graphs["network"]["variants"].values():
-        rows += validate_variant(out / "network.onnx", out / v["file"], net_feeds)
+    graphs["network"].variants = write_variants(out, "network.onnx", "network")
+    for v in graphs["network"].variants.values():
+        rows += validate_variant(out / "network.onnx", out / v.file, net_feeds)
     for g in graphs.values():
-        g["sha256"] = _file_hash(out / g["file"])
-        for v in g.get("variants", {}).values():
-            v["sha256"] = _file_hash(out / v["file"])
+        g.sha256 = file_hash(out / g.file)
+        for v in g.variants.values():
+            v.sha256 = file_hash(out / v.file)
     feeds = {"network": (current, history)}
     if model.upsample_block is not None:
         feeds["upsample"] = (comp, feats)
-    qat = qat_ranges(model, graphs, out, feeds)
-    (out / "qat_ranges.json").write_text(json.dumps(qat, indent=1))
-    manifest = {
-        "format": ARTIFACT_FORMAT,
-        "package_version": __version__,
-        "checkpoint": {"path": str(ckpt), "sha256": _file_hash(ckpt)},
-        "model_config": asdict(model.cfg),
-        "scale": model.cfg.scale,
-        "pad_multiple": model.cfg.pad_multiple,
-        "pad_mode": "replicate the last row/column up to a multiple, crop the output back",
-        "layout": "NCHW float32",
-        "tonemap": "inside network.onnx and upsample.onnx: x' = log(clamp(x, 0, 65535) + 1)^(1/2.2)",
-        "kernel_order": "row-major 3x3 taps (dy, dx) from (-1, -1) to (1, 1); borders replicate",
-        "filter_paths": {
-            "levels": model.cfg.filter_levels,
-            "diffuse/specular": "spatiotemporal(spatial, temporal, blend) at native; level k (native / 2^k): "
-                                "2x2 average pool then 'down' kernel; back up: bilinear x2, 'up' kernel, "
-                                "lerp(skip, filtered, up_blend); ReLU after every filter; native up kernel "
-                                "and up_blend are '<path>.up', '<path>.up_blend'",
-            "albedo/normal": "spatiotemporal with the shared 'aux.*' kernels; normals filtered as n * 0.5 + 0.5",
-            "blend": "lerp(current, history, blend): 1 = all history",
-            "history": "next frame's history = [diffuse, specular, albedo, normal] filtered, warped bicubically "
-                       "along the motion vectors; on a first frame or cut the current inputs stand in",
-        },
-        "graphs": graphs,
-        "qat_ranges": "qat_ranges.json",
-        "validation": rows,
-    }
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    manifest = Manifest(checkpoint={"path": str(ckpt), "sha256": file_hash(ckpt)}, model_config=asdict(model.cfg),
+                        pad_multiple=model.cfg.pad_multiple, graphs=graphs, validation=rows,
+                        package_version=__version__)
+    write_json(out / manifest.qat_ranges, qat_ranges(model, graphs, out, feeds))
+    manifest.save(out)
     report_validation(rows, log)
     return manifest
 
 
-def qat_ranges(model: JNDS, graphs: dict, out: Path, feeds: dict[str, tuple]) -> dict:
+def qat_ranges(model: JNDS, graphs: dict[str, Graph], out: Path, feeds: dict[str, tuple]) -> dict:
     """The activation ranges learned in quantization-aware training, keyed by graph and by
     the ONNX tensor each one quantizes (the input of a Conv node): what `jnds calibrate
     --method qat` turns into QDQ scales. Convolutions are matched to Conv nodes by order
@@ -198,10 +166,10 @@ def qat_ranges(model: JNDS, graphs: dict, out: Path, feeds: dict[str, tuple]) ->
             block(*feeds[name])
         for h in hooks:
             h.remove()
-        nodes = [n for n in onnx.load(str(out / g["file"])).graph.node if n.op_type == "Conv"]
+        nodes = [n for n in onnx.load(str(out / g.file)).graph.node if n.op_type == "Conv"]
         bad = [f"{n.name} <-> {m}" for n, m in zip(nodes, order) if not n.name.endswith(f"/{m.split('.')[-1]}/Conv")]
         if len(nodes) != len(order) or bad:
-            raise ValidationError([{"graph": g["file"], "output": "Conv nodes", "ok": False,
+            raise ValidationError([{"graph": g.file, "output": "Conv nodes", "ok": False,
                                     "why": f"{len(nodes)} Conv nodes, {len(order)} convolutions run; "
                                            f"mismatched: {', '.join(bad[:3]) or 'none'}"}])
         result[name] = {node.input[0]: {"module": m, "rmin": min(ranges[m]["lo"], 0.0), "rmax": ranges[m]["hi"],

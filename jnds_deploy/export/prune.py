@@ -25,6 +25,8 @@ import numpy as np
 import onnx
 from onnx import numpy_helper
 
+from ..artifacts import Variant
+
 GROUPS = ("diffuse", "specular", "features")
 # (max, mean) |variant - full| allowed for int8 graphs (see validate_variant): 1.5x the
 # largest difference measured, 3x the largest mean. Kernels and blend weights lie in
@@ -114,9 +116,9 @@ def _slice_split_heads(graph: onnx.GraphProto) -> dict:
     return sliced
 
 
-def write_variants(root: Path, file: str, stem: str, log=None) -> dict:
+def write_variants(root: Path, file: str, stem: str, log=None) -> dict[str, Variant]:
     """Every pruned variant of graph ``root/file``, written as ``<stem>.<key>.onnx``;
-    returns the manifest entries {key: {file, drops, outputs}}."""
+    returns the manifest entries by key (their sha256 is the caller's to fill in)."""
     outputs = [o.name for o in onnx.load(str(root / file)).graph.output]
     entries = {}
     for drops in variant_drops(outputs):
@@ -126,7 +128,7 @@ def write_variants(root: Path, file: str, stem: str, log=None) -> dict:
         if log:
             what = ", ".join(f"{c.rsplit('/', 2)[-2]} {a}->{b} channels" for c, (a, b) in sliced.items())
             log(f"pruned {file} -> {name} ({len(keep)} of {len(outputs)} outputs{'; ' + what if what else ''})")
-        entries[key] = {"file": name, "drops": list(drops), "outputs": keep}
+        entries[key] = Variant(file=name, drops=list(drops), outputs=keep)
     return entries
 
 

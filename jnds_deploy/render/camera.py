@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import ConfigError
+
 CAMERA_PATHS = ("static", "dolly", "orbit", "pan", "cut")
 
 
@@ -96,7 +98,7 @@ def camera_path(kind: str, frames: int, rng: np.random.Generator, extent: float 
     per-frame motion is drawn so that a sequence moves a few native pixels per frame.
     """
     if kind not in CAMERA_PATHS:
-        raise ValueError(f"unknown camera path {kind!r}, expected one of {', '.join(CAMERA_PATHS)}")
+        raise ConfigError(f"unknown camera path {kind!r}, expected one of {', '.join(CAMERA_PATHS)}")
 
     def pose():
         az = rng.uniform(0, 2 * np.pi)

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+from ..errors import ConfigError
 from .camera import CAMERA_PATHS
 from .sequence import RenderConfig
 
@@ -35,7 +36,7 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES) ->
     always the same sequences); validation seeds (2000+) never overlap it.
     """
     if not 1 <= train_sequences <= 1000:
-        raise ValueError(f"train_sequences must be in 1..1000, got {train_sequences}")
+        raise ConfigError(f"train_sequences must be in 1..1000, got {train_sequences}")
     specs = {
         "train": _specs("train", range(1000, 1000 + train_sequences), frames=12, spp=64),
         "val": _specs("val", range(2000, 2006), frames=12, spp=128),
@@ -43,7 +44,7 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES) ->
     if split == "all":
         return specs["train"] + specs["val"]
     if split not in specs:
-        raise ValueError(f"unknown split {split!r}, expected train, val or all")
+        raise ConfigError(f"unknown split {split!r}, expected train, val or all")
     return specs[split]
 
 

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..errors import ConfigError
+
 SCENE_KINDS = ("procedural", "diffuse", "metal", "sky", "sunlit")
 EXTENT = 4.0  # objects are scattered over [-EXTENT, EXTENT]^2 on the ground
 
@@ -113,7 +115,7 @@ def build_scene(mi, seed: int, kind: str = "procedural") -> tuple[dict, dict[str
     the specular layer is exactly zero; ``procedural``: everything.
     """
     if kind not in SCENE_KINDS:
-        raise ValueError(f"unknown scene {kind!r}, expected one of {', '.join(SCENE_KINDS)}")
+        raise ConfigError(f"unknown scene {kind!r}, expected one of {', '.join(SCENE_KINDS)}")
     rng = np.random.default_rng(seed)
     T = mi.ScalarTransform4f
     kinds = {"procedural": ("diffuse", "plastic", "metal"), "diffuse": ("diffuse",),

@@ -1,0 +1,36 @@
+"""The deployed pipeline: ONNX Runtime for the network graphs, numpy/numba for the filter
+stage, no torch. ``Pipeline`` runs frames; ``jnds run`` (``run``) runs sequences.
+
+- ``reformat``: input layers into the network's layout, sanitized;
+- ``history``: the previous frame's signals warped, cleaned and stored;
+- ``filters``: the filter stage (the numpy/numba implementation of ``jnds_deploy.filters``);
+- ``pipeline``: ``Pipeline``, ``PipelineConfig``, ``FrameResult``;
+- ``run``: ``jnds run``; ``profile``: ONNX Runtime's profiler per network stage.
+"""
+import os
+
+from .pipeline import FrameResult, Pipeline, PipelineConfig
+
+__all__ = ["FrameResult", "Pipeline", "PipelineConfig", "tune_numba"]
+
+
+def tune_numba() -> None:
+    """The process-wide numba settings the runtime is measured and served with. Opt-in:
+    the ``jnds`` command calls it for the commands that run the pipeline; an application
+    that embeds the runtime may call it before the first frame. A setting the user made
+    with a ``NUMBA_*`` environment variable is kept.
+
+    - Threading layer ``threadsafe`` (TBB or GNU OpenMP): numba's ``workqueue`` layer
+      aborts the process when two threads run parallel loops at once (the server does).
+    - LLVM's SLP vectorizer on (numba leaves it off): the warp loop
+      (``filters._warp_rows``) relies on it to turn its 12 per-channel sums into vector
+      FMAs (docs/performance.md). It changes no result: without fast-math flags it
+      reorders no sum. It acts on loops compiled after the call (numba's on-disk cache
+      keeps what was compiled before).
+    """
+    import numba
+
+    if "NUMBA_THREADING_LAYER" not in os.environ:
+        numba.config.THREADING_LAYER = "threadsafe"
+    if "NUMBA_SLP_VECTORIZE" not in os.environ:
+        numba.config.SLP_VECTORIZE = 1

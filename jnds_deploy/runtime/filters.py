@@ -26,9 +26,7 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
-from ..layout import BACKGROUND, REJECT_COS, ROOT_FLOOR
-
-HDR_MAX = 65535.0
+from ..layout import BACKGROUND, HDR_MAX, REJECT_COS, ROOT_FLOOR
 
 
 def tonemap(x: np.ndarray) -> np.ndarray:
@@ -245,10 +243,10 @@ WARP_CHANNELS = 12  # channels per pass of the warp loop (the history's 12)
 def _warp_rows(src, motion, lo, hi, out, current, cos, background, counts):
     """out[c, y, x] = clamp(bicubic sample of src (H, W, 12, channels last) at (x + mx,
     y + my), lo[c], hi[c]), taps clamped to the frame (border replicate). The 12 channels of
-    a pixel are 12 explicit sums over the same taps: LLVM's SLP vectorizer turns them into
-    vector loads and FMAs over adjacent channels (``NUMBA_SLP_VECTORIZE``, set in
-    ``jnds_deploy/__init__``). Each row is written channels-last into a row buffer first
-    and transposed from there (cache-resident). With ``current`` (13, H, W) rather than
+    a pixel are 12 explicit sums over the same taps: LLVM's SLP vectorizer (which
+    ``runtime.tune_numba`` turns on) makes them vector loads and FMAs over adjacent
+    channels. Each row is written channels-last into a row buffer first and transposed
+    from there (cache-resident). With ``current`` (13, H, W) rather than
     an empty array, the pixels that fail ``_disoccluded_row`` take the current inputs'
     12 channels (``reject_disoccluded`` fused into the same pass); counts[y] says how many."""
     H, W, _ = src.shape

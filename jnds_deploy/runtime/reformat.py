@@ -16,20 +16,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from .filters import HDR_MAX
+from ..layout import LAYERS
 
-# layer -> (low, high, renormalize): NaN becomes 0 (for normals: the zero vector, which
-# renormalizing leaves alone), +-Inf and everything else is clamped into [low, high].
-# Radiance is clamped to the paper's [0, 65535] (Sec. 3.2.1), negative radiance to 0;
-# motion beyond +-65535 pixels is off-screen either way.
-LIMITS: dict[str, tuple[float, float, bool]] = {
-    "diffuse": (0.0, HDR_MAX, False),
-    "specular": (0.0, HDR_MAX, False),
-    "albedo": (0.0, 1.0, False),
-    "normal": (-1.0, 1.0, True),
-    "roughness": (0.0, 1.0, False),
-    "motion": (-HDR_MAX, HDR_MAX, False),
-}
+# layer -> (low, high, renormalize), from the one table of input layers (layout.LAYERS)
+LIMITS: dict[str, tuple[float, float, bool]] = {layer.name: (layer.lo, layer.hi, layer.unit_vector)
+                                                for layer in LAYERS}
 
 
 @njit(parallel=True, cache=True)

@@ -40,12 +40,13 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
     out.mkdir(parents=True, exist_ok=True)
     frames, scores, nonfinite, decisions, rejected = [], [], [], [], []
     for i in tqdm(range(len(seq)), desc=f"run {seq.path.name}", unit="frame", disable=not progress):
-        color, ms = pipe(seq.inputs(i), seq.frames[i].camera_cut)
+        frame = pipe(seq.inputs(i), seq.frames[i].camera_cut)
+        color = frame.output
         write_exr(out / f"{i:04d}.exr", {"color": color}, OUTPUT_LAYERS)
-        frames.append(ms)
-        nonfinite.append(dict(pipe.nonfinite))
-        decisions.append({k: v for k, v in pipe.decisions.items() if v})
-        rejected.append({"pixels": pipe.disoccluded, "tiles": pipe.rejected})
+        frames.append(frame.ms)
+        nonfinite.append(frame.nonfinite)
+        decisions.append({k: v for k, v in frame.decisions.items() if v})
+        rejected.append({"pixels": frame.disoccluded, "tiles": frame.rejected})
         if metrics and seq.has_reference:
             from ..metrics import flip, psnr
 
@@ -56,7 +57,7 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
     stages = sorted({k for f in frames for k in f})
     report = {
         "input": str(seq.path), "artifacts": str(Path(cfg.artifacts)),
-        "checkpoint_sha256": pipe.manifest["checkpoint"]["sha256"],
+        "checkpoint_sha256": pipe.manifest.checkpoint["sha256"],
         "precision": cfg.precision, "filter_dtype": cfg.filter_dtype, "threads": cfg.threads,
         "native_size": list(seq.native_size), "output_size": [seq.native_size[0] * pipe.out_scale,
                                                             seq.native_size[1] * pipe.out_scale],
@@ -65,10 +66,10 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
         "frame_ms": frames,
         # NaN/Inf values replaced per frame and input layer (only layers that had any)
         "nonfinite": nonfinite,
-        # adaptive execution per frame: what was skipped (Pipeline.decisions)
+        # adaptive execution per frame: what was skipped (FrameResult.decisions)
         "adaptive": cfg.adaptive, "native_output": cfg.native_output, "decisions": decisions,
         # history replaced by the current inputs per frame: pixels by the geometric test
-        # (filters.disoccluded), 32x32 tiles by the brightness test (reject_history)
+        # (filters.disoccluded), 32x32 tiles by the brightness test (history.reject_history)
         "history_rejected": rejected,
     }
     if scores:

@@ -21,16 +21,8 @@ from urllib.parse import urlsplit
 import numpy as np
 import OpenEXR
 
-from ..errors import JndsError
+from ..errors import JndsError, ServerError
 from ..io import INPUT_LAYERS, OPTIONAL_INPUT_LAYERS, OUTPUT_LAYERS, channels_to_layers, exr_bytes, read_exr_bytes
-
-
-class ServerError(JndsError):
-    """The server refused a request; ``status`` is the HTTP status, ``kind`` its error type."""
-
-    def __init__(self, status: int, message: str, kind: str = ""):
-        self.status, self.kind = status, kind
-        super().__init__(f"HTTP {status}: {message}")
 
 
 class _Connection:

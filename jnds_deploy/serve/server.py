@@ -27,9 +27,10 @@ from urllib.parse import parse_qs, urlsplit
 import numpy as np
 import OpenEXR
 
-from ..errors import JndsError
+from ..errors import BadRequest, JndsError
 from ..io import INPUT_LAYERS, OPTIONAL_INPUT_LAYERS, OUTPUT_LAYERS, channels_to_layers, exr_bytes, read_exr_bytes
-from ..runtime.pipeline import INPUT_CHANNELS, Pipeline, PipelineConfig
+from ..layout import INPUT_CHANNELS
+from ..runtime.pipeline import Pipeline, PipelineConfig
 
 log = logging.getLogger("jnds.serve")
 
@@ -73,12 +74,7 @@ class ServeConfig:
     idle_timeout: float = 300.0  # seconds without a request before a stream is closed
     max_frame_bytes: int = 512 << 20
     max_nonfinite: float = 0.5  # a layer with more NaN/Inf than this fraction: 400 (a NaN flood)
-
-
-class BadRequest(JndsError):
-    def __init__(self, status: int, message: str, retry_after: float | None = None):
-        self.status, self.retry_after = status, retry_after
-        super().__init__(message)
+    keep_freed_memory: bool = False  # PipelineConfig.keep_freed_memory (process-wide; `jnds serve` sets it)
 
 
 class Stream:
@@ -140,7 +136,8 @@ class FrameServer:
 
     def __init__(self, cfg: ServeConfig):
         self.cfg = cfg
-        self.base = Pipeline(PipelineConfig(artifacts=cfg.artifacts, precision=cfg.precision, threads=cfg.threads))
+        self.base = Pipeline(PipelineConfig(artifacts=cfg.artifacts, precision=cfg.precision, threads=cfg.threads,
+                                            keep_freed_memory=cfg.keep_freed_memory))
         # warm-up: compiles the numba loops and lets ONNX Runtime allocate, so the first
         # client frame is not the slow one (0.7 s instead of 30 ms at 160x90, measured)
         w = self.base.multiple
@@ -272,12 +269,12 @@ class FrameServer:
             layers, cut, t0 = job
             try:
                 queued = 1000 * (time.perf_counter() - t0)
-                color, ms = s.pipe(layers, cut)
-                ms = {**ms, "queue": queued, "server": 1000 * (time.perf_counter() - t0)}
+                frame = s.pipe(layers, cut)
+                ms = {**frame.ms, "queue": queued, "server": 1000 * (time.perf_counter() - t0)}
                 s.frames += 1
                 s.last_used = time.monotonic()
                 self.metrics.frame(ms)
-                fut.set_result((color, ms, dict(s.pipe.nonfinite), s.frames - 1))
+                fut.set_result((frame.output, ms, frame.nonfinite, s.frames - 1))
             except JndsError as exc:  # a frame the pipeline refuses: the stream goes on
                 s.errors += 1
                 fut.set_exception(BadRequest(400, str(exc)))

@@ -7,7 +7,8 @@ import onnx
 import pytest
 from onnx import numpy_helper
 
-from jnds_deploy.calibration import CalibrateConfig, CalibrationError, calibrate
+from jnds_deploy.calibration import CalibrateConfig, calibrate
+from jnds_deploy.errors import CalibrationError
 from jnds_deploy.calibration.quantize import FLOAT_NODES, validate_int8
 from jnds_deploy.calibration.reader import collect_feeds
 from jnds_deploy.errors import ValidationError
@@ -37,8 +38,8 @@ def _producers(model):
 
 def test_every_convolution_is_quantized(calibrated):
     d, manifest, _ = calibrated
-    for name, g in manifest["graphs"].items():
-        model = onnx.load(d / g["int8"]["qat"]["file"])
+    for name, g in manifest.graphs.items():
+        model = onnx.load(d / g.int8["qat"].file)
         onnx.checker.check_model(model, full_check=True)
         ops = Counter(n.op_type for n in model.graph.node)
         prod = _producers(model)
@@ -63,10 +64,10 @@ def test_every_convolution_is_quantized(calibrated):
 
 def test_int8_graph_has_pruned_variants(calibrated):
     d, manifest, lines = calibrated
-    variants = manifest["graphs"]["network"]["int8"]["qat"]["variants"]
+    variants = manifest.graphs["network"].int8["qat"].variants
     assert len(variants) == 7
     for v in variants.values():
-        assert (d / v["file"]).is_file() and v["file"].startswith("network.int8.qat.no-")
+        assert (d / v.file).is_file() and v.file.startswith("network.int8.qat.no-")
     assert sum(1 for line in lines if ".int8.qat.no-" in line and line.startswith("✓")) == 7
 
 
@@ -84,12 +85,12 @@ def test_learned_ranges_become_the_scales(calibrated):
 
 def test_int8_pipeline_stays_close_to_fp32(calibrated):
     d, manifest, lines = calibrated
-    assert manifest["int8_method"] == "qat" and any(line.startswith("✓") for line in lines)
+    assert manifest.int8_method == "qat" and any(line.startswith("✓") for line in lines)
     assert not any(line.startswith("✗") for line in lines)
     seq = open_sequence(SAMPLE)
     pipes = [Pipeline(PipelineConfig(artifacts=str(d), precision=p)) for p in ("fp32", "int8")]
     for i in range(4):
-        a, b = (p(seq.inputs(i), seq.frames[i].camera_cut)[0] for p in pipes)
+        a, b = (p(seq.inputs(i), seq.frames[i].camera_cut).output for p in pipes)
         assert np.isfinite(b).all()
         # measured with calibration on all 8 frames: 35.7 dB on frame 1 falling to 34.1 dB
         # on frame 4 (int8 error accumulates in the history)
@@ -98,7 +99,7 @@ def test_int8_pipeline_stays_close_to_fp32(calibrated):
 
 def test_validation_catches_a_corrupted_int8_graph(calibrated, tmp_path):
     d, manifest, _ = calibrated
-    path = d / manifest["graphs"]["upsample"]["int8"]["qat"]["file"]
+    path = d / manifest.graphs["upsample"].int8["qat"].file
     good = path.read_bytes()
     try:
         model = onnx.load(path)
@@ -124,13 +125,13 @@ def test_post_training_methods(calibrated, method):
     d, _, _ = calibrated
     manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method=method, frames=2,
                                          activation_type="s8"), log=lambda s: None)
-    entry = manifest["graphs"]["network"]["int8"][method]
-    assert (d / entry["file"]).is_file() and entry["activation_type"] == "s8"
+    entry = manifest.graphs["network"].int8[method]
+    assert (d / entry.file).is_file() and entry.activation_type == "s8"
     saved = json.loads((d / f"calibration.{method}.json").read_text())
     assert all(t["dtype"] == "int8" and t["rmin"] <= 0 <= t["rmax"] for t in saved["tensors"]["network"].values())
-    assert all(r["ok"] for r in manifest["int8_validation"][method])
+    assert all(r["ok"] for r in manifest.int8_validation[method])
     # every method stays registered; the pipeline can pick any of them
-    assert "qat" in manifest["graphs"]["network"]["int8"]
+    assert "qat" in manifest.graphs["network"].int8
     Pipeline(PipelineConfig(artifacts=str(d), precision="int8", int8_method="qat"))
 
 

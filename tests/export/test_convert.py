@@ -34,8 +34,8 @@ def test_export_writes_valid_graphs_and_manifest(tiny_checkpoint, tmp_path):
     on_disk = json.loads((tmp_path / "manifest.json").read_text())
     assert on_disk["pad_multiple"] == 4 and on_disk["scale"] == 2
     assert set(on_disk["graphs"]) == {"network", "upsample"}
-    assert all(r["ok"] for r in manifest["validation"])
-    assert all(line.startswith("✓") for line in lines) and len(lines) == len(manifest["validation"])
+    assert all(r["ok"] for r in manifest.validation)
+    assert all(line.startswith("✓") for line in lines) and len(lines) == len(manifest.validation)
 
 
 def test_validation_catches_a_corrupted_graph(tiny_checkpoint, tmp_path):
@@ -59,12 +59,12 @@ def test_validation_catches_a_corrupted_graph(tiny_checkpoint, tmp_path):
 
 
 def test_shipped_checkpoint_exports_and_validates(tmp_path):
-    from jnds_deploy.train import default_checkpoint
+    from jnds_deploy.checkpoint import default_checkpoint
     ckpt = torch.load(default_checkpoint(), weights_only=False)
     assert ckpt["quantized"] and ckpt["quant_ranges"]  # QAT-trained, ranges exportable
     manifest = export(ExportConfig(out=str(tmp_path)), log=lambda s: None)
-    assert manifest["model_config"]["scale"] == 2 and manifest["pad_multiple"] == 8
-    assert all(r["ok"] for r in manifest["validation"])
+    assert manifest.model_config["scale"] == 2 and manifest.pad_multiple == 8
+    assert all(r["ok"] for r in manifest.validation)
 
 
 def test_pruned_variants_drop_their_kernels(tiny_checkpoint, tmp_path):
@@ -74,7 +74,7 @@ def test_pruned_variants_drop_their_kernels(tiny_checkpoint, tmp_path):
     from onnx import numpy_helper
 
     manifest = export(ExportConfig(checkpoint=str(tiny_checkpoint), out=str(tmp_path)), log=lambda s: None)
-    variants = manifest["graphs"]["network"]["variants"]
+    variants = manifest.graphs["network"].variants
     assert set(variants) == {"no-diffuse", "no-specular", "no-features", "no-diffuse-specular",
                              "no-diffuse-features", "no-specular-features", "no-diffuse-specular-features"}
     full = onnx.load(tmp_path / "network.onnx")
@@ -86,12 +86,12 @@ def test_pruned_variants_drop_their_kernels(tiny_checkpoint, tmp_path):
 
     n_full = len(full.graph.node)
     for key, v in variants.items():
-        model = onnx.load(tmp_path / v["file"])
+        model = onnx.load(tmp_path / v.file)
         onnx.checker.check_model(model, full_check=True)
         outs = [o.name for o in model.graph.output]
-        assert outs == v["outputs"] and not any(o.split(".")[0] in v["drops"] for o in outs)
+        assert outs == v.outputs and not any(o.split(".")[0] in v.drops for o in outs)
         assert head_channels(model) < head_channels(full) and len(model.graph.node) < n_full
-        if "diffuse" in v["drops"]:
+        if "diffuse" in v.drops:
             assert not any("/diffuse" in n.name for n in model.graph.node)
-    rows = [r for r in manifest["validation"] if r["graph"].startswith("network.no-")]
+    rows = [r for r in manifest.validation if r["graph"].startswith("network.no-")]
     assert len(rows) == 7 and all(r["ok"] and r["max_abs"] == 0 for r in rows)

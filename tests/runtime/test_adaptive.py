@@ -19,8 +19,9 @@ def _run(artifacts, frames, adaptive):
     pipe = Pipeline(PipelineConfig(artifacts=str(artifacts), adaptive=adaptive))
     outs, decisions = [], []
     for i, layers in enumerate(frames):
-        outs.append(pipe(layers, camera_cut=i == 0)[0])
-        decisions.append(dict(pipe.decisions))
+        frame = pipe(layers, camera_cut=i == 0)
+        outs.append(frame.output)
+        decisions.append(dict(frame.decisions))
     return outs, decisions
 
 
@@ -94,8 +95,9 @@ def test_tile_skip_passes_the_background_through(tiny_artifacts):
     pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0]), tile_skip=True))
     comps = []
     pipe.on_feeds = lambda name, feeds: comps.append(feeds["composite"][0]) if name == "upsample" else None
-    out, _ = pipe(f)
-    assert pipe.decisions["empty_tiles"] == 3
+    frame = pipe(f)
+    out = frame.output
+    assert frame.decisions["empty_tiles"] == 3
     # in the sky tile (native x >= 48, output x >= 96): the bilinear upsampling of the input
     up = cv2.resize(np.ascontiguousarray(comps[0].transpose(1, 2, 0)), (128, 80), interpolation=cv2.INTER_LINEAR)
     np.testing.assert_allclose(out[:, 96:], up[:, 96:], rtol=1e-6)
@@ -130,9 +132,10 @@ def test_native_output_is_the_composite_without_the_upsample_block(tiny_artifact
     h, w = seq.native_size[1], seq.native_size[0]
     for i in range(3):
         full(seq.inputs(i))
-        out, ms = native(seq.inputs(i))
+        frame = native(seq.inputs(i))
+        out, ms = frame.output, frame.ms
         assert out.shape == (h, w, 3) and "upsample_kernel" not in ms
-        assert native.decisions["network_graph"].endswith("features")  # variant without the features
+        assert frame.decisions["network_graph"].endswith("features")  # variant without the features
         np.testing.assert_array_equal(out, comps[-1][:, :h, :w].transpose(1, 2, 0))
     report = run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), native_output=True), SAMPLE,
                           tmp_path / "run", progress=False)

@@ -4,8 +4,10 @@ import pytest
 import torch
 
 from jnds_deploy.io import open_sequence
-from jnds_deploy.runtime.pipeline import ArtifactError, FrameError, Pipeline, PipelineConfig
-from jnds_deploy.train import infer_sequence, load_sequence
+from jnds_deploy.errors import ArtifactError, FrameError
+from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
+from jnds_deploy.training.data import load_sequence
+from jnds_deploy.training.evaluate import infer_sequence
 
 from ..conftest import SAMPLE
 
@@ -23,7 +25,8 @@ def test_pipeline_matches_torch_over_a_sequence(artifacts, tiny_artifacts_root4,
     ref = infer_sequence(model, load_sequence(SAMPLE))[:4]
     pipe = Pipeline(PipelineConfig(artifacts=str(path)))
     for i in range(4):
-        out, ms = pipe(seq.inputs(i), seq.frames[i].camera_cut)
+        frame = pipe(seq.inputs(i), seq.frames[i].camera_cut)
+        out, ms = frame.output, frame.ms
         assert out.shape == (180, 320, 3) and out.dtype == np.float32
         # measured: 1e-7 (first frame) to 8e-7 (with history, when the warp was cv2.remap
         # with its 1/32-pixel map quantization); tolerance 1e-4 of the mean
@@ -36,15 +39,15 @@ def test_pipeline_resets_on_cut_and_resize(artifacts):
     path, _ = artifacts
     seq = open_sequence(SAMPLE)
     pipe = Pipeline(PipelineConfig(artifacts=str(path)))
-    first, _ = pipe(seq.inputs(0))
+    first = pipe(seq.inputs(0)).output
     pipe(seq.inputs(1))
-    again, _ = pipe(seq.inputs(0), camera_cut=True)  # cut: no history, same as a first frame
+    again = pipe(seq.inputs(0), camera_cut=True).output  # cut: no history, same as a first frame
     np.testing.assert_array_equal(first, again)
     crop = {k: v[:37, :51] for k, v in seq.inputs(2).items()}  # odd size: padded, cropped back
-    out, _ = pipe(crop)
-    assert out.shape == (74, 102, 3) and pipe.size == (51, 37)
+    out = pipe(crop).output
+    assert out.shape == (74, 102, 3) and pipe.history.size == (51, 37)
     fresh = Pipeline(PipelineConfig(artifacts=str(path)))
-    np.testing.assert_array_equal(out, fresh(crop)[0])
+    np.testing.assert_array_equal(out, fresh(crop).output)
 
 
 def test_pipeline_fp16_filters_close_to_fp32(artifacts):
@@ -53,8 +56,8 @@ def test_pipeline_fp16_filters_close_to_fp32(artifacts):
     a = Pipeline(PipelineConfig(artifacts=str(path)))
     b = Pipeline(PipelineConfig(artifacts=str(path), filter_dtype="float16"))
     for i in range(3):
-        oa, _ = a(seq.inputs(i))
-        ob, _ = b(seq.inputs(i))
+        oa = a(seq.inputs(i)).output
+        ob = b(seq.inputs(i)).output
     assert np.abs(oa - ob).mean() / np.abs(oa).mean() < 5e-3
 
 
@@ -129,10 +132,11 @@ def test_nonfinite_inputs_are_replaced_and_counted(artifacts, layer):
         else:
             layers[layer][5, 7, 0] = bad
             expected = 1
-        out, _ = pipe(layers)
-        assert pipe.nonfinite == {layer: expected}, (bad, pipe.nonfinite)
+        frame = pipe(layers)
+        out = frame.output
+        assert frame.nonfinite == {layer: expected}, (bad, frame.nonfinite)
         assert np.isfinite(out).all() and out.min() >= 0
-        assert np.isfinite(pipe.history).all()
+        assert np.isfinite(pipe.history.frame).all()
 
 
 def test_frame_errors_name_the_layer(artifacts):

@@ -12,7 +12,8 @@ from hypothesis.extra import numpy as hnp
 
 from jnds_deploy.errors import ExrReadError, JndsError, SequenceError
 from jnds_deploy.io import INPUT_LAYERS, exr_bytes, open_sequence, read_exr, read_exr_bytes
-from jnds_deploy.runtime.pipeline import INPUT_CHANNELS, Pipeline, PipelineConfig
+from jnds_deploy.layout import INPUT_CHANNELS
+from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
 from jnds_deploy.runtime.run import run_sequence
 
 from ..conftest import SAMPLE, random_inputs
@@ -50,11 +51,11 @@ def test_extreme_radiance(pipes, case):
     for k in ("diffuse", "specular"):
         layers[k] = (np.full(shape, value, np.float32) if value else
                      (10.0 ** rng.uniform(-8, 6, shape)).astype(np.float32))
-    out, _ = pipe(layers, camera_cut=True)
+    out = pipe(layers, camera_cut=True).output
     _ok(out, (180, 320, 3))
     if case == "beyond_clamp":
         clamped = {**layers, "diffuse": np.full(shape, 65535, np.float32), "specular": np.full(shape, 65535, np.float32)}
-        np.testing.assert_array_equal(out, pipe(clamped, camera_cut=True)[0])
+        np.testing.assert_array_equal(out, pipe(clamped, camera_cut=True).output)
 
 
 def test_zero_constant_and_black_albedo(pipes):
@@ -64,14 +65,14 @@ def test_zero_constant_and_black_albedo(pipes):
     layers = _sample()
     zero = {**layers, "diffuse": np.zeros_like(layers["diffuse"]), "specular": np.zeros_like(layers["specular"])}
     for i in range(3):  # with history too
-        out, _ = pipe(zero, camera_cut=i == 0)
+        out = pipe(zero, camera_cut=i == 0).output
         assert not out.any()
     const = {k: np.full_like(v, 0.5) for k, v in layers.items()}
     const["motion"][:] = 0
     for i in range(3):
-        _ok(pipe(const, camera_cut=i == 0)[0])
+        _ok(pipe(const, camera_cut=i == 0).output)
     black = {**layers, "albedo": np.zeros_like(layers["albedo"])}
-    _ok(pipe(black, camera_cut=True)[0])
+    _ok(pipe(black, camera_cut=True).output)
 
 
 @pytest.mark.parametrize("motion", ["huge", "offscreen", "nan", "disocclusion"])
@@ -86,10 +87,10 @@ def test_broken_motion_vectors(pipes, motion):
     m[:] = {"huge": 1e9, "offscreen": -500.0, "nan": np.nan}.get(motion, 0.0)
     if motion == "disocclusion":
         m[:] = rng.normal(scale=40, size=m.shape)
-    out, _ = pipe(layers)
-    _ok(out, (180, 320, 3))
+    frame = pipe(layers)
+    _ok(frame.output, (180, 320, 3))
     if motion == "nan":
-        assert pipe.nonfinite == {"motion": m.size}
+        assert frame.nonfinite == {"motion": m.size}
 
 
 @pytest.mark.parametrize("w,h", [(1, 1), (7, 5), (33, 17), (1921, 1081)])
@@ -99,7 +100,7 @@ def test_odd_sizes(pipes, w, h):
     pipe = pipes["float32"]
     for i in range(2):
         layers = random_inputs(rng, w, h)
-        out, _ = pipe(layers, camera_cut=i == 0)
+        out = pipe(layers, camera_cut=i == 0).output
         _ok(out, (2 * h, 2 * w, 3))
 
 
@@ -114,8 +115,8 @@ def test_fp16_filter_stage_does_not_overflow(pipes):
         with np.errstate(over="ignore"):  # what half precision would hold
             naive = np.minimum(bright["specular"], 65535).astype(np.float16)
         assert np.isinf(naive).any() == (peak > 65504)
-        f32, _ = pipes["float32"](bright, camera_cut=True)
-        f16, _ = pipes["float16"](bright, camera_cut=True)
+        f32 = pipes["float32"](bright, camera_cut=True).output
+        f16 = pipes["float16"](bright, camera_cut=True).output
         _ok(f16)
         assert np.abs(f16 - f32).mean() < 0.01 * np.abs(f32).mean(), peak
 
@@ -131,9 +132,9 @@ def test_any_finite_input_gives_finite_nonnegative_output(pipes, data):
     layers = {n: data.draw(hnp.arrays(np.float32, (h, w, c), elements=elements), label=n)
               for n, c in INPUT_CHANNELS.items()}
     for cut in (True, False):  # the second frame warps the first one's history
-        out, _ = pipe(layers, camera_cut=cut)
+        out = pipe(layers, camera_cut=cut).output
         _ok(out, (2 * h, 2 * w, 3))
-        assert np.isfinite(pipe.history).all()
+        assert np.isfinite(pipe.history.frame).all()
 
 
 @FUZZ
@@ -212,7 +213,7 @@ def test_jnds_run_stops_at_a_bad_frame_keeping_what_it_wrote(tiny_artifacts, tmp
 def test_history_rejection_restarts_only_runaway_tiles():
     """A history tile far brighter than the current frame restarts from it; a history
     in line with the current frame is left alone (bit for bit)."""
-    from jnds_deploy.runtime.pipeline import REJECT_TILE, reject_history
+    from jnds_deploy.runtime.history import REJECT_TILE, reject_history
 
     rng = np.random.default_rng(4)
     h, w = 2 * REJECT_TILE, 3 * REJECT_TILE
@@ -235,7 +236,7 @@ def test_history_rejection_partial_tiles_use_their_own_pixels():
     """The last row and column of tiles are partial: their means are over the pixels they
     have, so a runaway 5-pixel strip at the bottom restarts, and only it (10x brighter: over
     the ~18-row areas the opencv area resize used before, it was diluted below the ratio)."""
-    from jnds_deploy.runtime.pipeline import REJECT_TILE, reject_history
+    from jnds_deploy.runtime.history import REJECT_TILE, reject_history
 
     rng = np.random.default_rng(5)
     h, w = REJECT_TILE + 5, 2 * REJECT_TILE + 3

@@ -66,7 +66,7 @@ def test_concurrent_streams_keep_separate_histories(server, tiny_artifacts):
     want = {}
     for name, fr in orders.items():
         pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0])))
-        want[name] = [pipe(layers, False)[0] for layers, _ in fr]
+        want[name] = [pipe(layers, False).output for layers, _ in fr]
     got, errors = {}, []
 
     def run(name):
@@ -112,7 +112,7 @@ def test_bad_frames_get_clear_errors_and_the_stream_goes_on(server, tiny_artifac
            (_exr(frames[1][0], uint="roughness"), "channel 'roughness' is stored as uint32, expected half or float"),
            (_exr(flood), "layer 'specular' has 43200 of 43200 values NaN or Inf")]
     for i, (layers, cut) in enumerate(frames[:4]):
-        want, _ = pipe(layers, cut)
+        want = pipe(layers, cut).output
         body, message = bad[i]
         with pytest.raises(ServerError, match=message) as exc:
             stream.denoise_exr(body)
@@ -142,11 +142,11 @@ def test_stream_control_reset_resize(server, tiny_artifacts):
     stream.denoise(frames[0][0])
     stream.denoise(frames[1][0])
     stream.reset()  # as a camera cut: the next frame starts without history
-    np.testing.assert_array_equal(stream.denoise(frames[2][0]), pipe(frames[2][0], camera_cut=True)[0])
+    np.testing.assert_array_equal(stream.denoise(frames[2][0]), pipe(frames[2][0], camera_cut=True).output)
     small = {k: np.ascontiguousarray(v[:45, :70]) for k, v in frames[3][0].items()}
     out = stream.denoise(small)  # a resolution change resets history too
     assert out.shape == (90, 140, 3)
-    np.testing.assert_array_equal(out, pipe(small, camera_cut=True)[0])
+    np.testing.assert_array_equal(out, pipe(small, camera_cut=True).output)
 
 
 def test_idle_streams_are_closed(server):

@@ -23,7 +23,9 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from . import filters
+from .. import filters
+from ..errors import TrainError
+from ..layout import channels
 
 
 def _block(cin, cout):
@@ -65,6 +67,8 @@ class FeatureNet(nn.Module):
 
 
 def load_feature_net(path: str | Path) -> FeatureNet:
+    if not Path(path).is_file():
+        raise TrainError(f"{path}: no such feature-loss network; `jnds train-feature-net` writes one")
     data = torch.load(path, weights_only=False, map_location="cpu")
     net = FeatureNet(tuple(data["widths"]))
     net.load_state_dict(data["model"])
@@ -88,19 +92,18 @@ class FeatureNetConfig:
 
 def _examples(data_root: str):
     """(tonemapped native-resolution reference colour, G-buffer target) per frame."""
-    from .io import find_sequences
-    from .train import load_sequence
+    from .data import load_split
 
     xs, ys = [], []
-    for p in find_sequences(Path(data_root) / "train"):
-        s = load_sequence(p)
+    for s in load_split(Path(data_root) / "train"):
         k = s.scale
         color = torch.from_numpy(s.ref["color"])
         xs.append(filters.tonemap(F.avg_pool2d(color, k)).numpy())
-        cur = s.current  # diffuse 0:3, specular 3:6, albedo 6:9, normal 9:12, roughness 12
-        normal = cur[:, 9:12]
+        cur = s.current
+        normal = cur[:, channels("normal")]
         coverage = (np.abs(normal).sum(1, keepdims=True) > 0).astype(np.float32)
-        ys.append(np.concatenate([cur[:, 6:9], normal * 0.5 + 0.5, cur[:, 12:13], coverage], 1))
+        ys.append(np.concatenate([cur[:, channels("albedo")], normal * 0.5 + 0.5, cur[:, channels("roughness")],
+                                  coverage], 1))
     return np.concatenate(xs), np.concatenate(ys)
 
 
@@ -111,8 +114,6 @@ def train_feature_net(cfg: FeatureNetConfig, progress: bool = True) -> Path:
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     x, y = _examples(cfg.data)
-    if not len(x):
-        raise FileNotFoundError(f"no training sequences under {cfg.data}/train")
     net = FeatureNet()
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     n, _, h, w = x.shape

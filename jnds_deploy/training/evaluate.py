@@ -2,7 +2,8 @@
 
 Every method turns each sequence into a list of target-resolution frames; all are then
 scored by the same ``jnds_deploy.metrics`` (PSNR, SSIM, FLIP per frame; temporal error
-per sequence) against the reference colour.
+per sequence) against the reference colour. The model runs in PyTorch (``infer_sequence``,
+as in training's validation); the ONNX pipeline's own scores come from ``jnds run``.
 """
 from __future__ import annotations
 
@@ -12,13 +13,46 @@ from pathlib import Path
 
 import numpy as np
 
-from . import baselines
-from .io import open_sequence
+from .. import baselines
+from ..errors import ConfigError
+from ..io import expand_sequences, open_sequence
+from .data import SequenceArrays, load_sequence
+
+
+def infer_sequence(model, seq: SequenceArrays) -> list[np.ndarray]:
+    """Run the model (``model.JNDS``) over a whole sequence (padding to the model's
+    multiple, on the model's device); HWC outputs."""
+    import torch
+
+    from ..model import pad_to_multiple
+
+    model.eval()
+    outs, history = [], None
+    s = model.cfg.scale
+    dev = next(model.parameters()).device
+    with torch.no_grad():
+        for t in range(len(seq.cuts)):
+            cur, (h, w) = pad_to_multiple(torch.from_numpy(seq.current[t:t + 1]).to(dev), model.cfg.pad_multiple)
+            mv, _ = pad_to_multiple(torch.from_numpy(seq.motion[t:t + 1]).to(dev), model.cfg.pad_multiple)
+            out = model(cur, mv, None if (t == 0 or seq.cuts[t]) else history)
+            history = out.history()
+            outs.append(out.output[0, :, :h * s, :w * s].permute(1, 2, 0).cpu().numpy())
+    return outs
+
+
+def evaluate_model(model, seqs: list[SequenceArrays], with_flip: bool = True) -> dict:
+    """The model's scores on sequences in memory: the mean over sequences and per sequence."""
+    per_seq = {}
+    for seq in seqs:
+        outs = infer_sequence(model, seq)
+        per_seq[seq.name] = score_frames(outs, [r.transpose(1, 2, 0) for r in seq.ref["color"]],
+                                         [m.transpose(1, 2, 0) for m in seq.motion], seq.cuts, with_flip)
+    return {"mean": mean_over_sequences(per_seq), "sequences": per_seq}
 
 
 def score_frames(outs, refs, motions, cuts, with_flip: bool = True) -> dict[str, float]:
     """Mean per-frame PSNR/SSIM/FLIP and the sequence's temporal error; HWC arrays."""
-    from .metrics import frame_metrics, temporal_error
+    from ..metrics import frame_metrics, temporal_error
 
     fm = [frame_metrics(o, r, with_flip) for o, r in zip(outs, refs)]
     m = {k: float(np.mean([f[k] for f in fm])) for k in fm[0]}
@@ -50,13 +84,11 @@ def baseline_outputs(method: str, seq_path: Path) -> list[np.ndarray]:
         elif method.startswith("oidn-"):
             outs.append(baselines.oidn_bicubic(a, scale, quality=method.split("-", 1)[1]))
         else:
-            raise ValueError(f"unknown method {method!r}")
+            raise ConfigError(f"unknown baseline {method!r}")
     return outs
 
 
 def model_outputs(model, seq_path: Path) -> list[np.ndarray]:
-    from .train import infer_sequence, load_sequence
-
     return infer_sequence(model, load_sequence(seq_path))
 
 
@@ -98,11 +130,10 @@ def run_evaluation(checkpoints: list[str], data: str, baselines_: list[str], out
                    threads: int = 2) -> dict:
     import torch
 
-    from .io import find_sequences
-    from .train import load_model
+    from ..checkpoint import load_model
 
     torch.set_num_threads(threads)
-    seqs = find_sequences(data) or [Path(data)]
+    seqs = expand_sequences([data])
     methods = {}
     for ck in checkpoints:
         model = load_model(ck)

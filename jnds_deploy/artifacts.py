@@ -1,0 +1,212 @@
+"""The artifact directory's ``manifest.json``: the one owner of its format.
+
+``jnds export`` writes a directory of ONNX graphs and a manifest that says everything a
+runtime needs; ``jnds calibrate`` adds int8 graphs to it; the runtime, ``jnds run`` and
+the benchmarks read it. All of them go through ``Manifest``: ``Manifest.load`` validates
+a directory's manifest, ``save`` writes it atomically, ``graph`` says which file serves a
+graph at a precision, with which pruned variants.
+
+Graphs (``export/__init__`` describes their inputs and outputs):
+- ``network``: input block + feature extractor + output block at native resolution;
+- ``upsample``: the upsample block's kernel prediction (absent when scale is 1).
+Each has fp32 ``file``, pruned ``variants`` (``export.prune``: without a filter path's
+kernels or the upsample features) and per calibration method an ``int8`` entry with its
+own variants. ``int8_method`` is the calibration the runtime's int8 uses by default (the
+last calibrated).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from .errors import ArtifactError
+
+FORMAT = "jnds-artifacts/2"  # 2: the upsample kernel in phase layout at native resolution
+MANIFEST = "manifest.json"
+UPSAMPLE_ROOTS = (1, 2, 4, 8)  # model.UPSAMPLE_ROOTS (the runtime has no torch)
+PRECISIONS = ("fp32", "int8")
+
+# what the runtime must do around the graphs, written for a reader of the manifest
+DESCRIPTION = {
+    "pad_mode": "replicate the last row/column up to a multiple, crop the output back",
+    "layout": "NCHW float32",
+    "tonemap": "inside network.onnx and upsample.onnx: x' = log(clamp(x, 0, 65535) + 1)^(1/2.2)",
+    "kernel_order": "row-major 3x3 taps (dy, dx) from (-1, -1) to (1, 1); borders replicate",
+}
+FILTER_PATHS = {
+    "diffuse/specular": "spatiotemporal(spatial, temporal, blend) at native; level k (native / 2^k): "
+                        "2x2 average pool then 'down' kernel; back up: bilinear x2, 'up' kernel, "
+                        "lerp(skip, filtered, up_blend); ReLU after every filter; native up kernel "
+                        "and up_blend are '<path>.up', '<path>.up_blend'",
+    "albedo/normal": "spatiotemporal with the shared 'aux.*' kernels; normals filtered as n * 0.5 + 0.5",
+    "blend": "lerp(current, history, blend): 1 = all history",
+    "history": "next frame's history = [diffuse, specular, albedo, normal] filtered, warped bicubically "
+               "along the motion vectors; on a first frame or cut the current inputs stand in",
+}
+
+
+def file_hash(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+
+
+@dataclass
+class Variant:
+    """A pruned graph: ``drops`` are the output groups it does not compute."""
+
+    file: str
+    drops: list[str]
+    outputs: list[str]
+    sha256: str = ""
+
+
+@dataclass
+class Int8Graph:
+    file: str
+    sha256: str
+    activation_type: str
+    weights: str
+    op_types: list[str]
+    float_nodes: list[str]
+    ranges: str  # calibration.<method>.json: scale and zero point of every quantized tensor
+    variants: dict[str, Variant] = field(default_factory=dict)
+
+
+@dataclass
+class Graph:
+    file: str
+    inputs: dict
+    outputs: dict
+    precision: str = "fp32"
+    resolution: str = "native"
+    sha256: str = ""
+    variants: dict[str, Variant] = field(default_factory=dict)
+    int8: dict[str, Int8Graph] = field(default_factory=dict)
+
+
+@dataclass
+class GraphChoice:
+    """The files that serve one graph in one configuration: ``variants`` maps the output
+    groups a file drops (a frozenset; empty for the full graph) to its path."""
+
+    path: Path
+    precision: str
+    variants: dict[frozenset, Path]
+
+
+@dataclass
+class Manifest:
+    checkpoint: dict  # {path, sha256} of the checkpoint exported
+    model_config: dict  # model.ModelConfig fields
+    pad_multiple: int  # native sizes must be multiples of this (the runtime pads)
+    graphs: dict[str, Graph]
+    validation: list[dict] = field(default_factory=list)  # export's ONNX Runtime vs PyTorch rows
+    qat_ranges: str = "qat_ranges.json"  # the ranges learned in QAT, per graph and tensor
+    int8_method: str | None = None
+    int8_validation: dict[str, list[dict]] = field(default_factory=dict)
+    format: str = FORMAT
+    package_version: str = ""
+
+    @property
+    def scale(self) -> int:
+        return int(self.model_config.get("scale", 2))
+
+    @property
+    def filter_levels(self) -> int:
+        return int(self.model_config["filter_levels"])
+
+    @property
+    def upsample_root(self) -> int:
+        # artifacts of checkpoints from before it was a choice have no entry: linear
+        return self.model_config.get("upsample_root", 1)
+
+    # -- files ---------------------------------------------------------------------------
+
+    @classmethod
+    def load(cls, root: str | Path) -> Manifest:
+        """The manifest of artifact directory ``root``, validated (ArtifactError names the
+        file and the problem)."""
+        path = Path(root) / MANIFEST
+        if not path.is_file():
+            raise ArtifactError(f"{path}: missing; run `jnds export --out {root}` first")
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ArtifactError(f"{path}: unreadable ({exc})") from exc
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            got = data.get("format") if isinstance(data, dict) else None
+            raise ArtifactError(f"{path}: format {got!r}, expected {FORMAT!r}; "
+                                "re-run `jnds export` (and `jnds calibrate`) with this version")
+        try:
+            manifest = cls.from_dict(data)
+        except (KeyError, TypeError) as exc:
+            raise ArtifactError(f"{path}: malformed manifest ({exc!r})") from exc
+        if manifest.upsample_root not in UPSAMPLE_ROOTS:
+            raise ArtifactError(f"{path}: model_config.upsample_root is {manifest.upsample_root!r}, "
+                                f"expected one of {', '.join(map(str, UPSAMPLE_ROOTS))}")
+        if "network" not in manifest.graphs:
+            raise ArtifactError(f"{path}: no 'network' graph")
+        return manifest
+
+    def save(self, root: str | Path) -> Path:
+        path = Path(root) / MANIFEST
+        write_json(path, self.to_dict())
+        return path
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Manifest:
+        def variants(d):
+            return {k: Variant(**v) for k, v in d.get("variants", {}).items()}
+
+        graphs = {}
+        for name, g in data["graphs"].items():
+            int8 = {m: Int8Graph(**{**e, "variants": variants(e)}) for m, e in g.get("int8", {}).items()}
+            graphs[name] = Graph(file=g["file"], inputs=g.get("inputs", {}), outputs=g.get("outputs", {}),
+                                 precision=g.get("precision", "fp32"), resolution=g.get("resolution", "native"),
+                                 sha256=g.get("sha256", ""), variants=variants(g), int8=int8)
+        return cls(checkpoint=data["checkpoint"], model_config=data["model_config"],
+                   pad_multiple=int(data["pad_multiple"]), graphs=graphs,
+                   validation=data.get("validation", []), qat_ranges=data.get("qat_ranges", "qat_ranges.json"),
+                   int8_method=data.get("int8_method"), int8_validation=data.get("int8_validation", {}),
+                   format=data["format"], package_version=data.get("package_version", ""))
+
+    def to_dict(self) -> dict:
+        return {"format": self.format, "package_version": self.package_version, "checkpoint": self.checkpoint,
+                "model_config": self.model_config, "scale": self.scale, "pad_multiple": self.pad_multiple,
+                **DESCRIPTION, "filter_paths": {"levels": self.filter_levels, **FILTER_PATHS},
+                "graphs": {k: asdict(g) for k, g in self.graphs.items()}, "qat_ranges": self.qat_ranges,
+                "validation": self.validation, "int8_method": self.int8_method,
+                "int8_validation": self.int8_validation}
+
+    # -- which file serves what ------------------------------------------------------------
+
+    def choose(self, root: str | Path, name: str, precision: str, method: str | None = None) -> GraphChoice:
+        """The files of graph ``name`` at ``precision`` (int8: calibration ``method``,
+        default ``int8_method``), checked to exist, with their pruned variants on disk."""
+        root = Path(root)
+        g = self.graphs[name]
+        if precision == "fp32":
+            file, variants = g.file, g.variants
+        else:
+            entry = g.int8.get(method or self.int8_method or "")
+            if entry is None:
+                what = f"int8 ({method})" if method else "int8"
+                raise ArtifactError(f"{root}: no {what} graph for {name!r}; run `jnds calibrate`")
+            file, variants = entry.file, entry.variants
+        if not (root / file).is_file():
+            raise ArtifactError(f"{root / file}: missing; re-run `jnds export`"
+                                + (" and `jnds calibrate`" if precision == "int8" else ""))
+        found = {frozenset(): root / file}
+        for v in variants.values():
+            if (root / v.file).is_file():
+                found[frozenset(v.drops)] = root / v.file
+        return GraphChoice(root / file, precision, found)
+
+
+def write_json(path: Path, data) -> None:
+    """``data`` as JSON at ``path``, atomically (a reader never sees half a file)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(data, indent=1))
+    os.replace(tmp, path)

@@ -1,0 +1,43 @@
+"""``TrainConfig``: everything that defines a training run, saved as ``<run>/config.json``."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..errors import ConfigError
+
+SPATIAL_LOSSES = ("l1", "feature", "l1+feature")
+
+
+@dataclass
+class TrainConfig:
+    data: str = "data"  # holds train/ and val/ sequence directories
+    run: str = "runs/small"
+    preset: str = "small"
+    upsample_root: int = 1  # ModelConfig.upsample_root of the trained model
+    patch: int = 64  # native patch side, a multiple of the model's pad multiple
+    unroll: int = 6  # consecutive frames per sample
+    batch: int = 4
+    fp32_steps: int = 4000
+    qat_steps: int = 1500
+    lr: float = 1e-3
+    qat_lr: float = 1e-4
+    lr_decay: float = 0.1  # exponential decay to lr * lr_decay over each phase
+    w_spatial: float = 0.2
+    spatial_loss: str = "l1"  # l1 | feature | l1+feature (the sum of both)
+    feature_net: str | None = None  # checkpoint of the feature-loss network
+    init: str | None = None  # start a new run from this checkpoint's weights (fine-tuning)
+    observe_batches: int = 8  # batches to observe activation ranges before QAT
+    val_every: int = 500
+    checkpoint_every: int = 100
+    val_sequences: int | None = None  # limit validation to the first N sequences
+    threads: int = 2
+    seed: int = 0
+    device: str = "cpu"  # torch device of the training steps (cpu, cuda); data stays on the host
+
+    def __post_init__(self):
+        if self.spatial_loss not in SPATIAL_LOSSES:
+            raise ConfigError(f"spatial_loss must be one of {', '.join(SPATIAL_LOSSES)}, got {self.spatial_loss!r}")
+        if "feature" in self.spatial_loss and not self.feature_net:
+            raise ConfigError(f"spatial_loss={self.spatial_loss} needs feature_net")
+        if not 0 <= self.w_spatial <= 1:
+            raise ConfigError(f"w_spatial must be in [0, 1], got {self.w_spatial}")

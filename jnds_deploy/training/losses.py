@@ -1,0 +1,71 @@
+"""The losses of Sec. 3.3: for each task -- diffuse, specular, auxiliary (albedo),
+upsample -- ``w_spatial * L_spatial + (1 - w_spatial) * L_temporal`` with w_spatial = 0.2,
+all task weights 1. Native-resolution tasks compare with the 2x2-box-downsampled
+reference component; all radiance is compared after the tonemap of Eq. 1. L_temporal is
+Eq. 5. L_spatial is L1, the feature loss of ``training.feature_loss``, or their sum."""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from .. import filters
+from .config import TrainConfig
+
+
+def loss_tonemap(x: torch.Tensor) -> torch.Tensor:
+    """Eq. 1 shifted by a small offset so its gradient stays bounded near 0 (the offset
+    cancels in every difference the losses take)."""
+    return (torch.log1p(x.clamp(0.0, filters.HDR_MAX)) + 1e-3).pow(1.0 / 2.2)
+
+
+def _upsampled_motion(motion: torch.Tensor, scale: int) -> torch.Tensor:
+    return F.interpolate(motion, scale_factor=scale, mode="nearest") * scale if scale > 1 else motion
+
+
+class Loss:
+    """Eq. 3-5: per task w_spatial * L_spatial + (1 - w_spatial) * L_temporal."""
+
+    def __init__(self, cfg: TrainConfig, scale: int):
+        self.w = cfg.w_spatial
+        self.scale = scale
+        self.feature_net = None
+        self.with_l1 = cfg.spatial_loss != "feature"
+        if "feature" in cfg.spatial_loss:
+            from .feature_loss import load_feature_net
+            self.feature_net = load_feature_net(cfg.feature_net).to(cfg.device)
+
+    def spatial(self, o: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+        """L1, the feature loss (of 3-channel images), or their sum: the feature loss alone
+        compares tonemapped features and lets bright HDR regions darken
+        (benchmarks/results/brightness.md); the L1 term holds their level."""
+        if self.feature_net is not None and o.shape[1] == 3:
+            feat = self.feature_net.loss(o, r)
+            return feat + (o - r).abs().mean() if self.with_l1 else feat
+        return (o - r).abs().mean()
+
+    def __call__(self, outs: list, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
+        s, tm = self.scale, loss_tonemap
+        tasks = {
+            "diffuse": ([tm(o.diffuse) for o in outs], tm(F.avg_pool2d(batch["diffuse"].flatten(0, 1), s)), False),
+            "specular": ([tm(o.specular) for o in outs], tm(F.avg_pool2d(batch["specular"].flatten(0, 1), s)), False),
+            "auxiliary": ([o.albedo for o in outs], F.avg_pool2d(batch["albedo"].flatten(0, 1), s), False),
+            "upsample": ([tm(o.output) for o in outs], tm(batch["color"].flatten(0, 1)), True),
+        }
+        T, N = batch["current"].shape[:2]
+        total, parts = 0.0, {}
+        for name, (o_list, r_flat, target_res) in tasks.items():
+            r = r_flat.view(T, N, *r_flat.shape[1:])
+            o = torch.stack(o_list)
+            l_sp = self.spatial(o.flatten(0, 1), r.flatten(0, 1))
+            l_t = o.new_zeros(())
+            if T > 1:
+                mv = batch["motion"][1:].flatten(0, 1)
+                if target_res:
+                    mv = _upsampled_motion(mv, s)
+                o_prev = filters.warp(o[:-1].flatten(0, 1), mv)
+                r_prev = filters.warp(r[:-1].flatten(0, 1), mv)
+                l_t = ((o[1:].flatten(0, 1) - o_prev) - (r[1:].flatten(0, 1) - r_prev)).abs().mean()
+            task = self.w * l_sp + (1 - self.w) * l_t
+            total = total + task
+            parts[name] = float(task.detach())
+        return total, parts

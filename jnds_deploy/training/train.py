@@ -1,0 +1,192 @@
+"""``jnds train``: recurrent training of the JNDS network on rendered sequences.
+
+Two phases, as in the paper (Sec. 3.4.3): full precision, then quantization-aware
+training with int8 fake quantization (activation ranges first observed, then trained).
+Each step unrolls ``unroll`` consecutive frames of random native patches (never across
+a camera cut) and back-propagates through the whole unroll (losses: ``training.losses``).
+``device`` runs the steps on a GPU (``--device cuda``, docs/gpu-training.md).
+
+Everything needed to resume lives in ``<run>/checkpoint.pt``, written atomically every
+``checkpoint_every`` steps; ``<run>/log.jsonl`` has one line per log/validation event.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..checkpoint import read_checkpoint
+from ..errors import ConfigError, TrainError
+from ..io import find_sequences
+from ..model import JNDS, ActQuant, ModelConfig, quant_ranges, set_observing, set_quantization
+from .config import TrainConfig
+from .data import PatchSampler, SequenceArrays, load_sequence, load_split
+from .evaluate import evaluate_model
+from .losses import Loss
+
+
+@dataclass
+class TrainState:
+    step: int = 0
+    phase: str = "fp32"  # fp32 | qat | done
+
+
+def run_unroll(model: JNDS, batch: dict) -> list:
+    outs, history = [], None
+    for t in range(batch["current"].shape[0]):
+        out = model(batch["current"][t], batch["motion"][t], history)
+        outs.append(out)
+        history = out.history()
+    return outs
+
+
+def _lr(cfg: TrainConfig, state: TrainState) -> float:
+    base, steps, start = ((cfg.lr, cfg.fp32_steps, 0) if state.phase == "fp32"
+                          else (cfg.qat_lr, cfg.qat_steps, cfg.fp32_steps))
+    frac = min(1.0, (state.step - start) / max(1, steps))
+    return base * cfg.lr_decay ** frac
+
+
+def save_checkpoint(path: Path, model: JNDS, opt, state: TrainState, cfg: TrainConfig, rng,
+                    train_sequences: list[str] | None = None) -> None:
+    """``train_sequences``: names of the sequences the run sampled from (data/train grows
+    with ``jnds dataset --train-sequences``, so the config alone does not say)."""
+    tmp = path.with_name(path.name + ".tmp")
+    # saved on the host, so that a checkpoint trained on a GPU loads anywhere (the
+    # optimizer moves its state back to its parameters' device when it is loaded)
+    torch.save({"model": _on_host(model.state_dict()), "optimizer": _on_host(opt.state_dict()), "state": asdict(state),
+                "train_config": asdict(cfg), "model_config": asdict(model.cfg),
+                "quantized": state.phase != "fp32", "rng": rng.bit_generator.state,
+                "quant_ranges": quant_ranges(model) if state.phase != "fp32" else None,
+                "train_sequences": train_sequences}, tmp)
+    os.replace(tmp, path)
+
+
+def _on_host(obj):
+    """``obj`` (nested dicts and lists of tensors) with every tensor on the CPU."""
+    if isinstance(obj, torch.Tensor):
+        return obj.cpu()
+    if isinstance(obj, dict):
+        return {k: _on_host(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_on_host(v) for v in obj)
+    return obj
+
+
+def train(cfg: TrainConfig, progress: bool = True) -> Path:
+    from tqdm import tqdm
+
+    torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    if torch.device(cfg.device).type == "cuda" and not torch.cuda.is_available():
+        raise TrainError(f"--device {cfg.device}: torch {torch.__version__} sees no CUDA device here")
+    train_seqs = load_split(Path(cfg.data) / "train")
+    run = Path(cfg.run)
+    run.mkdir(parents=True, exist_ok=True)
+    ckpt = run / "checkpoint.pt"
+
+    model = JNDS(ModelConfig.preset(cfg.preset, upsample_root=cfg.upsample_root)).to(cfg.device)
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=0.0)
+    rng = np.random.default_rng(cfg.seed)
+    state = TrainState()
+    if ckpt.exists():
+        data = read_checkpoint(ckpt, map_location=cfg.device)
+        model.load_state_dict(data["model"])
+        opt.load_state_dict(data["optimizer"])
+        state = TrainState(step=data["state"]["step"], phase=data["state"]["phase"])
+        rng.bit_generator.state = data["rng"]
+        if state.phase != "fp32":
+            set_quantization(model, True)
+    elif cfg.init:
+        state = _init_from(model, cfg)
+    names = [s.name for s in train_seqs]
+    (run / "config.json").write_text(json.dumps({"train": asdict(cfg), "model": asdict(model.cfg),
+                                                 "train_sequences": names}, indent=1))
+    val_seqs: dict[Path, SequenceArrays] = {}
+
+    def validation_set() -> list[SequenceArrays]:
+        # re-scanned at every validation: sequences still rendering join when finished
+        for p in find_sequences(Path(cfg.data) / "val")[:cfg.val_sequences]:
+            if p not in val_seqs:
+                val_seqs[p] = load_sequence(p)
+        return list(val_seqs.values())
+    sampler = PatchSampler(train_seqs, cfg.patch, cfg.unroll, rng)
+    loss_fn = Loss(cfg, model.cfg.scale)
+    total_steps = cfg.fp32_steps + cfg.qat_steps
+    log = (run / "log.jsonl").open("a")
+
+    def emit(**rec):
+        rec.update(step=state.step, phase=state.phase, time=time.time())
+        log.write(json.dumps(rec) + "\n")
+        log.flush()
+
+    bar = tqdm(total=total_steps, initial=state.step, desc=f"train {run.name}", unit="step",
+               disable=not progress)
+    running = []
+    while state.step < total_steps:
+        if state.phase == "fp32" and state.step >= cfg.fp32_steps:
+            _start_qat(model, sampler, cfg)
+            state.phase = "qat"
+            opt = torch.optim.AdamW(model.parameters(), lr=cfg.qat_lr, weight_decay=0.0)
+            emit(event="qat_start", ranges=quant_ranges(model))
+        model.train()
+        for g in opt.param_groups:
+            g["lr"] = _lr(cfg, state)
+        batch = sampler.batch(cfg.batch, cfg.device)
+        loss, parts = loss_fn(run_unroll(model, batch), batch)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+        opt.step()
+        state.step += 1
+        running.append(float(loss.detach()))
+        bar.update(1)
+        bar.set_postfix(loss=f"{np.mean(running[-50:]):.4f}", phase=state.phase)
+        if state.step % 50 == 0:
+            emit(event="train", loss=float(np.mean(running[-50:])), parts=parts, lr=_lr(cfg, state))
+        if state.step % cfg.val_every == 0 or state.step == total_steps:
+            seqs = validation_set()
+            if seqs:
+                emit(event="val", n_sequences=len(seqs), **evaluate_model(model, seqs))
+        if state.step % cfg.checkpoint_every == 0 or state.step == total_steps:
+            save_checkpoint(ckpt, model, opt, state, cfg, rng, names)
+    state.phase = "done"
+    save_checkpoint(ckpt, model, opt, state, cfg, rng, names)
+    bar.close()
+    log.close()
+    return ckpt
+
+
+def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
+    """Weights (and learned activation ranges) of ``cfg.init`` for a new run. A QAT-trained
+    checkpoint with ``fp32_steps == 0`` goes on in the QAT phase with its ranges; with fp32
+    steps it is fine-tuned in full precision first and its ranges are observed afresh."""
+    data = read_checkpoint(cfg.init, map_location=cfg.device)
+    # upsample_root changes no weight: a checkpoint can be fine-tuned with another
+    if replace(ModelConfig(**data["model_config"]), upsample_root=model.cfg.upsample_root) != model.cfg:
+        raise ConfigError(f"--init {cfg.init}: model config {data['model_config']} is not preset "
+                          f"{cfg.preset!r} ({asdict(model.cfg)})")
+    model.load_state_dict(data["model"])
+    if data.get("quantized") and cfg.fp32_steps == 0:
+        set_quantization(model, True)
+        return TrainState(step=0, phase="qat")
+    return TrainState()
+
+
+@torch.no_grad()
+def _start_qat(model: JNDS, sampler: PatchSampler, cfg: TrainConfig) -> None:
+    """Observe activation ranges (min/max over a few batches), then turn fake quant on."""
+    for m in model.modules():
+        if isinstance(m, ActQuant):
+            m.lo.fill_(0.0)
+            m.hi.fill_(1e-3)
+    set_observing(model, True)
+    for _ in range(cfg.observe_batches):
+        run_unroll(model, sampler.batch(cfg.batch, cfg.device))
+    set_observing(model, False)
+    set_quantization(model, True)
