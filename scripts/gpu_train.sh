@@ -30,16 +30,17 @@ if [ "$mode" = start ]; then
   echo "rendered in $(( $(date +%s) - t0 )) s: $(ls $DATA/train | wc -l) train, $(ls $DATA/val | wc -l) val"
   common="--data $DATA --batch 64 --fp32-steps ${FP32_STEPS:-650} --qat-steps ${QAT_STEPS:-200}
           --lr 3e-4 --qat-lr 1e-4 --device cuda --val-every 200 --threads 2 --quiet --upsample-root 4"
-  ship=jnds_deploy/checkpoints/jnds-small.pt feat="--feature-net runs/feature/feature_net.pt"
+  # the feature-loss network (Eq. 6) is re-created from the data: training runs are not kept in git
+  python3 -m jnds_deploy train-feature-net --data $DATA --out "$RUNS/feature_net.pt" --quiet
+  ship=jnds_deploy/checkpoints/jnds-small.pt feat="--feature-net $RUNS/feature_net.pt"
   start_run() {  # name, then train arguments
     local name=$1; shift
     setsid nohup python3 -m jnds_deploy train $common --run "$RUNS/$name" "$@" > "$RUNS/$name.log" 2>&1 &
   }
-  # $ship is the checkpoint shipped at the time: since 2026-11-23 runs/cpu-root4 (or its
-  # successor, see the model card); every run interpolates fourth roots in the upsample filter
+  # $ship: the shipped checkpoint (its model card); every run interpolates fourth roots in
+  # the upsample filter
   start_run gpu-root4 --init $ship --spatial-loss l1+feature $feat
   start_run gpu-root4-unroll12 --init $ship --spatial-loss l1+feature $feat --unroll 12
-  start_run gpu-root4-from-l1 --init runs/small/checkpoint.pt --spatial-loss l1+feature $feat
 fi
 
 while [ "$(date +%s)" -lt "$t_end" ] && pgrep -f "jnds_deploy train" >/dev/null; do sleep 5; done
