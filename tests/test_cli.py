@@ -1,0 +1,37 @@
+"""Every CLI error a user can make with a path -- missing data, checkpoint, artifacts,
+sequence -- is one line on stderr naming the path, and exit code 2."""
+import pytest
+
+from jnds_deploy.cli import main
+
+from .conftest import SAMPLE
+
+
+@pytest.mark.parametrize("argv, names", [
+    (["train", "--data", "{tmp}/nodata", "--run", "{tmp}/run", "--quiet"], "{tmp}/nodata/train"),
+    (["train-feature-net", "--data", "{tmp}/nodata", "--out", "{tmp}/f.pt", "--quiet"], "{tmp}/nodata/train"),
+    (["evaluate", "--checkpoint", "{tmp}/none.pt", "--data", str(SAMPLE), "--baselines"], "{tmp}/none.pt"),
+    (["evaluate", "--data", "{tmp}/noseq", "--baselines", "bicubic"], "{tmp}/noseq"),
+    (["export", "--checkpoint", "{tmp}/none.pt", "--out", "{tmp}/art"], "{tmp}/none.pt"),
+    (["calibrate", "--artifacts", "{tmp}/noart", "--data", str(SAMPLE)], "{tmp}/noart/manifest.json"),
+    (["run", "--artifacts", "{tmp}/noart", "--input", str(SAMPLE), "--output", "{tmp}/o", "--quiet"],
+     "{tmp}/noart/manifest.json"),
+    (["run", "--artifacts", "{tmp}/noart", "--input", "{tmp}/noseq", "--output", "{tmp}/o", "--quiet"],
+     "{tmp}/noseq"),
+    (["validate", "{tmp}/noseq"], "{tmp}/noseq"),
+    (["serve", "--artifacts", "{tmp}/noart"], "{tmp}/noart/manifest.json"),
+])
+def test_missing_paths_are_one_line_errors(argv, names, tmp_path, capsys):
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"jnds {argv[0]}: error: "), err
+    assert names.replace("{tmp}", str(tmp_path)) in err[0]
+
+
+def test_a_file_that_is_not_a_checkpoint_is_named(tmp_path, capsys):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    assert main(["export", "--checkpoint", str(bad), "--out", str(tmp_path / "a")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{bad}: unreadable checkpoint" in err[0]
