@@ -20,8 +20,8 @@ def tonemap(x: torch.Tensor) -> torch.Tensor:
     """Eq. 1 of the paper: (log(x + 1))^(1/2.2), after clamping to [0, 65535].
 
     The power is written as exp(log(.) / 2.2) (the floor keeps the log finite): the same
-    values, but ONNX Runtime's Pow is scalar code and took 82 ms of an 875 ms network
-    graph at 1280x720, where Exp and Log are vectorized (profiled)."""
+    values, but ONNX Runtime's Pow is scalar code where Exp and Log are vectorized
+    (docs/design-notes.md)."""
     return torch.exp(torch.log(torch.log1p(x.clamp(0.0, HDR_MAX)).clamp_min(TONEMAP_FLOOR)) * (1.0 / 2.2))
 
 
@@ -34,7 +34,7 @@ def apply_kernel(x: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
     h, w = x.shape[-2:]
     p = F.pad(x, (1, 1, 1, 1), mode="replicate")
     out = p[:, :, :h, :w] * kernel[:, 0:1]
-    for i in range(1, 9):  # shifted views, no im2col copy: 1.6x faster than unfold here
+    for i in range(1, 9):  # shifted views, no im2col copy (faster than unfold, docs/design-notes.md)
         dy, dx = divmod(i, 3)
         out = out + p[:, :, dy:dy + h, dx:dx + w] * kernel[:, i:i + 1]
     return out
@@ -55,9 +55,8 @@ def warp(x: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
 # Geometric history rejection, not in the paper (its network gets the warped history and
 # must learn where not to trust it): the per-pixel normal test of SVGF (Schied et al.
 # 2017) with a 3x3 tolerance. Without it the shipped model pulled an area light's
-# radiance across the black background next to it and kept the ghost frame after frame:
-# on the orbit validation sequence history cost 3.1 dB against no history at all
-# (benchmarks/results/history_gain.md).
+# radiance across the black background next to it and kept the ghost frame after frame,
+# and history cost more than no history at all (benchmarks/results/history_gain.md).
 def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor) -> torch.Tensor:
     """(N, 1, H, W) bool: where the warped history must not be used, from the current
     normals and the warped history's (N, 3, H, W; background 0).
@@ -68,7 +67,7 @@ def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor) -> torch.Tens
     - The history holds a surface whose normal is further than acos(REJECT_COS) from the
       normal of every current pixel in the 3x3 neighbourhood (a disocclusion). The
       neighbourhood tolerates the one-pixel silhouette shifts of the jittered, aliased
-      G-buffer; without it every silhouette pixel lost its history (-0.13 dB).
+      G-buffer; without it every silhouette pixel lost its history (docs/design-notes.md).
     """
     h, w = normal.shape[-2:]
     background = normal.abs().sum(1, keepdim=True) < BACKGROUND
@@ -148,8 +147,8 @@ def upsample_filter(color: torch.Tensor, kernel: torch.Tensor, factor: int, root
     ``root`` > 1 (not in the paper) interpolates the composite's ``root``-th root and
     raises the result back to the power ``root`` before the kernel: a bright pixel then
     does not spread its linear energy into its neighbours' target pixels, which after
-    display tonemapping reads as a halo. On validation references pooled to native and
-    upsampled back, root 4 scores 33.85 dB against 31.56 for linear interpolation
+    display tonemapping reads as a halo. Validation references pooled to native and
+    upsampled back score higher in fourth roots than linearly
     (benchmarks/results/error_sources.md)."""
     if factor == 1:
         up = color

@@ -203,7 +203,7 @@ def _kernel(raw: torch.Tensor) -> torch.Tensor:
 def _normalized_kernel(raw: torch.Tensor) -> torch.Tensor:
     """Albedo/normal kernels: normalized (softmax over the 9 taps). Written out rather
     than ``torch.softmax``: ONNX Runtime's Softmax over the channel axis of an NCHW tensor
-    transposes internally and took 1.07 s of a 1.84 s frame at 1280x720 (profiled); the
+    transposes internally and dominated the frame (docs/design-notes.md); the
     ReduceMax/Exp/ReduceSum/Div form it exports to computes the same values."""
     e = torch.exp(raw - raw.amax(dim=1, keepdim=True))
     return e / e.sum(dim=1, keepdim=True)
@@ -435,8 +435,8 @@ class SubPixelUpsampleBlock(nn.Module):
     padding at both resolutions, the clamped bilinear sample outside the image is the edge
     pixel). It never builds the upsampled (3 + F)-channel input at target resolution, and
     leaves interleaving the phases to whoever applies the kernel (ONNX Runtime's
-    DepthToSpace took 215 ms of 340 at 1280x720, the fused filter loop reads the phases
-    directly). Fake quantization is not applied (used for export, fp32)."""
+    DepthToSpace is slow at it, docs/design-notes.md; the fused filter loop reads the
+    phases directly). Fake quantization is not applied (used for export, fp32)."""
 
     def __init__(self, block: UpsampleBlock):
         super().__init__()

@@ -40,11 +40,11 @@ METHODS = ("qat", "minmax", "percentile", "entropy")
 ACTIVATION_TYPES = ("u8", "s8")
 # operators quantized: the convolutions and everything between them, so int8 tensors flow
 # from one convolution to the next without a float round trip (ReLU folds into the
-# quantized convolution output); measured fastest in benchmarks/calibration.py
+# quantized convolution output): the fastest in benchmarks/results/calibration.md
 DEFAULT_OP_TYPES = ("Conv", "Relu", "MaxPool", "AveragePool", "Resize", "Concat")
 # the 1x1 kernel heads at native and target resolution stay float: their outputs go out
 # of the graph as float anyway, and int8 there costs a transpose and a dequantization of
-# every per-pixel kernel (measured slower); they are a few percent of the MACs
+# every per-pixel kernel (slower, docs/design-notes.md); they are a few percent of the MACs
 FLOAT_NODES = ("/network/output_block/head/Conv", "/head/Conv")
 # int8 vs PyTorch fp32 tolerances on real calibration inputs: kernels lie in [-1, 1],
 # blend weights in [0, 1]; a mean error above this means a broken range, not rounding

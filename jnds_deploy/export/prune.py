@@ -29,8 +29,8 @@ from ..artifacts import Variant
 
 GROUPS = ("diffuse", "specular", "features")
 # (max, mean) |variant - full| allowed for int8 graphs (see validate_variant): 1.5x the
-# largest difference measured, 3x the largest mean. Kernels and blend weights lie in
-# [-1, 1]; a broken variant (wrong channels kept) is off by far more than this.
+# largest difference measured, 3x the largest mean (docs/design-notes.md). Kernels and
+# blend weights lie in [-1, 1]; a broken variant (wrong channels kept) is off by far more.
 INT8_VARIANT_TOL = (2e-2, 1e-4)
 
 
@@ -138,12 +138,8 @@ def validate_variant(full: Path, variant: Path, feeds: dict[str, np.ndarray], at
 
     fp32 variants are bit-equal in practice. In int8 QDQ graphs ONNX Runtime may group
     QDQ nodes into int8 kernels differently once a tensor loses a consumer, which can move
-    a rare value by a quantization step (seen: a tiny test graph with percentile ranges,
-    max 1.6e-3, mean 4e-8; the shipped checkpoint of 2026-11-23 with minmax and entropy
-    int8 ranges from the bundled sample, variants without both filter paths: max 4.3e-3,
-    mean 3.9e-6; its successor `cpu-data48`, same graphs and all three methods: max
-    1.1e-2 to 1.3e-2, mean 2.9e-5 to 3.4e-5): ``calibrate`` validates them with
-    ``INT8_VARIANT_TOL``."""
+    a rare value by a quantization step (what was seen: docs/design-notes.md):
+    ``calibrate`` validates them with ``INT8_VARIANT_TOL``."""
     import onnxruntime as ort
 
     a = ort.InferenceSession(str(full), providers=["CPUExecutionProvider"])

@@ -24,7 +24,7 @@ def tune_numba() -> None:
       aborts the process when two threads run parallel loops at once (the server does).
     - LLVM's SLP vectorizer on (numba leaves it off): the warp loop
       (``filters._warp_rows``) relies on it to turn its 12 per-channel sums into vector
-      FMAs (docs/performance.md). It changes no result: without fast-math flags it
+      FMAs (docs/design-notes.md). It changes no result: without fast-math flags it
       reorders no sum. It acts on loops compiled after the call (numba's on-disk cache
       keeps what was compiled before).
     """

@@ -15,9 +15,8 @@ around it (the lerp of the spatiotemporal filter and of the up levels, the ReLU,
 pooling) are single-pass loops compiled by numba and run over rows on all threads; the
 same sums in the same order as the numpy code (bit-equal, a test holds it). numpy
 makes ~36 passes over memory for one spatiotemporal filter where the fused loop makes
-one: at 1280x720 -> 2560x1440 the filter paths went from ~300 to 43-47 ms each and the
-upsample filter from 345 to 53 ms (the timing report of commit fe226b2, a quiet machine). numba has no float16 arithmetic on the CPU,
-so float16 runs the numpy code, which rounds every operation to float16 as a GPU's half
+one (docs/design-notes.md has the speed-ups). numba has no float16 arithmetic on the
+CPU, so float16 runs the numpy code, which rounds every operation to float16 as a GPU's half
 arithmetic would (and is slow: numpy emulates half precision).
 """
 from __future__ import annotations
@@ -51,8 +50,8 @@ def _taps(src, k, c, ya, yb, yc, y, xa, xb, xc, x):
 
 # The row loops below filter a row's first and last pixels (whose clamped neighbours are
 # the border) apart from its interior, where the neighbours are i - 1 and i + 1: with
-# clamped indices in the loop LLVM kept it scalar on AVX2 (a 1280x720 spatiotemporal step
-# 56 -> 13.9 ms, the plain lerp 14.6 -> 4.7 ms once split; same sums, bit-equal).
+# clamped indices in the loop LLVM kept it scalar on AVX2 (same sums, bit-equal;
+# docs/design-notes.md).
 
 
 @njit(inline="always")
@@ -129,8 +128,8 @@ def _restore_tiles(src, out, skip, tile):
 def _pass_tiles(src: np.ndarray, out: np.ndarray, skip, tile: int) -> np.ndarray:
     """Empty tiles (``skip``, float32 only) take the source's values. The filter loops
     run over every pixel and the tiles are put back afterwards: loops that skipped the
-    tiles themselves lost their vectorization and ran ~3x slower per pixel (7.6 vs
-    25.5 ms for a 720p spatiotemporal filter with an all-zero mask)."""
+    tiles themselves lost their vectorization and ran slower per pixel
+    (docs/design-notes.md)."""
     if skip is not None:
         _restore_tiles(src, out, skip, tile)
     return out
@@ -277,7 +276,7 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, counts):
                 out[c, y, x] = min(max(row[x, c], lo[c]), hi[c])
         if reject:
             # on the clamped row just written (cache-resident); a select in the loop above
-            # kept LLVM from vectorizing it (2.1x the warp without rejection)
+            # kept LLVM from vectorizing it (docs/design-notes.md)
             counts[y] = _reject_row(current, out, y, cos, background)
 
 
@@ -339,8 +338,7 @@ def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None, curr
     (2, H, W): out(x, y) = x_prev(x + mx, y + my), pixel centres at integers, taps beyond
     the border replicate it (``jnds_deploy.filters.warp``, exact coordinates: no 1/32-pixel
     quantization as in cv2.remap). Returns (12, H, W) float32, channel c clamped to
-    [lo[c], hi[c]] if given. 1280x720, 12 channels: 25-46 ms, where 12 cv2.remap calls
-    took 70-103 ms in the same runs (/tmp scripts, 9 runs each).
+    [lo[c], hi[c]] if given. Faster than one cv2.remap per channel (docs/design-notes.md).
 
     With ``current`` (the frame's (13, H, W) inputs), the geometric rejection runs in the
     same pass (``reject_disoccluded``) and the result is (warped, pixels rejected)."""
@@ -392,8 +390,8 @@ def _reject_row(current, warped, y, cos, background):
     bad = np.empty(w, np.bool_)
     n = _disoccluded_row(current, warped[9, y], warped[10, y], warped[11, y], y, cos, background, bad)
     if n:
-        # one channel at a time: the planes of a 1280x720 frame are 900 x 4 KiB apart,
-        # and touching all 25 per pixel thrashed the cache (27 ms against ~3)
+        # one channel at a time: the planes of a frame are far apart, and touching all 25
+        # per pixel thrashed the cache (docs/design-notes.md)
         for c in range(WARP_CHANNELS):
             for x in range(w):
                 if bad[x]:
@@ -441,7 +439,7 @@ def upsample(x: np.ndarray, factor: int = 2) -> np.ndarray:
     c, h, w = x.shape
     src = x.astype(np.float32, copy=False)
     out = np.empty((c, h * factor, w * factor), np.float32)
-    for i in range(c):  # straight into the output (dst=): 16.5 -> 8.4 ms for 3 channels at 2560x1440
+    for i in range(c):  # straight into the output (dst=): no copy of the result
         cv2.resize(src[i], (w * factor, h * factor), dst=out[i], interpolation=cv2.INTER_LINEAR)
     return out.astype(x.dtype, copy=False)
 
@@ -516,7 +514,7 @@ def _composite(a, d, s, out):
 
 def composite(albedo: np.ndarray, diffuse: np.ndarray, specular: np.ndarray) -> np.ndarray:
     """Eq. 2: albedo * diffuse + specular (float32: one fused pass, the same rounding as
-    numpy's two; numpy wrote a temporary and took 6-9 ms at 1280x720)."""
+    numpy's two, without numpy's temporary)."""
     if _fast(albedo, diffuse, specular) and albedo.shape == diffuse.shape == specular.shape:
         out = np.empty(albedo.shape, np.float32)
         _composite(np.ascontiguousarray(albedo), np.ascontiguousarray(diffuse), np.ascontiguousarray(specular), out)
@@ -529,9 +527,9 @@ def _apply_phases(x, k, out, s):
     """out = relu(kernel on x), x at target resolution, the kernel in phase layout
     (s*s*9, H, W): k[(py * s + px) * 9 + t, i, j] is tap t of target pixel (s*i + py, s*j + px).
     Each target row's taps are first interleaved into a row buffer (cache-resident), so the
-    tap loop stays contiguous and vectorizes: at 2560x1440, 19 ms (28 in a noisier run)
-    where reading the phases in place took 35-48 ms; ``_apply`` on a target-layout kernel
-    takes 13-15 ms, but ONNX Runtime's DepthToSpace to make one took 215 ms."""
+    tap loop stays contiguous and vectorizes; reading the phases in place was slower, and
+    making a target-layout kernel with ONNX Runtime's DepthToSpace slower still
+    (docs/design-notes.md)."""
     C, H, W = x.shape
     w = W // s
     for y in prange(H):

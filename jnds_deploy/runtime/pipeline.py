@@ -128,7 +128,7 @@ def keep_freed_memory() -> bool:
     kernel (process-wide; returns False where there is no glibc). By default a block over
     ~32 MB is always a fresh mmap and smaller ones are trimmed when freed, so every frame's
     large arrays come back as new pages that the kernel faults in and zeroes on first
-    write (docs/performance.md). The price: the process keeps its peak memory."""
+    write (docs/design-notes.md). The price: the process keeps its peak memory."""
     try:
         libc = ctypes.CDLL("libc.so.6")
         m_trim_threshold, m_mmap_threshold = -1, -3
@@ -167,7 +167,7 @@ class Pipeline:
         opts.intra_op_num_threads = cfg.threads
         opts.inter_op_num_threads = 1
         # ORT's idle threads spin after each run by default and then compete with the
-        # numba filter stage for the cores (docs/performance.md)
+        # numba filter stage for the cores (docs/design-notes.md)
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         self._opts = opts
         self.graphs = {}

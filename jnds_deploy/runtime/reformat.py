@@ -7,9 +7,8 @@ valid range (``LIMITS``) on the way, and counts the non-finite values it met per
 ``to_hwc`` turns the CHW output back into HWC.
 
 numpy's ``concatenate(...).transpose(2, 0, 1)`` + copy is a strided gather on one
-thread; these numba loops write each element once, rows in parallel. The pipeline's
-``reformat`` stage at 1280x720 -> 2560x1440 went from 201.7 to 53.4 ms with them (the
-timing report of commit fe226b2, a quiet machine; the sanitizing was added after).
+thread; these numba loops write each element once, rows in parallel
+(docs/design-notes.md).
 """
 from __future__ import annotations
 

@@ -139,7 +139,7 @@ class FrameServer:
         self.base = Pipeline(PipelineConfig(artifacts=cfg.artifacts, precision=cfg.precision, threads=cfg.threads,
                                             keep_freed_memory=cfg.keep_freed_memory))
         # warm-up: compiles the numba loops and lets ONNX Runtime allocate, so the first
-        # client frame is not the slow one (0.7 s instead of 30 ms at 160x90, measured)
+        # client frame is not the slow one (docs/design-notes.md)
         w = self.base.multiple
         self.base.fork()({n: np.zeros((w, w, c), np.float32) for n, c in INPUT_CHANNELS.items()})
         self.pool = ThreadPoolExecutor(max_workers=cfg.workers, thread_name_prefix="jnds-worker")
