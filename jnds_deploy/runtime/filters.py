@@ -25,7 +25,14 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
-from ..layout import BACKGROUND, HDR_MAX, REJECT_COS, ROOT_FLOOR
+from ..layout import BACKGROUND, HDR_MAX, REJECT_COS, ROOT_FLOOR, channels
+
+# channel indices of the stacked inputs (layout.CURRENT; the history shares its first 12):
+# numba compiles them as constants
+_DIFFUSE, _SPECULAR = channels("diffuse").start, channels("specular").start
+_GEOMETRY = (channels("albedo").start, channels("normal").stop)  # albedo and normal
+_NX = channels("normal").start
+_NY, _NZ = _NX + 1, _NX + 2
 
 
 def tonemap(x: np.ndarray) -> np.ndarray:
@@ -154,14 +161,14 @@ def empty_tiles(current, history, tile, flat):
         lo, hi, dmax = np.inf, -np.inf, 0.0
         for y in range(y0, y1):
             for i in range(x0, x1):
-                for c in range(6, 12):
+                for c in range(_GEOMETRY[0], _GEOMETRY[1]):
                     if abs(current[c, y, i]) > 1e-3 or abs(history[c, y, i]) > 1e-3:
                         empty = False
-                for s in (current[3, y, i] + current[4, y, i] + current[5, y, i],
-                          history[3, y, i] + history[4, y, i] + history[5, y, i]):
+                for s in (current[_SPECULAR, y, i] + current[_SPECULAR + 1, y, i] + current[_SPECULAR + 2, y, i],
+                          history[_SPECULAR, y, i] + history[_SPECULAR + 1, y, i] + history[_SPECULAR + 2, y, i]):
                     lo, hi = min(lo, s), max(hi, s)
-                for d in (current[0, y, i] + current[1, y, i] + current[2, y, i],
-                          history[0, y, i] + history[1, y, i] + history[2, y, i]):
+                for d in (current[_DIFFUSE, y, i] + current[_DIFFUSE + 1, y, i] + current[_DIFFUSE + 2, y, i],
+                          history[_DIFFUSE, y, i] + history[_DIFFUSE + 1, y, i] + history[_DIFFUSE + 2, y, i]):
                     dmax = max(dmax, d)
                 if not empty:
                     break
@@ -362,7 +369,7 @@ def _disoccluded_row(current, hx, hy, hz, y, cos, background, bad):
     count. The first loop, branch-free, settles every pixel but those whose own normal
     fails the test; only those look at their neighbours."""
     _, h, w = current.shape
-    cx, cy, cz = current[9, y], current[10, y], current[11, y]
+    cx, cy, cz = current[_NX, y], current[_NY, y], current[_NZ, y]
     for x in range(w):
         limit = cos * np.sqrt(hx[x] * hx[x] + hy[x] * hy[x] + hz[x] * hz[x])
         background_now = abs(cx[x]) + abs(cy[x]) + abs(cz[x]) < background
@@ -377,7 +384,8 @@ def _disoccluded_row(current, hx, hy, hz, y, cos, background, bad):
             limit = cos * np.sqrt(hx[x] * hx[x] + hy[x] * hy[x] + hz[x] * hz[x])
             for yy in range(max(y - 1, 0), min(y + 2, h)):
                 for xx in range(max(x - 1, 0), min(x + 2, w)):
-                    if current[9, yy, xx] * hx[x] + current[10, yy, xx] * hy[x] + current[11, yy, xx] * hz[x] >= limit:
+                    if (current[_NX, yy, xx] * hx[x] + current[_NY, yy, xx] * hy[x]
+                            + current[_NZ, yy, xx] * hz[x] >= limit):
                         bad[x] = False
         n += bad[x]
     return n
@@ -388,7 +396,7 @@ def _reject_row(current, warped, y, cos, background):
     """Row y of ``reject_disoccluded``; returns how many pixels were replaced."""
     w = warped.shape[2]
     bad = np.empty(w, np.bool_)
-    n = _disoccluded_row(current, warped[9, y], warped[10, y], warped[11, y], y, cos, background, bad)
+    n = _disoccluded_row(current, warped[_NX, y], warped[_NY, y], warped[_NZ, y], y, cos, background, bad)
     if n:
         # one channel at a time: the planes of a frame are far apart, and touching all 25
         # per pixel thrashed the cache (docs/design-notes.md)
