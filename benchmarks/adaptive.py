@@ -1,6 +1,6 @@
 """Adaptive execution: run time with and without it in one run, and the error it changes.
 
-    .venv/bin/python benchmarks/adaptive.py [--artifacts out/artifacts] [--frames 6]
+    .venv/bin/python benchmarks/adaptive.py [--artifacts out/artifacts] [--frames 5] [--out benchmarks/results]
 
 Renders (once, resumable) a scene for each skip into data/adaptive/: a sunlit diffuse-only
 scene (no specular signal), a metal-only scene (no diffuse signal), a static camera, a
@@ -12,27 +12,26 @@ without resampling on a static camera) and ``adaptive`` (exact + empty-tile skip
 which passes background tiles through; ``PipelineConfig.tile_skip``, off by default). At each sequence's own size: FLIP and
 PSNR against the reference, max |output - full output|. At 1280x720 -> 2560x1440 (the
 same frames resized): ms per frame. Also at 1280x720: denoise only (``--native``, no
-upsample block) against the full 2x pipeline. Writes benchmarks/results/adaptive.md/json.
+upsample block) against the full 2x pipeline. The process is tuned as `jnds run` tunes
+its own (``common.tune_process``). Writes benchmarks/results/adaptive.md/json.
 """
 from __future__ import annotations
 
-import argparse
-import json
-import platform
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
+from benchmarks.common import (RESULTS, ROOT, CpuSteal, arguments, machine_info, machine_line, pipeline,  # noqa: E402
+                               resized_frames, run_frames, tune_process, write_report)
+from jnds_deploy.artifacts import Manifest  # noqa: E402
+from jnds_deploy.errors import ArtifactError  # noqa: E402
 from jnds_deploy.io import open_sequence  # noqa: E402
 from jnds_deploy.metrics import flip, psnr  # noqa: E402
-from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig  # noqa: E402
-from timing import cpu_times, resized_frames  # noqa: E402
+from jnds_deploy.runtime import Pipeline  # noqa: E402
 
 SCENES = (  # scene, camera, seed, what it allows
     ("sunlit", "orbit", 3004, "diffuse only (no specular signal)"),
@@ -57,7 +56,7 @@ def ensure_scenes(data: Path) -> list[tuple[Path, str]]:
 
 
 def pipelines(artifacts: str, **kw) -> dict[str, Pipeline]:
-    return {k: Pipeline(PipelineConfig(artifacts, precision="int8", **v, **kw)) for k, v in VARIANTS.items()}
+    return {k: pipeline(artifacts, precision="int8", **v, **kw) for k, v in VARIANTS.items()}
 
 
 def error_run(artifacts: str, path: Path) -> dict:
@@ -70,15 +69,13 @@ def error_run(artifacts: str, path: Path) -> dict:
     for i in range(len(seq)):
         layers, cut = seq.inputs(i), seq.frames[i].camera_cut
         ref = seq.reference(i)["color"]
-        outs = {}
-        for k, p in pipes.items():
-            outs[k], ms = p(layers, cut)
-            rec[k]["flip"].append(flip(outs[k], ref))
-            rec[k]["psnr"].append(psnr(outs[k], ref))
-            rec[k]["ms"].append(ms["total"])
-        for k in pipes:
-            max_diff[k] = max(max_diff[k], float(np.abs(outs[k] - outs["full"]).max()))
-        decisions.append({k: v for k, v in pipes["adaptive"].decisions.items() if v})
+        results = {k: p(layers, cut) for k, p in pipes.items()}
+        for k, r in results.items():
+            rec[k]["flip"].append(flip(r.output, ref))
+            rec[k]["psnr"].append(psnr(r.output, ref))
+            rec[k]["ms"].append(r.ms["total"])
+            max_diff[k] = max(max_diff[k], float(np.abs(r.output - results["full"].output).max()))
+        decisions.append({k: v for k, v in results["adaptive"].decisions.items() if v})
     return {"frames": len(seq), "size": list(seq.native_size),
             "flip": {k: float(np.mean(v["flip"])) for k, v in rec.items()},
             "psnr": {k: float(np.mean(v["psnr"])) for k, v in rec.items()},
@@ -86,22 +83,21 @@ def error_run(artifacts: str, path: Path) -> dict:
             "max_abs_diff_vs_full": max_diff, "decisions": decisions}
 
 
-def timing_run(artifacts: str, path: Path, frames: int, size=(1280, 720)) -> dict:
-    """ms per frame at ``size`` for the three pipelines, interleaved frame by frame."""
-    seq = open_sequence(path)
-    data = resized_frames(seq, size)[:frames]
-    pipes = pipelines(artifacts)
-    for p in pipes.values():  # warm-up: sessions, numba, allocator
+def interleaved_ms(pipes: dict[str, Pipeline], data: list[tuple[dict, bool]]) -> dict[str, list[dict]]:
+    """Each pipeline's stage times on every frame, the pipelines interleaved frame by
+    frame, after a warm-up frame each (sessions, numba, allocator)."""
+    for p in pipes.values():
         p(*data[0])
         p.reset()
-    ms = {k: [] for k in pipes}
-    stages = {k: [] for k in pipes}
-    for layers, cut in data:
-        for k, p in pipes.items():
-            _, t = p(layers, cut)
-            ms[k].append(t["total"])
-            stages[k].append(t)
-    ratios = {k: [f / a for f, a in zip(ms["full"], ms[k])] for k in pipes}
+    return {k: [result.ms for result, _ in done] for k, done in run_frames(pipes, data).items()}
+
+
+def timing_run(artifacts: str, path: Path, frames: int, size=(1280, 720)) -> dict:
+    """ms per frame at ``size`` for the three pipelines, interleaved frame by frame."""
+    data = resized_frames(open_sequence(path), size)[:frames]
+    stages = interleaved_ms(pipelines(artifacts), data)
+    ms = {k: [t["total"] for t in v] for k, v in stages.items()}
+    ratios = {k: [f / a for f, a in zip(ms["full"], ms[k])] for k in ms}
     return {"frames": len(data), "median_ms": {k: float(np.median(v)) for k, v in ms.items()},
             "speedup_median": {k: float(np.median(v)) for k, v in ratios.items()},
             "speedup_p10_p90": {k: [float(np.percentile(v, 10)), float(np.percentile(v, 90))] for k, v in ratios.items()},
@@ -110,26 +106,22 @@ def timing_run(artifacts: str, path: Path, frames: int, size=(1280, 720)) -> dic
 
 
 def native_run(artifacts: str, path: Path, frames: int, size=(1280, 720)) -> dict:
-    seq = open_sequence(path)
-    data = resized_frames(seq, size)[:frames]
-    pipes = {"2x": Pipeline(PipelineConfig(artifacts, precision="int8")),
-             "native": Pipeline(PipelineConfig(artifacts, precision="int8", native_output=True))}
-    for p in pipes.values():
-        p(*data[0])
-        p.reset()
-    ms = {k: [] for k in pipes}
-    for layers, cut in data:
-        for k, p in pipes.items():
-            ms[k].append(p(layers, cut)[1]["total"])
+    data = resized_frames(open_sequence(path), size)[:frames]
+    pipes = {"2x": pipeline(artifacts, precision="int8"),
+             "native": pipeline(artifacts, precision="int8", native_output=True)}
+    ms = {k: [t["total"] for t in v] for k, v in interleaved_ms(pipes, data).items()}
     return {"frames": len(data), "median_ms": {k: float(np.median(v)) for k, v in ms.items()},
             "speedup_median": float(np.median([a / b for a, b in zip(ms["2x"], ms["native"])]))}
 
 
 def ensure_artifacts(artifacts: Path) -> None:
-    manifest = artifacts / "manifest.json"
-    if manifest.is_file() and any("variants" in g.get("int8", {}).get("qat", {})
-                                  for g in json.loads(manifest.read_text())["graphs"].values()):
-        return
+    """Exports and calibrates (qat) ``artifacts`` unless it holds qat int8 graphs with
+    pruned variants."""
+    try:
+        if any("qat" in g.int8 and g.int8["qat"].variants for g in Manifest.load(artifacts).graphs.values()):
+            return
+    except ArtifactError:
+        pass
     jnds = str(ROOT / ".venv" / "bin" / "jnds")
     subprocess.run([jnds, "export", "--out", str(artifacts)], check=True, stdout=subprocess.DEVNULL)
     subprocess.run([jnds, "calibrate", "--artifacts", str(artifacts), "--data", str(ROOT / "samples" / "orbit-160x90"),
@@ -137,19 +129,19 @@ def ensure_artifacts(artifacts: Path) -> None:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = arguments(__doc__, RESULTS, "directory of adaptive.md and adaptive.json")
     ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
     ap.add_argument("--data", default=str(ROOT / "data"))
     ap.add_argument("--frames", type=int, default=5, help="frames per sequence timed at 1280x720")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = ap.parse_args()
+    tune_process()
     ensure_artifacts(Path(args.artifacts))
     scenes = ensure_scenes(Path(args.data) / "adaptive")
     val = sorted(p for p in (Path(args.data) / "val").iterdir() if (p / "sequence.json").is_file())
     seqs = scenes + [(p, "validation") for p in val]
 
-    c0 = cpu_times()
-    report = {"machine": f"{platform.machine()}, {len(__import__('os').sched_getaffinity(0))} cores",
+    steal = CpuSteal()
+    report = {"machine": machine_line(), "machine_info": machine_info(),
               "artifacts": args.artifacts, "precision": "int8", "sequences": {}}
     for path, what in seqs:
         print(f"{path.name}: error at own size", flush=True)
@@ -159,14 +151,9 @@ def main() -> int:
         report["sequences"][path.name] = entry
     print("native output at 1280x720", flush=True)
     report["native_720p"] = native_run(args.artifacts, scenes[0][0], args.frames)
-    c1 = cpu_times()
-    d = [b - a for a, b in zip(c0, c1)]
-    report["cpu_steal_share"] = d[7] / max(1, sum(d))
+    report["cpu_steal_share"] = steal.share()
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "adaptive.json").write_text(json.dumps(report, indent=1))
-    (out / "adaptive.md").write_text(markdown(report))
+    write_report(Path(args.out) / "adaptive", report, markdown(report))
     print(markdown(report))
     return 0
 

@@ -1,6 +1,8 @@
 """Int8 calibration benchmark: speed of the QDQ options on this CPU, accuracy of each method.
 
-    .venv/bin/python benchmarks/calibration.py --data data/val
+    .venv/bin/python benchmarks/calibration.py --data data/val [--size 1280x720] [--runs 7]
+        [--methods qat minmax percentile entropy] [--work out/calibration-bench]
+        [--out benchmarks/results/calibration]
 
 1. Exports the shipped checkpoint (fp32) and records calibration inputs by running the
    fp32 pipeline recurrently over the validation sequences.
@@ -8,35 +10,33 @@
    (activations u8 / s8; quantized operators: Conv only, or Conv plus the pooling, resize
    and concatenation between them; ONNX Runtime graph optimization all / extended),
    median of --runs runs each, all in one process, interleaved. GMAC/s against the int8
-   int8 and fp32 FMA peaks of this CPU (by its instruction set).
+   and fp32 FMA peaks of this CPU (by its instruction set, ``common.cpu_peaks``).
 3. Accuracy: every calibration method with the default options: per-tensor SQNR and the
    end-to-end PSNR/FLIP of the int8 pipeline against fp32 and the reference.
 
-Writes benchmarks/results/calibration.md and calibration.json.
+The process is tuned as `jnds run` tunes its own (``common.tune_process``). Writes
+benchmarks/results/calibration.md and calibration.json.
 """
 from __future__ import annotations
 
-import argparse
 import json
-import os
-import platform
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
+from benchmarks.common import (RESULTS, arguments, command_line, cpu_peaks, machine_info, network_feeds,  # noqa: E402
+                               parse_size, time_sessions, tune_process, write_report)
 from jnds_deploy.calibration import CalibrateConfig, calibrate  # noqa: E402
 from jnds_deploy.calibration.quantize import (DEFAULT_OP_TYPES, FLOAT_NODES, METHODS,  # noqa: E402
                                               follow_shared_ranges, op_counts, qat_overrides, quantize_graph)
 from jnds_deploy.calibration.reader import collect_feeds  # noqa: E402
 from jnds_deploy.calibration.report import end_to_end, markdown, tensor_errors  # noqa: E402
 from jnds_deploy.export import ExportConfig, export  # noqa: E402
-from jnds_deploy.io import expand_sequences, open_sequence  # noqa: E402
-from jnds_deploy.model import CURRENT, ModelConfig, count_macs  # noqa: E402
+from jnds_deploy.io import expand_sequences  # noqa: E402
+from jnds_deploy.model import ModelConfig, count_macs  # noqa: E402
 from jnds_deploy.runtime.profile import profile_stages  # noqa: E402
 
 # (activation type, quantized operators, nodes kept float); the last is the default
@@ -49,113 +49,54 @@ VARIANTS = {
 }
 
 
-# int8 and fp32 multiply-accumulates per cycle and core, by the widest int8 dot product
-# the CPU has, assuming two vector multiply ports (server cores of the last years):
-# AVX-512 VNNI vpdpbusd does 64 int8 MACs per instruction (16 lanes x 4) and AVX-VNNI
-# 32; plain AVX2 needs vpmaddubsw + vpmaddwd for 32 MACs (two multiply uops), so 32 per
-# cycle. fp32 FMA does 16 MACs per 512-bit instruction, 8 per 256-bit one.
-INT8_MACS_PER_CYCLE = {"avx512_vnni": 2 * 64, "avx_vnni": 2 * 32, "avx2": 32}
-
-
-def cpu_peaks() -> dict:
-    """Peak multiply-accumulates per second of this CPU, from its core count, clock and
-    instruction set (``INT8_MACS_PER_CYCLE``). The clock is the nominal one /proc/cpuinfo
-    reports (no turbo information under KVM), so the peak is an estimate."""
-    cores = os.cpu_count()
-    text = Path("/proc/cpuinfo").read_text()
-    mhz = next((float(ln.split(":")[1]) for ln in text.splitlines() if ln.startswith("cpu MHz")), None)
-    flags = set(next((ln.split(":", 1)[1].split() for ln in text.splitlines() if ln.startswith("flags")), []))
-    ghz = (mhz or 2000.0) / 1000
-    isa = next((i for i in INT8_MACS_PER_CYCLE if i in flags), "avx2")
-    fp32 = 2 * 16 if "avx512f" in flags else 2 * 8
-    return {"cores": cores, "ghz": ghz, "avx512_vnni": "avx512_vnni" in flags, "amx_int8": "amx_int8" in flags,
-            "int8_isa": isa, "int8_gmacs": cores * ghz * INT8_MACS_PER_CYCLE[isa], "fp32_fma_gmacs": cores * ghz * fp32,
-            "derivation": f"cores x GHz x {INT8_MACS_PER_CYCLE[isa]} int8 MACs per cycle ({isa}) or {fp32} fp32 "
-                          f"MACs per cycle (two {'512' if fp32 == 32 else '256'}-bit FMAs)"}
-
-
-def timing_inputs(seq_path: Path, size: tuple[int, int]) -> dict[str, np.ndarray]:
-    """A real frame resized to ``size`` (history: the current inputs, as on a first frame)."""
-    import cv2
-
-    layers = open_sequence(seq_path).inputs(0)
-    cur = np.concatenate([cv2.resize(layers[n], size, interpolation=cv2.INTER_LINEAR).reshape(size[1], size[0], -1)
-                          for n, _ in CURRENT], -1).transpose(2, 0, 1)
-    cur = np.ascontiguousarray(cur[None], np.float32)
-    return {"current": cur, "history": np.ascontiguousarray(cur[:, :12])}
-
-
-def time_sessions(paths: dict[str, Path], feeds: dict, runs: int, threads: int, levels: dict[str, str]) -> dict:
-    """Median and spread (ms) of each graph, interleaved run by run in one process."""
-    import onnxruntime as ort
-
-    opt = {"all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL, "extended": ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED}
-    sessions = {}
-    for name, path in paths.items():
-        o = ort.SessionOptions()
-        o.intra_op_num_threads, o.inter_op_num_threads = threads, 1
-        o.graph_optimization_level = opt[levels[name]]
-        sessions[name] = ort.InferenceSession(str(path), o, providers=["CPUExecutionProvider"])
-        sessions[name].run(None, feeds)  # warm-up
-    ms = {name: [] for name in paths}
-    for _ in range(runs):
-        for name, s in sessions.items():
-            t0 = time.perf_counter()
-            s.run(None, feeds)
-            ms[name].append(1000 * (time.perf_counter() - t0))
-    return {name: {"median_ms": float(np.median(v)), "min_ms": float(np.min(v)), "max_ms": float(np.max(v)),
-                   "runs": v} for name, v in ms.items()}
-
-
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = arguments(__doc__, RESULTS / "calibration")
     ap.add_argument("--data", nargs="+", default=["data/val"])
     ap.add_argument("--work", default="out/calibration-bench")
-    ap.add_argument("--size", default="1280x720")
+    ap.add_argument("--size", default="1280x720", help="native size of the timing frame (a multiple of pad_multiple)")
     ap.add_argument("--runs", type=int, default=7)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--methods", nargs="+", default=list(METHODS))
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "calibration"))
     args = ap.parse_args()
-    size = tuple(int(v) for v in args.size.split("x"))
+    tune_process()
     seqs = expand_sequences(args.data)
     work = Path(args.work)
     manifest = export(ExportConfig(out=str(work)), log=lambda *a: None)
+    size = parse_size(args.size, manifest.pad_multiple)
+    network, upsample = work / manifest.graphs["network"].file, work / manifest.graphs["upsample"].file
     feeds = collect_feeds(work, seqs, threads=args.threads)
-    overrides = json.loads((work / "qat_ranges.json").read_text())
+    overrides = json.loads((work / manifest.qat_ranges).read_text())
 
     # --- speed of the options, on the qat ranges
-    variants, levels = {"fp32": work / "network.onnx"}, {"fp32": "all"}
+    variants, levels = {"fp32": network}, {"fp32": "all"}
     for i, (name, (act, ops, float_nodes)) in enumerate(VARIANTS.items()):
         path = work / "variants" / f"network.{i}.onnx"
         path.parent.mkdir(parents=True, exist_ok=True)
-        learned = follow_shared_ranges(work / "network.onnx", overrides["network"], ops)
-        quantize_graph(work / "network.onnx", path, feeds["network"], "qat", act, ops,
-                       qat_overrides(learned), exclude=float_nodes)
+        learned = follow_shared_ranges(network, overrides["network"], ops)
+        quantize_graph(network, path, feeds["network"], "qat", act, ops, qat_overrides(learned), exclude=float_nodes)
         variants[f"int8 {name}"], levels[f"int8 {name}"] = path, "all"
     default = f"int8 {list(VARIANTS)[-1]}"
-    variants["fp32, optimization extended"], levels["fp32, optimization extended"] = work / "network.onnx", "extended"
+    variants["fp32, optimization extended"], levels["fp32, optimization extended"] = network, "extended"
     variants["int8 default, optimization extended"] = variants[default]
     levels["int8 default, optimization extended"] = "extended"
-    net_feeds = timing_inputs(seqs[0], size)
+    net_feeds = network_feeds(seqs[0], size)
     timing = time_sessions(variants, net_feeds, args.runs, args.threads, levels)
     profiles = {k: profile_stages(variants[k], net_feeds, runs=3, threads=args.threads) for k in ("fp32", default)}
 
     # the upsample block's graph at target resolution, default int8 options
     up8 = work / "variants" / "upsample.default.onnx"
     act, ops, float_nodes = VARIANTS[default[len("int8 "):]]
-    quantize_graph(work / "upsample.onnx", up8, feeds["upsample"], "qat", act, ops,
-                   qat_overrides(follow_shared_ranges(work / "upsample.onnx", overrides["upsample"], ops)),
-                   exclude=float_nodes)
+    quantize_graph(upsample, up8, feeds["upsample"], "qat", act, ops,
+                   qat_overrides(follow_shared_ranges(upsample, overrides["upsample"], ops)), exclude=float_nodes)
     import onnxruntime as ort
-    net = ort.InferenceSession(str(work / "network.onnx"), providers=["CPUExecutionProvider"])
+    net = ort.InferenceSession(str(network), providers=["CPUExecutionProvider"])
     features = net.run(["features"], net_feeds)[0]
     c = net_feeds["current"]
     up_feeds = {"composite": np.ascontiguousarray(c[:, 6:9] * c[:, 0:3] + c[:, 3:6]), "features": features}
     del net
-    upsample_timing = time_sessions({"fp32": work / "upsample.onnx", "int8 default": up8}, up_feeds,
+    upsample_timing = time_sessions({"fp32": upsample, "int8 default": up8}, up_feeds,
                                     args.runs, args.threads, {"fp32": "all", "int8 default": "all"})
-    cfg = ModelConfig(**manifest["model_config"])
+    cfg = ModelConfig(**manifest.model_config)
     macs = count_macs(cfg, *size)
     net_gmac = macs["input_block"] + macs["feature_extractor"] + macs["output_block"]
     peaks = cpu_peaks()
@@ -168,32 +109,20 @@ def main() -> int:
     # --- accuracy of each method, default options
     accuracy = {}
     for method in args.methods:
-        calibrate(CalibrateConfig(artifacts=str(work), data=tuple(map(str, seqs)), method=method,
-                                  threads=args.threads), log=lambda *a: None)
-        g = json.loads((work / "manifest.json").read_text())["graphs"]
-        tensors = {name: tensor_errors(work / gg["file"], work / gg["int8"][method]["file"], feeds[name][::6])
-                   for name, gg in g.items()}
+        calibrated = calibrate(CalibrateConfig(artifacts=str(work), data=tuple(map(str, seqs)), method=method,
+                                               threads=args.threads), log=lambda *a: None)
+        tensors = {name: tensor_errors(work / g.file, work / g.int8[method].file, feeds[name][::6])
+                   for name, g in calibrated.graphs.items()}
         accuracy[method] = {"end_to_end": end_to_end(work, method, seqs, args.threads), "tensors": tensors}
 
-    report = {"command": "python benchmarks/calibration.py " + " ".join(sys.argv[1:]),
-              "machine": {"platform": platform.platform(), "processor": _cpu_name(), **peaks},
+    report = {"command": command_line(), "machine": {**machine_info(), **peaks},
               "size": list(size), "threads": args.threads, "network_gmac": net_gmac, "timing": timing, "upsample_timing": upsample_timing,
               "upsample_gmac": macs["upsample_block"], "profiles": profiles, "default_variant": default, "accuracy": accuracy,
               "calibration_frames": {k: len(v) for k, v in feeds.items()},
               "sequences": [str(s) for s in seqs], "default_op_types": list(DEFAULT_OP_TYPES)}
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(report, indent=1))
-    out.with_suffix(".md").write_text(render_markdown(report))
-    print(out.with_suffix(".md").read_text())
+    write_report(Path(args.out), report, render_markdown(report))
+    print(render_markdown(report))
     return 0
-
-
-def _cpu_name() -> str:
-    for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return platform.processor()
 
 
 STAGE_COLS = ("input_block", "feature_extractor", "output_block", "reformat", "total")

@@ -5,20 +5,21 @@ sequence (reference albedo of frame t-1 warped into frame t, outside disocclusio
 """
 from __future__ import annotations
 
-import argparse
-import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from jnds_deploy.io import open_sequence
-from jnds_deploy.metrics import motion_warp_error
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
+
+from benchmarks.common import RESULTS, arguments, write_report  # noqa: E402
+from jnds_deploy.io import open_sequence  # noqa: E402
+from jnds_deploy.metrics import motion_warp_error  # noqa: E402
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
+    ap = arguments(__doc__, RESULTS / "dataset.md", "the markdown report (the JSON goes beside it)")
     ap.add_argument("--data", default="data")
-    ap.add_argument("--out", default="benchmarks/results/dataset.md")
     args = ap.parse_args()
 
     rows, totals = [], {}
@@ -55,10 +56,7 @@ def main() -> None:
                "totals": {k: {"sequences": s, "frames": f, "bytes": b} for k, (s, f, b) in totals.items()}}
     lines += ["", f"Over moving-camera sequences: warped {summary['warped_mean']:.5f}, unwarped "
               f"{summary['unwarped_mean']:.5f}."]
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines) + "\n")
-    out.with_suffix(".json").write_text(json.dumps(summary, indent=1))
+    write_report(Path(args.out).with_suffix(""), summary, "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

@@ -1,7 +1,8 @@
 """Load test of `jnds serve` on loopback: N concurrent streams, throughput, latency,
 server memory over time, and a long run for memory growth.
 
-    .venv/bin/python benchmarks/serve_load.py [--artifacts out/artifacts] [--frames 48] [--long-s 120]
+    .venv/bin/python benchmarks/serve_load.py [--artifacts out/artifacts] [--frames 48] [--counts 1 2 4 8]
+        [--long-s 120] [--out benchmarks/results/serve_load]
 
 Starts `jnds serve` as a subprocess on a free loopback port, then for each stream count
 (1, 2, 4, 8) every stream sends the bundled sample's frames in a loop (each stream
@@ -14,10 +15,6 @@ Writes benchmarks/results/serve_load.md and .json.
 """
 from __future__ import annotations
 
-import argparse
-import json
-import os
-import platform
 import subprocess
 import sys
 import threading
@@ -26,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
+from benchmarks.common import RESULTS, ROOT, arguments, command_line, machine_info, timed, write_report  # noqa: E402
 from jnds_deploy.io import open_sequence  # noqa: E402
 from jnds_deploy.serve import Client  # noqa: E402
 from jnds_deploy.serve.server import rss_bytes  # noqa: E402
@@ -61,9 +58,7 @@ def drive(url: str, frames: list, streams: int, per_stream: int | None, deadline
                 i = 0
                 while (per_stream is None or i < per_stream) and (t_end is None or time.monotonic() < t_end):
                     layers, cut = frames[(i + k) % len(frames)]
-                    t0 = time.perf_counter()
-                    s.denoise(layers, cut)
-                    lat[k].append(1000 * (time.perf_counter() - t0))
+                    lat[k].append(timed(s.denoise, layers, cut)[1])
                     server_ms.append(s.timings["server"])
                     i += 1
         except Exception as exc:
@@ -81,7 +76,7 @@ def drive(url: str, frames: list, streams: int, per_stream: int | None, deadline
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser()
+    ap = arguments(__doc__, RESULTS / "serve_load")
     ap.add_argument("--artifacts", default="out/artifacts")
     ap.add_argument("--input", default=str(ROOT / "samples" / "orbit-160x90"))
     ap.add_argument("--precision", default="int8")
@@ -89,7 +84,6 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=48, help="frames per stream count (split over the streams)")
     ap.add_argument("--counts", type=int, nargs="+", default=[1, 2, 4, 8])
     ap.add_argument("--long-s", type=float, default=120.0)
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "serve_load"))
     args = ap.parse_args()
 
     seq = open_sequence(args.input)
@@ -125,13 +119,11 @@ def main() -> int:
     finally:
         proc.kill()
 
-    report = {"command": "python benchmarks/serve_load.py " + " ".join(sys.argv[1:]),
-              "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count()},
+    report = {"command": command_line(), "machine": machine_info(),
               "input": seq.path.name, "native": list(seq.native_size), "precision": args.precision,
               "workers": args.workers, "results": results, "long": long, "server_exit_code": rc,
               "server_metrics": metrics, "rss_mib": sampler.samples}
     out = Path(args.out)
-    out.with_suffix(".json").write_text(json.dumps(report, indent=1))
     w, h = seq.native_size
     md = ["# `jnds serve` under load (loopback)", "", f"Command: `{report['command']}`  ",
           f"Machine: {report['machine']['platform']}, {report['machine']['cpu_count']} cores; server: "
@@ -155,7 +147,7 @@ def main() -> int:
            "| stage | p50 | p90 | p99 |", "| --- | ---: | ---: | ---: |"]
     for k, v in metrics["latency_ms"].items():
         md.append(f"| {k} | {v['p50']:.1f} | {v['p90']:.1f} | {v['p99']:.1f} |")
-    out.with_suffix(".md").write_text("\n".join(md) + "\n")
+    write_report(out, report, "\n".join(md) + "\n")
     print("\n".join(md))
     try:
         import matplotlib

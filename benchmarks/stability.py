@@ -2,7 +2,7 @@
 NaN floods, fp16 limits, and fuzzing with a larger budget than the tests.
 
     .venv/bin/python benchmarks/stability.py [--artifacts out/artifacts] [--data data/val]
-        [--long-frames 1008] [--fuzz 2000]
+        [--long-frames 1008] [--fuzz 2000] [--out benchmarks/results/stability]
 
 Cases (each states what it checks; the figures go to benchmarks/results/stability.md,
 .json and stability_drift.png):
@@ -25,8 +25,6 @@ Cases (each states what it checks; the figures go to benchmarks/results/stabilit
 """
 from __future__ import annotations
 
-import argparse
-import json
 import platform
 import sys
 import time
@@ -34,12 +32,14 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
+from benchmarks.common import (RESULTS, arguments, command_line, machine_info, pipeline, tune_process,  # noqa: E402
+                               write_report)
 from jnds_deploy.errors import ExrReadError  # noqa: E402
 from jnds_deploy.io import INPUT_LAYERS, exr_bytes, find_sequences, open_sequence, read_exr_bytes  # noqa: E402
-from jnds_deploy.runtime.pipeline import INPUT_CHANNELS, Pipeline, PipelineConfig  # noqa: E402
+from jnds_deploy.layout import INPUT_CHANNELS  # noqa: E402
+from jnds_deploy.runtime import Pipeline  # noqa: E402
 
 
 STEADY_LOOPS = 10
@@ -60,11 +60,11 @@ def long_run(pipe: Pipeline, seq, frames: int) -> dict:
     for t in range(frames):
         i = t % len(seq)
         # the sequence's own cuts are flagged in every loop; the loop seam is not
-        out, _ = pipe(inputs[i], camera_cut=t == 0 or seq.frames[i].camera_cut)
-        ratio.append(float(np.mean(out, dtype=np.float64) / refs[i]))
-        hist_max = max(hist_max, float(pipe.history[..., :6].max()))
-        rejected += pipe.rejected
-        assert np.isfinite(out).all()
+        result = pipe(inputs[i], camera_cut=t == 0 or seq.frames[i].camera_cut)
+        ratio.append(float(np.mean(result.output, dtype=np.float64) / refs[i]))
+        hist_max = max(hist_max, float(pipe.history.frame[..., :6].max()))
+        rejected += result.rejected
+        assert np.isfinite(result.output).all()
     r = np.array(ratio)
     n = len(seq)
     steady = STEADY_LOOPS * n  # the recurrence settles within a few loops; drift is measured after
@@ -77,7 +77,7 @@ def long_run(pipe: Pipeline, seq, frames: int) -> dict:
 
 def run_frames(pipe: Pipeline, frames: list[dict]) -> list[np.ndarray]:
     pipe.reset()
-    return [pipe(f, camera_cut=i == 0)[0] for i, f in enumerate(frames)]
+    return [pipe(f, camera_cut=i == 0).output for i, f in enumerate(frames)]
 
 
 def scaled(frames: list[dict], k: float) -> list[dict]:
@@ -97,7 +97,7 @@ def fuzz_frames(pipe: Pipeline, n: int, rng: np.random.Generator) -> dict:
             a[(special >= 0.02) & (special < 0.03)] = -np.inf
             layers[name] = a.astype(np.float32)
         try:
-            out, _ = pipe(layers, camera_cut=bool(rng.random() < 0.3))
+            out = pipe(layers, camera_cut=bool(rng.random() < 0.3)).output
             ok = np.isfinite(out).all() and out.min() >= 0 and out.shape == (2 * h, 2 * w, 3)
         except Exception as exc:  # counted and reported
             ok, out = False, repr(exc)
@@ -129,20 +129,20 @@ def fuzz_exr(n: int, rng: np.random.Generator) -> dict:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser()
+    ap = arguments(__doc__, RESULTS / "stability")
     ap.add_argument("--artifacts", default="out/artifacts")
     ap.add_argument("--data", default="data/val")
     ap.add_argument("--long-frames", type=int, default=1008)
     ap.add_argument("--fuzz", type=int, default=2000)
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "stability"))
     args = ap.parse_args()
+    tune_process()
     t_start = time.time()
     seqs = [open_sequence(p) for p in find_sequences(args.data)]
-    int8 = Pipeline(PipelineConfig(artifacts=args.artifacts, precision="int8"))
-    fp32 = Pipeline(PipelineConfig(artifacts=args.artifacts, precision="fp32"))
-    f16 = Pipeline(PipelineConfig(artifacts=args.artifacts, precision="fp32", filter_dtype="float16"))
-    report = {"command": "python benchmarks/stability.py " + " ".join(sys.argv[1:]),
-              "machine": platform.platform(), "artifacts": args.artifacts, "data": args.data}
+    int8 = pipeline(args.artifacts, precision="int8")
+    fp32 = pipeline(args.artifacts, precision="fp32")
+    f16 = pipeline(args.artifacts, precision="fp32", filter_dtype="float16")
+    report = {"command": command_line(), "machine": platform.platform(), "machine_info": machine_info(),
+              "artifacts": args.artifacts, "data": args.data}
 
     report["long"] = [long_run(int8, s, args.long_frames) for s in seqs]
     for r in report["long"]:
@@ -198,14 +198,13 @@ def main() -> int:
     report["wall_s"] = time.time() - t_start
 
     out = Path(args.out)
-    out.with_suffix(".json").write_text(json.dumps(report, indent=1))
-    write_markdown(report, out, args)
+    write_report(out, report, markdown(report, args))
     plot(report, out)
     print(out.with_suffix(".md").read_text())
     return 0
 
 
-def write_markdown(r: dict, out: Path, args) -> None:
+def markdown(r: dict, args) -> str:
     md = ["# Numerical stability", "", f"Command: `{r['command']}`  ",
           f"Machine: {r['machine']}; artifacts {r['artifacts']} (the shipped checkpoint); data {r['data']}; "
           f"{r['wall_s'] / 60:.1f} min. Correctness cases with pass/fail are in `tests/runtime/test_stability.py` "
@@ -223,7 +222,7 @@ def write_markdown(r: dict, out: Path, args) -> None:
         md.append(f"| {x['sequence']} | {x['drift_per_1000']:+.4f} | {x['first_loop_ratio']:.4f} | "
                   f"{x['steady_ratio']:.4f} | {x['last_loop_ratio']:.4f} | {x['output_ratio_min']:.3f}–"
                   f"{x['output_ratio_max']:.3f} | {x['history_max']:.1f} | {x['rejected_tiles']} |")
-    md += ["", "Before the history rejection test (`REJECT_RATIO` in `jnds_deploy/runtime/pipeline.py`), the same "
+    md += ["", "Before the history rejection test (`REJECT_RATIO` in `jnds_deploy/runtime/history.py`), the same "
            "run grew without bound on procedural-dolly-2001 (brightness ratio 7.4e4 at frame 100, 6.4e17 at 300, "
            "history radiance 7.9e37) and procedural-static-2000 (static camera: 23 at frame 300, Inf by 1000, "
            "history 6.9e37): the checkpoint shipped then (runs/small, L1 loss) had temporal kernels summing to "
@@ -254,7 +253,7 @@ def write_markdown(r: dict, out: Path, args) -> None:
            f"- {fe['files']} byte-damaged EXR files (truncated, up to 8 bytes overwritten): {fe['failures']} failures "
            f"(anything but `ExrReadError`); {fe['read']} were still readable."
            + (f" Examples: {fe['examples']}" if fe["examples"] else ""), ""]
-    out.with_suffix(".md").write_text("\n".join(md))
+    return "\n".join(md)
 
 
 def plot(r: dict, out: Path) -> None:

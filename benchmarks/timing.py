@@ -1,56 +1,35 @@
 """Per-stage timing of the pipeline, in the form of the paper's Table 4.
 
     .venv/bin/python benchmarks/timing.py [--artifacts out/artifacts] [--input samples/orbit-160x90]
+        [--size 1280x720] [--repeats 3] [--out benchmarks/results/timing]
 
 Runs the frame-recurrent pipeline (fp32 and int8 network graphs, float32 filter stage)
-on the input sequence at its own size and on the same frames resized to 1280x720 native
-(-> 2560x1440), all in one process. The network stage is split into the paper's input
+on the input sequence at its own size and on the same frames resized to --size native
+(1280x720 -> 2560x1440 by default), all in one process, tuned as `jnds run` tunes its
+own (``common.tune_process``). The network stage is split into the paper's input
 block, feature extractor and output block by ONNX Runtime's profiler on the same inputs
 (its per-stage shares of the profiled time, applied to the pipeline's measured network
 time). Writes benchmarks/results/timing.md and timing.json.
 """
 from __future__ import annotations
 
-import argparse
-import json
-import platform
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
+from benchmarks.common import (RESULTS, ROOT, CpuSteal, arguments, command_line, machine_info, parse_size,  # noqa: E402
+                               pipeline, resized_frames, run_frames, spread, timed, tune_process, write_report)
+from jnds_deploy.artifacts import Manifest  # noqa: E402
 from jnds_deploy.io import open_sequence  # noqa: E402
 from jnds_deploy.model import ModelConfig, count_macs  # noqa: E402
-from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig  # noqa: E402
+from jnds_deploy.runtime import Pipeline  # noqa: E402
 from jnds_deploy.runtime.profile import STAGES, profile_stages  # noqa: E402
 
 ROWS = ("reformat", "warp", "input_block", "feature_extractor", "output_block", "filter_diffuse",
         "filter_specular", "filter_auxiliary", "composite", "upsample_kernel", "upsample_filter")
-
-
-def resized_frames(seq, size: tuple[int, int] | None) -> list[tuple[dict, bool]]:
-    """The sequence's frames, optionally resized (motion scaled with the image)."""
-    import cv2
-
-    frames = []
-    for i in range(len(seq)):
-        layers = seq.inputs(i)
-        if size:
-            sx = size[0] / seq.native_size[0]
-            sy = size[1] / seq.native_size[1]
-            out = {}
-            for k, v in layers.items():
-                r = cv2.resize(v, size, interpolation=cv2.INTER_LINEAR).reshape(size[1], size[0], -1)
-                if k == "motion":
-                    r = r * np.array([sx, sy], np.float32)
-                out[k] = np.ascontiguousarray(r, np.float32)
-            layers = out
-        frames.append((layers, seq.frames[i].camera_cut))
-    return frames
 
 
 def time_pipeline(pipe: Pipeline, frames, repeats: int, between=None) -> list[dict]:
@@ -59,7 +38,7 @@ def time_pipeline(pipe: Pipeline, frames, repeats: int, between=None) -> list[di
     recorded = []
     for _ in range(repeats):
         for layers, cut in frames[1:]:
-            recorded.append(pipe(layers, cut)[1])
+            recorded.append(pipe(layers, cut).ms)
             if between:
                 between()
     return recorded
@@ -72,7 +51,7 @@ def network_split(pipe: Pipeline, frames, threads: int) -> dict[str, float]:
     pipe.reset()
     pipe(*frames[0])
     pipe.on_feeds = None
-    prof = profile_stages(pipe.graph_files["network"], feeds["network"], runs=3, threads=threads)["median_ms"]
+    prof = profile_stages(pipe.graphs["network"].path, feeds["network"], runs=3, threads=threads)["median_ms"]
     # layout changes and scheduling are spread over the three stages by their share
     inside = sum(prof[s] for s in STAGES)
     return {s: prof[s] / inside for s in STAGES}
@@ -89,15 +68,13 @@ def summarize(recorded: list[dict], split: dict, macs: dict) -> dict:
             v = np.array([r[k] for r in recorded])
         else:
             continue
-        row = {"median_ms": float(np.median(v)), "p10_ms": float(np.percentile(v, 10)),
-               "p90_ms": float(np.percentile(v, 90)), "share": float(np.median(v / total))}
+        row = {**spread(v, suffix="_ms"), "share": float(np.median(v / total))}
         gm = macs.get(k if k in STAGES else ("upsample_block" if k == "upsample_kernel" else ""), None)
         if gm is not None:
             row["gmac"] = gm
             row["gmac_per_s"] = gm / (row["median_ms"] / 1000)
         rows[k] = row
-    rows["total"] = {"median_ms": float(np.median(total)), "p10_ms": float(np.percentile(total, 10)),
-                     "p90_ms": float(np.percentile(total, 90)), "share": 1.0}
+    rows["total"] = {**spread(total, suffix="_ms"), "share": 1.0}
     return rows
 
 
@@ -139,8 +116,9 @@ def traffic_bytes(cfg: ModelConfig, w: int, h: int) -> dict[str, float]:
 class CopyProbe:
     """Copy bandwidth (bytes read + bytes written per second) of a numba loop over rows on
     ``threads`` threads copying ``mbytes`` MB, the way the filter stage moves memory. Call
-    it between frames: this VM's bandwidth drifts (8.9-16 GB/s between runs minutes apart),
-    so the bound uses samples taken in the same minutes as the frames it is compared with."""
+    it between frames: this VM's bandwidth drifts between runs minutes apart (the spread in
+    benchmarks/results/timing.md), so the bound uses samples taken in the same minutes as
+    the frames it is compared with."""
 
     def __init__(self, threads: int, mbytes: int = 256):
         import numba
@@ -160,9 +138,8 @@ class CopyProbe:
         self.samples: list[float] = []
 
     def __call__(self) -> None:
-        t0 = time.perf_counter()
-        self.copy(self.src, self.dst)
-        self.samples.append(2 * self.src.nbytes / (time.perf_counter() - t0))
+        ms = timed(self.copy, self.src, self.dst)[1]
+        self.samples.append(2 * self.src.nbytes / (ms / 1000))
 
 
 def traffic_table(rows: dict, need: dict, bandwidth: float) -> tuple[str, dict]:
@@ -184,87 +161,79 @@ def traffic_table(rows: dict, need: dict, bandwidth: float) -> tuple[str, dict]:
     return "\n".join(lines), result
 
 
-def cpu_times() -> list[int]:
-    """The aggregate CPU line of /proc/stat (user, nice, system, idle, iowait, irq, softirq, steal)."""
-    with open("/proc/stat") as f:
-        return [int(x) for x in f.readline().split()[1:9]]
+def head_to_head(pipe: Pipeline, frames, passes: int) -> dict:
+    """The peer users have: OIDN balanced (and fast) denoising alone at native size, same
+    frames, interleaved frame by frame with the int8 pipeline so that both see the same
+    machine state (these machines drift within minutes: the spread in
+    benchmarks/results/timing.md). Each pass starts from a first frame, not timed."""
+    from jnds_deploy.baselines import oidn
+
+    runners = {"pipeline": pipe, "balanced": lambda layers, cut: oidn(layers, "balanced"),
+               "fast": lambda layers, cut: oidn(layers, "fast")}
+    ms_pipe, ms_oidn, ms_fast = [], [], []
+    for _ in range(passes):
+        pipe.reset()
+        pipe(*frames[0])
+        done = run_frames(runners, frames[1:])
+        ms_pipe += [result.ms["total"] for result, _ in done["pipeline"]]
+        ms_oidn += [ms for _, ms in done["balanced"]]
+        ms_fast += [ms for _, ms in done["fast"]]
+    ratio = np.array(ms_pipe) / np.array(ms_oidn)
+    ratio_fast = np.array(ms_pipe) / np.array(ms_fast)
+    oidn_spread = spread(ms_oidn, "oidn_", "_ms")
+    return {"frames": len(ms_pipe), "int8_pipeline_median_ms": float(np.median(ms_pipe)),
+            "oidn_balanced_median_ms": oidn_spread["oidn_median_ms"], "oidn_p10_ms": oidn_spread["oidn_p10_ms"],
+            "oidn_p90_ms": oidn_spread["oidn_p90_ms"], **spread(ratio, "ratio_"),
+            "oidn_fast_median_ms": float(np.median(ms_fast)), **spread(ratio_fast, "ratio_fast_")}
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = arguments(__doc__, RESULTS / "timing")
     ap.add_argument("--artifacts", default="out/artifacts", help="exported and calibrated (`make demo` does both)")
     ap.add_argument("--input", default=str(ROOT / "samples" / "orbit-160x90"))
+    ap.add_argument("--size", default="1280x720", help="native size the frames are also resized to")
     ap.add_argument("--repeats", type=int, default=3, help="passes over the sequence's frames 1..N")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--precisions", nargs="+", default=["int8", "fp32"])
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "timing"))
     args = ap.parse_args()
+    tune_process()
     seq = open_sequence(args.input)
-    manifest = json.loads((Path(args.artifacts) / "manifest.json").read_text())
-    cfg = ModelConfig(**manifest["model_config"])
-    report = {"command": "python benchmarks/timing.py " + " ".join(sys.argv[1:]),
-              "machine": {"platform": platform.platform(), "cpu_count": __import__("os").cpu_count()},
-              "input": str(seq.path), "threads": args.threads, "int8_method": manifest.get("int8_method"),
+    manifest = Manifest.load(args.artifacts)
+    cfg = ModelConfig(**manifest.model_config)
+    big = parse_size(args.size)
+    big_label = f"{big[0]}x{big[1]}"
+    report = {"command": command_line(), "machine": machine_info(),
+              "input": str(seq.path), "threads": args.threads, "int8_method": manifest.int8_method,
               "results": {}}
-    t_cpu = cpu_times()
+    steal = CpuSteal()
     probe = CopyProbe(args.threads)
-    for label, size in (("1280x720", (1280, 720)), (f"{seq.native_size[0]}x{seq.native_size[1]}", None)):
+    for label, size in ((big_label, big), (f"{seq.native_size[0]}x{seq.native_size[1]}", None)):
         frames = resized_frames(seq, size)
         w, h = size or seq.native_size
         macs = count_macs(cfg, w, h)
         for precision in args.precisions:
-            pipe = Pipeline(PipelineConfig(artifacts=args.artifacts, precision=precision, threads=args.threads))
+            pipe = pipeline(args.artifacts, precision=precision, threads=args.threads)
             split = network_split(pipe, frames, args.threads)
-            # copy-bandwidth samples between the frames of the 1280x720 int8 run: the
+            # copy-bandwidth samples between the frames of the large int8 run: the
             # filter stage's memory-traffic bound (below)
-            probed = size == (1280, 720) and precision == "int8"
+            probed = size == big and precision == "int8"
             rows = summarize(time_pipeline(pipe, frames, args.repeats, probe if probed else None), split, macs)
             report["results"][f"{label} {precision}"] = {"native": [w, h], "target": [w * pipe.scale, h * pipe.scale],
                                                          "precision": precision, "graphs": dict(pipe.graph_precision),
                                                          "split": split, "stages": rows}
             if probed:
                 bw = np.array(probe.samples)
-                report["copy_bandwidth_gb_s"] = {"median": float(np.median(bw)) / 1e9, "p10": float(np.percentile(bw, 10)) / 1e9,
-                                                 "p90": float(np.percentile(bw, 90)) / 1e9, "samples": len(bw)}
+                report["copy_bandwidth_gb_s"] = {**spread(bw / 1e9), "samples": len(bw)}
                 report["results"][f"{label} {precision}"]["traffic"] = traffic_table(
                     rows, traffic_bytes(cfg, w, h), float(np.median(bw)))[1]
             print(f"{label} {precision}: {rows['total']['median_ms']:.1f} ms/frame", flush=True)
-        if size == (1280, 720):
-            # the peer users have: OIDN balanced denoising alone at native 1280x720, same
-            # frames, interleaved frame by frame with the int8 pipeline so that both see
-            # the same machine state (these machines drift by 10-20 % within minutes)
-            from jnds_deploy.baselines import oidn
-
-            pipe = Pipeline(PipelineConfig(artifacts=args.artifacts, precision="int8", threads=args.threads))
-            ms_pipe, ms_oidn, ms_fast = [], [], []
-            for _ in range(args.repeats + 2):
-                pipe.reset()
-                pipe(*frames[0])
-                for layers, cut in frames[1:]:
-                    ms_pipe.append(pipe(layers, cut)[1]["total"])
-                    for quality, ms in (("balanced", ms_oidn), ("fast", ms_fast)):
-                        t0 = time.perf_counter()
-                        oidn(layers, quality)
-                        ms.append(1000 * (time.perf_counter() - t0))
-            ratio = np.array(ms_pipe) / np.array(ms_oidn)
-            ratio_fast = np.array(ms_pipe) / np.array(ms_fast)
-            report["head_to_head_1280x720"] = {
-                "frames": len(ms_pipe), "int8_pipeline_median_ms": float(np.median(ms_pipe)),
-                "oidn_balanced_median_ms": float(np.median(ms_oidn)),
-                "oidn_p10_ms": float(np.percentile(ms_oidn, 10)), "oidn_p90_ms": float(np.percentile(ms_oidn, 90)),
-                "ratio_median": float(np.median(ratio)), "ratio_p10": float(np.percentile(ratio, 10)),
-                "ratio_p90": float(np.percentile(ratio, 90)),
-                "oidn_fast_median_ms": float(np.median(ms_fast)), "ratio_fast_median": float(np.median(ratio_fast)),
-                "ratio_fast_p10": float(np.percentile(ratio_fast, 10)),
-                "ratio_fast_p90": float(np.percentile(ratio_fast, 90))}
-    # virtual machines lose CPU to their host ("steal"): timings taken under steal are slower
-    # and noisier; the share of CPU time stolen during this run goes into the report
-    d = [b - a for a, b in zip(t_cpu, cpu_times())]
-    report["cpu_steal_share"] = d[7] / max(1, sum(d))
+        if size == big:
+            report[f"head_to_head_{label}"] = head_to_head(pipeline(args.artifacts, precision="int8",
+                                                                    threads=args.threads), frames, args.repeats + 2)
+    # the share of CPU time the VM host stole during this run goes into the report
+    report["cpu_steal_share"] = steal.share()
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(report, indent=1))
-    md = [f"# Per-stage timing (the paper's Table 4, on this CPU)", "", f"Command: `{report['command']}`  ",
+    md = ["# Per-stage timing (the paper's Table 4, on this CPU)", "", f"Command: `{report['command']}`  ",
           f"Machine: {report['machine']['platform']}, {report['machine']['cpu_count']} cores, "
           f"{args.threads} threads; input {seq.path.name}, frames 2–{len(seq)} × {args.repeats} passes "
           f"(the first frame is a warm-up); filter stage float32; int8 graphs: {report['int8_method']}; "
@@ -273,25 +242,30 @@ def main() -> int:
         graphs = ", ".join(f"{g} {p}" for g, p in r["graphs"].items())
         md += [f"## {r['native'][0]}x{r['native'][1]} → {r['target'][0]}x{r['target'][1]}, {r['precision']} "
                f"pipeline ({graphs})", "", table(r["stages"]), ""]
-    if "head_to_head_1280x720" in report:
-        o = report["head_to_head_1280x720"]
-        md += [f"Head to head at 1280x720, interleaved frame by frame ({o['frames']} frames): the int8 pipeline "
-               f"(denoising and 2x upsampling to 2560x1440) median {o['int8_pipeline_median_ms']:.1f} ms, OIDN "
-               f"`balanced` denoising alone at native resolution median {o['oidn_balanced_median_ms']:.1f} ms "
-               f"(p10–p90 {o['oidn_p10_ms']:.1f}–{o['oidn_p90_ms']:.1f}); per-frame time ratio pipeline/OIDN median "
-               f"{o['ratio_median']:.2f} (p10–p90 {o['ratio_p10']:.2f}–{o['ratio_p90']:.2f}). OIDN `fast`, timed in "
-               f"the same loop: median {o['oidn_fast_median_ms']:.1f} ms, ratio pipeline/OIDN fast "
+    if f"head_to_head_{big_label}" in report:
+        o = report[f"head_to_head_{big_label}"]
+        s = manifest.scale
+        md += [f"Head to head at {big_label}, interleaved frame by frame ({o['frames']} frames): the int8 pipeline "
+               f"(denoising and {s}x upsampling to {big[0] * s}x{big[1] * s}) median "
+               f"{o['int8_pipeline_median_ms']:.1f} ms, OIDN `balanced` denoising alone at native resolution median "
+               f"{o['oidn_balanced_median_ms']:.1f} ms (p10–p90 {o['oidn_p10_ms']:.1f}–{o['oidn_p90_ms']:.1f}); "
+               f"per-frame time ratio pipeline/OIDN median {o['ratio_median']:.2f} "
+               f"(p10–p90 {o['ratio_p10']:.2f}–{o['ratio_p90']:.2f}). OIDN `fast`, timed in the same loop: median "
+               f"{o['oidn_fast_median_ms']:.1f} ms, ratio pipeline/OIDN fast "
                f"{o['ratio_fast_median']:.2f} (p10–p90 {o['ratio_fast_p10']:.2f}–{o['ratio_fast_p90']:.2f}).", ""]
-    r, bw = report["results"]["1280x720 int8"], report["copy_bandwidth_gb_s"]
-    md += ["## The filter stage against its memory-traffic bound (1280x720 → 2560x1440, int8 pipeline)", "",
-           f"Bound = bytes a step must move (its inputs read once, its output written once, float32; "
-           f"`traffic_bytes` says what is counted) ÷ the copy bandwidth measured between the frames of this "
-           f"run: median {bw['median']:.1f} GB/s (p10–p90 {bw['p10']:.1f}–{bw['p90']:.1f}, {bw['samples']} samples; "
-           f"read + written, a numba row loop on {args.threads} threads copying 256 MB; `CopyProbe`).", "",
-           traffic_table(r["stages"], traffic_bytes(cfg, *r["native"]), bw["median"] * 1e9)[0], "",
-           "The bound is a model, not a floor: the probe writes as many bytes as it reads, and a write costs "
-           "more than a read (the cache line is read for ownership first), so a step that mostly reads can "
-           "beat it (the composite reads 3 bytes per byte it writes).", ""]
+    if "copy_bandwidth_gb_s" in report:
+        r, bw = report["results"][f"{big_label} int8"], report["copy_bandwidth_gb_s"]
+        md += ["## The filter stage against its memory-traffic bound "
+               f"({big_label} → {r['target'][0]}x{r['target'][1]}, int8 pipeline)", "",
+               f"Bound = bytes a step must move (its inputs read once, its output written once, float32; "
+               f"`traffic_bytes` says what is counted) ÷ the copy bandwidth measured between the frames of this "
+               f"run: median {bw['median']:.1f} GB/s (p10–p90 {bw['p10']:.1f}–{bw['p90']:.1f}, "
+               f"{bw['samples']} samples; read + written, a numba row loop on {args.threads} threads copying "
+               "256 MB; `CopyProbe`).", "",
+               traffic_table(r["stages"], traffic_bytes(cfg, *r["native"]), bw["median"] * 1e9)[0], "",
+               "The bound is a model, not a floor: the probe writes as many bytes as it reads, and a write costs "
+               "more than a read (the cache line is read for ownership first), so a step that mostly reads can "
+               "beat it (the composite reads 3 bytes per byte it writes).", ""]
     md += ["The int8 pipeline keeps the upsample graph in fp32 (`PipelineConfig.fp32_graphs`): its int8 graph "
            "is slower on this CPU (see `benchmarks/results/calibration.md`).",
            "The filter stage (filter paths, composite, upsample filter) and the reformatting are numba-fused "
@@ -300,7 +274,7 @@ def main() -> int:
            "2554.7 ms against OIDN balanced 1416.3 ms in that run).", ""]
     md += ["The input block / feature extractor / output block rows split the measured network time by the "
            "shares ONNX Runtime's profiler gives those stages on the same inputs.", ""]
-    out.with_suffix(".md").write_text("\n".join(md))
+    write_report(out, report, "\n".join(md))
     print("\n".join(md))
     return 0
 

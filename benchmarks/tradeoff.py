@@ -1,13 +1,15 @@
 """Run time against error on the validation set: the pipeline's variants and the baselines.
 
-    .venv/bin/python benchmarks/tradeoff.py --artifacts out/artifacts --data data/val
+    .venv/bin/python benchmarks/tradeoff.py --artifacts out/artifacts --data data/val [--only NAME ...]
+        [--out benchmarks/results/tradeoff]
 
 Every method turns each validation sequence into 2x frames, frame after frame; all are
 scored against the reference by the same metrics (PSNR, SSIM, FLIP per frame, temporal
 error per sequence, ``jnds_deploy.metrics``) and timed per frame (inputs already in
 memory; median over all frames) in one process, at the sequences' own resolution, the
 methods interleaved frame by frame; the default int8 pipeline's per-frame time ratio to
-OIDN fast (the closest peer in time) is reported too.
+OIDN fast (the closest peer in time) is reported too. The process is tuned as `jnds run`
+tunes its own (``common.tune_process``).
 
 Methods: the JNDS pipeline in PyTorch fp32 (eager), ONNX fp32 and ONNX int8 for every
 calibration method in the artifacts, filter stage float32 and float16; bicubic upscaling
@@ -17,21 +19,20 @@ tradeoff.png (ms/frame against FLIP, Pareto front marked).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
+from benchmarks.common import (RESULTS, arguments, command_line, pipeline, run_frames, spread,  # noqa: E402
+                               tune_process, write_report)
 from jnds_deploy import baselines  # noqa: E402
-from jnds_deploy.evaluate import ground_truth, mean_over_sequences, score_frames  # noqa: E402
+from jnds_deploy.artifacts import Manifest  # noqa: E402
 from jnds_deploy.io import expand_sequences, open_sequence  # noqa: E402
-from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig  # noqa: E402
+from jnds_deploy.training.evaluate import ground_truth, mean_over_sequences, score_frames  # noqa: E402
 
 
 class TorchPipeline:
@@ -40,8 +41,9 @@ class TorchPipeline:
     def __init__(self, checkpoint, threads: int):
         import torch
 
-        from jnds_deploy.model import CURRENT, set_quantization
-        from jnds_deploy.train import load_model
+        from jnds_deploy.checkpoint import load_model
+        from jnds_deploy.layout import CURRENT
+        from jnds_deploy.model import set_quantization
 
         torch.set_num_threads(threads)
         self.torch, self.layout = torch, CURRENT
@@ -72,8 +74,8 @@ def methods(artifacts: Path, threads: int) -> dict:
     """name -> factory() -> callable(layers, camera_cut) -> HWC output at target size."""
     from jnds_deploy.svgf import SVGF
 
-    manifest = json.loads((artifacts / "manifest.json").read_text())
-    scale = int(manifest["scale"])
+    manifest = Manifest.load(artifacts)
+    scale = manifest.scale
     out = {
         "bicubic (noisy)": lambda: lambda l, c: baselines.bicubic(baselines.noisy_composite(l), scale),
         **{f"OIDN {q} + bicubic": (lambda q=q: lambda l, c: baselines.oidn_bicubic(l, scale, quality=q))
@@ -85,29 +87,24 @@ def methods(artifacts: Path, threads: int) -> dict:
         return lambda l, c: baselines.bicubic(s(l, c), scale)
 
     out["SVGF + bicubic"] = svgf
-    out["JNDS PyTorch fp32 (eager)"] = lambda: TorchPipeline(manifest["checkpoint"]["path"], threads)
+    out["JNDS PyTorch fp32 (eager)"] = lambda: TorchPipeline(manifest.checkpoint["path"], threads)
 
     def onnx(precision, dtype, method=None):
-        return lambda: Pipeline(PipelineConfig(artifacts=str(artifacts), precision=precision, filter_dtype=dtype,
-                                               threads=threads, int8_method=method))
+        return lambda: pipeline(artifacts, precision=precision, filter_dtype=dtype, threads=threads,
+                                int8_method=method)
 
     def first(p):
-        return lambda l, c: p(l, c)[0]
+        return lambda l, c: p(l, c).output
 
     for dtype in ("float32", "float16"):
         out[f"JNDS ONNX fp32, filter {dtype}"] = (lambda f=onnx("fp32", dtype): first(f()))
-    int8 = manifest["graphs"]["network"].get("int8", {})
+    int8 = manifest.graphs["network"].int8
     for method in int8:
         out[f"JNDS ONNX int8 {method}, filter float32"] = (lambda f=onnx("int8", "float32", method): first(f()))
     if int8:
-        default = manifest.get("int8_method")
+        default = manifest.int8_method
         out[f"JNDS ONNX int8 {default}, filter float16"] = (lambda f=onnx("int8", "float16", default): first(f()))
     return out
-
-
-def manifest_default(args) -> str:
-    """The calibration method the artifacts' int8 pipeline uses by default."""
-    return json.loads((Path(args.artifacts) / "manifest.json").read_text()).get("int8_method", "")
 
 
 def pareto(points: dict[str, tuple[float, float]]) -> set[str]:
@@ -151,43 +148,38 @@ def plot(report: dict, path: Path) -> None:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = arguments(__doc__, RESULTS / "tradeoff")
     ap.add_argument("--artifacts", default="out/artifacts")
     ap.add_argument("--data", nargs="+", default=["data/val"])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--only", nargs="*", default=None, help="substrings of method names to run")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "tradeoff"))
     ap.add_argument("--plot-only", action="store_true", help="redraw the PNG from the JSON")
     args = ap.parse_args()
     if args.plot_only:
         out = Path(args.out)
         plot(json.loads(out.with_suffix(".json").read_text()), out.with_suffix(".png"))
         return 0
+    tune_process()
     seqs = expand_sequences(args.data)
     truth = {p: ground_truth(p) for p in seqs}
     opened = {p: open_sequence(p) for p in seqs}
     inputs = {p: [(s.inputs(i), f.camera_cut) for i, f in enumerate(s.frames)] for p, s in opened.items()}
-    report = {"command": "python benchmarks/tradeoff.py " + " ".join(sys.argv[1:]), "threads": args.threads,
+    report = {"command": command_line(), "threads": args.threads,
               "size": "x".join(map(str, opened[seqs[0]].native_size)) + " native",
               "sequences": [p.name for p in seqs], "methods": {}}
     factories = {name: f for name, f in methods(Path(args.artifacts), args.threads).items()
                  if not args.only or any(s in name for s in args.only)}
     # interleaved: every method runs frame t before any runs frame t + 1 (each with its own
-    # history), so that all see the same machine state; these VMs drift by 10-20 % in minutes
+    # history), so that all see the same machine state (common.run_frames)
     ms = {name: [] for name in factories}
     per_seq = {name: {} for name in factories}
     for p in seqs:
         for f in factories.values():
             f()(*inputs[p][0])  # warm-up (numba compilation, session start), then from the first frame
-        runs = {name: f() for name, f in factories.items()}
-        outs = {name: [] for name in factories}
-        for layers, cut in inputs[p]:
-            for name, run in runs.items():
-                t0 = time.perf_counter()
-                outs[name].append(run(layers, cut))
-                ms[name].append(1000 * (time.perf_counter() - t0))
-        for name in factories:
-            per_seq[name][p.name] = score_frames(outs[name], *truth[p])
+        done = run_frames({name: f() for name, f in factories.items()}, inputs[p])
+        for name, frames in done.items():
+            ms[name] += [t for _, t in frames]
+            per_seq[name][p.name] = score_frames([out for out, _ in frames], *truth[p])
         print(f"{p.name}: done", flush=True)
     for name in factories:
         report["methods"][name] = {"mean": mean_over_sequences(per_seq[name]), "ms_per_frame": float(np.median(ms[name])),
@@ -196,17 +188,13 @@ def main() -> int:
         print(f"{name}: {m['ms_per_frame']:.1f} ms, PSNR {m['mean']['psnr']:.2f}, FLIP {m['mean']['flip']:.4f}, "
               f"temporal {m['mean']['temporal']:.5f}", flush=True)
     # the closest peer in time: the default int8 pipeline against OIDN fast, frame by frame
-    default = f"JNDS ONNX int8 {manifest_default(args)}, filter float32"
+    default = f"JNDS ONNX int8 {Manifest.load(args.artifacts).int8_method or ''}, filter float32"
     if default in ms and "OIDN fast + bicubic" in ms:
         r = np.array(ms[default]) / np.array(ms["OIDN fast + bicubic"])
         report["head_to_head"] = {"method": default, "peer": "OIDN fast + bicubic", "frames": int(r.size),
-                                  "ratio_median": float(np.median(r)), "ratio_p10": float(np.percentile(r, 10)),
-                                  "ratio_p90": float(np.percentile(r, 90))}
+                                  **spread(r, "ratio_")}
     front = pareto({k: (v["ms_per_frame"], v["mean"]["flip"]) for k, v in report["methods"].items()})
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(report, indent=1))
-    plot(report, out.with_suffix(".png"))
     lines = ["# Run time against error (validation set)", "", f"Command: `{report['command']}`  ",
              f"{len(seqs)} sequences, {report['size']} → 2×, {args.threads} threads; ms per frame is the "
              "median over all frames (inputs in memory), all methods in one process, interleaved frame by "
@@ -222,7 +210,8 @@ def main() -> int:
         lines += ["", f"Per frame, {h['method']} took {h['ratio_median']:.2f}× the time of {h['peer']} (median "
                       f"of {h['frames']} frames, p10–p90 {h['ratio_p10']:.2f}–{h['ratio_p90']:.2f})."]
     lines += ["", f"![ms/frame against FLIP]({out.with_suffix('.png').name})", ""]
-    out.with_suffix(".md").write_text("\n".join(lines))
+    write_report(out, report, "\n".join(lines))
+    plot(report, out.with_suffix(".png"))
     print("\n".join(lines))
     return 0
 

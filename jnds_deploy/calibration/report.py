@@ -56,7 +56,7 @@ def end_to_end(artifacts: str | Path, method: str, sequences: list[Path], thread
         acc: dict[str, list[float]] = {}
         for i in tqdm(range(len(seq)), desc=f"int8 vs fp32 {seq.path.name}", unit="frame", disable=not progress):
             layers, cut = seq.inputs(i), seq.frames[i].camera_cut
-            out = {k: p(layers, cut)[0] for k, p in pipes.items()}
+            out = {k: p(layers, cut).output for k, p in pipes.items()}
             scores = {"int8_vs_fp32_psnr": psnr(out["int8"], out["fp32"])}
             if seq.has_reference:
                 ref = seq.reference(i)["color"]

@@ -1,6 +1,8 @@
 """What the network graph's float post-processing costs: an upper bound for moving it out.
 
-    .venv/bin/python benchmarks/head_postprocess.py --artifacts out/calibration-bench
+    .venv/bin/python experiments/head_postprocess.py --artifacts out/calibration-bench [--method qat]
+        [--data data/val/procedural-orbit-2002] [--size 1280x720] [--runs 9]
+        [--out benchmarks/results/head_postprocess]
 
 The output block's 1x1 head convolution predicts all native-resolution kernels at once
 (85 channels at 1280x720 for `small`). In the exported graph its output is split, and
@@ -11,26 +13,23 @@ the graph output (the coarser levels' outputs are kept). The runtime does not ru
 graphs. They show what a runtime would gain by reading the raw head and doing the
 clamp/sigmoid/softmax inside its filter loops, which it does not do yet.
 
-Times fp32 and int8 (``network.int8.<method>.onnx``), full and cut, at --size, median of
---runs, all in one process, interleaved. Writes benchmarks/results/head_postprocess.md
-and .json.
+Times fp32 and int8 (the manifest's int8 network graph of --method), full and cut, at
+--size, median of --runs, all in one process, interleaved (``common.time_sessions``).
+Writes benchmarks/results/head_postprocess.md and .json.
 """
 from __future__ import annotations
 
-import argparse
-import importlib.util
-import json
-import platform
+import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
 import onnx
 
-ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("calibration_bench", ROOT / "benchmarks" / "calibration.py")
-bench = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bench)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
+
+from benchmarks.common import (RESULTS, arguments, command_line, cpu_peaks, machine_info, machine_line,  # noqa: E402
+                               network_feeds, parse_size, time_sessions, write_report)
+from jnds_deploy.artifacts import Manifest  # noqa: E402
 
 HEAD = "/network/output_block/head/Conv"
 
@@ -56,37 +55,38 @@ def cut_after_head(src: Path, dst: Path) -> int:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = arguments(__doc__, RESULTS / "head_postprocess")
     ap.add_argument("--artifacts", default="out/calibration-bench")
     ap.add_argument("--method", default="qat")
     ap.add_argument("--data", default="data/val/procedural-orbit-2002", help="a sequence for the timing frame")
     ap.add_argument("--size", default="1280x720")
     ap.add_argument("--runs", type=int, default=9)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "head_postprocess"))
     args = ap.parse_args()
-    size = tuple(int(v) for v in args.size.split("x"))
     art = Path(args.artifacts)
-    graphs = {"fp32": art / "network.onnx", "int8": art / f"network.int8.{args.method}.onnx"}
+    manifest = Manifest.load(art)
+    size = parse_size(args.size, manifest.pad_multiple)
+    network = manifest.graphs["network"]
+    if args.method not in network.int8:
+        raise SystemExit(f"{art}: no int8 network graph for {args.method!r}; "
+                         f"run `jnds calibrate --method {args.method}` first")
+    graphs = {"fp32": art / network.file, "int8": art / network.int8[args.method].file}
     with tempfile.TemporaryDirectory() as tmp:
         paths, removed = {}, {}
         for name, src in graphs.items():
             paths[name] = src
             paths[f"{name}, head output raw"] = Path(tmp) / f"{name}.cut.onnx"
             removed[name] = cut_after_head(src, paths[f"{name}, head output raw"])
-        feeds = bench.timing_inputs(Path(args.data), size)
-        t = bench.time_sessions(paths, feeds, args.runs, args.threads, {n: "all" for n in paths})
+        feeds = network_feeds(Path(args.data), size)
+        t = time_sessions(paths, feeds, args.runs, args.threads, {n: "all" for n in paths})
     med = {n: v["median_ms"] for n, v in t.items()}
-    result = {"machine": f"{platform.machine()}, {bench.cpu_peaks()['cores']} cores",
-              "cpu": bench.cpu_peaks(), "size": size, "runs": args.runs, "method": args.method,
+    result = {"machine": machine_line(), "machine_info": machine_info(),
+              "cpu": cpu_peaks(), "size": size, "runs": args.runs, "method": args.method,
               "nodes_removed": removed, "timing": t}
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(result, indent=1))
     cpu = result["cpu"]
     lines = ["# The network graph's float post-processing",
              "",
-             f"Command: `python benchmarks/head_postprocess.py --artifacts {args.artifacts} --method {args.method}`  ",
+             f"Command: `{command_line()}`  ",
              f"Machine: {result['machine']}, {cpu['ghz']:.1f} GHz nominal, int8 ISA {cpu['int8_isa']}; "
              f"ONNX Runtime CPU, {args.threads} intra-op threads; {size[0]}x{size[1]} native, "
              f"median of {args.runs} runs, interleaved in one process.",
@@ -108,7 +108,7 @@ def main() -> int:
               f"{med['int8'] - med['int8, head output raw']:.0f} ms in int8, where the whole graph takes "
               f"{med['fp32']:.0f} and {med['int8']:.0f} ms.",
               ""]
-    out.with_suffix(".md").write_text("\n".join(lines))
+    write_report(Path(args.out), result, "\n".join(lines))
     print("\n".join(lines))
     return 0
 

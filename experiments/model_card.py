@@ -1,10 +1,13 @@
 """Write the shipped checkpoint and its model card from a finished (or stopped) run.
 
-    python benchmarks/model_card.py --run runs/small --eval benchmarks/results/model_eval.json
-    python benchmarks/model_card.py --run runs/ft-feature-long --base-run runs/small runs/ft-feature \
+    python experiments/model_card.py --run runs/small --eval benchmarks/results/model_eval.json
+    python experiments/model_card.py --run runs/ft-feature-long --base-run runs/small runs/ft-feature \
         --model ft-feature-long --compare runs/ft-l1 runs/ft-feature --eval benchmarks/results/model_eval.json
-    python benchmarks/model_card.py --run runs/gpu-mixed-from-l1 --base-run runs/small \
+    python experiments/model_card.py --run runs/gpu-mixed-from-l1 --base-run runs/small \
         --compare runs/gpu-feature runs/gpu-mixed runs/gpu-mixed-from-l1 --limitations L.md --gap G.md
+
+The run directories (``runs/``, not tracked in git) are the ones training wrote
+(``jnds train --run DIR``): ``checkpoint.pt`` and ``log.jsonl`` in each.
 
 A run trained with ``--device cuda`` (``scripts/gpu_train.sh``) is described as trained
 on ``--gpu`` with the data that script renders.
@@ -13,13 +16,13 @@ A run started with ``jnds train --init`` (fine-tuning) is described with the run
 descends from (``--base-run``); ``--compare`` adds a table of runs and the training
 settings they differ in (e.g. the L1 / feature-loss comparison of Sec. 3.3).
 
-Copies ``<run>/checkpoint.pt`` (stripped of optimizer state) to
-``jnds_deploy/checkpoints/jnds-small.pt`` and writes ``MODEL_CARD.md`` beside it with
-the configuration, data, steps, hours and the validation numbers of ``jnds evaluate``.
+Copies ``<run>/checkpoint.pt`` (stripped of optimizer state, ``checkpoint.ship_checkpoint``)
+to ``jnds_deploy/checkpoints/jnds-small.pt`` (or --out-dir) and writes ``MODEL_CARD.md``
+beside it with the configuration, data, steps, hours and the validation numbers of
+``jnds evaluate``.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import shlex
 import sys
@@ -27,15 +30,18 @@ from pathlib import Path
 
 import torch
 
-from jnds_deploy.evaluate import markdown_table
-from jnds_deploy.model import ModelConfig, count_macs
-from jnds_deploy.train import export_checkpoint
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
-PKG = Path(__file__).resolve().parents[1] / "jnds_deploy" / "checkpoints"
+from benchmarks.common import ROOT, arguments, cpu_model, write_text  # noqa: E402
+from jnds_deploy.checkpoint import read_checkpoint, ship_checkpoint  # noqa: E402
+from jnds_deploy.model import ModelConfig, count_macs  # noqa: E402
+from jnds_deploy.training.evaluate import markdown_table  # noqa: E402
+
+PKG = ROOT / "jnds_deploy" / "checkpoints"
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
+    ap = arguments(__doc__)
     ap.add_argument("--run", default="runs/small")
     ap.add_argument("--eval", default="benchmarks/results/model_eval.json")
     ap.add_argument("--command", default="", help="the jnds evaluate command that made --eval")
@@ -43,7 +49,7 @@ def main() -> None:
     ap.add_argument("--base-run", nargs="*", default=[],
                     help="the runs a fine-tuning run (--init) descends from, from scratch to its parent")
     ap.add_argument("--compare", nargs="*", default=[], help="runs to tabulate with the training settings they differ in")
-    ap.add_argument("--cpu", default=_cpu_name(), help="processor the run trained on (default: this one)")
+    ap.add_argument("--cpu", default=cpu_model(), help="processor the run trained on (default: this one)")
     ap.add_argument("--gpu", default="one NVIDIA H100 80GB HBM3 of a lent machine, shared by the 3 runs of "
                     "scripts/gpu_train.sh", help="the GPU a --device cuda run trained on")
     ap.add_argument("--limitations", default=None, help="a markdown file of known limitations to include")
@@ -53,7 +59,7 @@ def main() -> None:
 
     run = Path(args.run)
     log = _log(run)
-    ckpt = torch.load(run / "checkpoint.pt", weights_only=False)
+    ckpt = read_checkpoint(run / "checkpoint.pt")
     report = json.loads(Path(args.eval).read_text())
     training = [_training_lines(run, ckpt, log, args.cpu, args.gpu)]
     if ckpt["train_config"].get("init") and not args.base_run:
@@ -61,10 +67,10 @@ def main() -> None:
     for i, base in enumerate(map(Path, args.base_run)):
         # the first run of the chain trained in an earlier session, on another machine
         cpu = "AMD EPYC with AVX-512, as recorded by hand then" if i == 0 else args.cpu
-        base_ckpt = torch.load(base / "checkpoint.pt", weights_only=False)
+        base_ckpt = read_checkpoint(base / "checkpoint.pt")
         training.insert(i, _training_lines(base, base_ckpt, _log(base), cpu, args.gpu))
     out_dir = Path(args.out_dir)
-    out = export_checkpoint(run / "checkpoint.pt", out_dir / "jnds-small.pt", metrics=report)
+    out = ship_checkpoint(run / "checkpoint.pt", out_dir / "jnds-small.pt", metrics=report)
 
     cfg = ModelConfig(**ckpt["model_config"])
     macs = count_macs(cfg)
@@ -135,17 +141,10 @@ runs before 2026-11-23 had no geometric history rejection):
 
 {history}
 
-This card: `python benchmarks/model_card.py {" ".join(shlex.quote(a) for a in sys.argv[1:])}`.
+This card: `python experiments/model_card.py {" ".join(shlex.quote(a) for a in sys.argv[1:])}`.
 """
-    (out_dir / "MODEL_CARD.md").write_text(text)
+    write_text(out_dir / "MODEL_CARD.md", text)
     print(f"wrote {out} ({out.stat().st_size / 1e3:.0f} kB) and {out_dir / 'MODEL_CARD.md'}")
-
-
-def _cpu_name() -> str:
-    for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return "unknown processor"
 
 
 def _log(run: Path) -> list[dict]:
@@ -214,7 +213,7 @@ def _feature_net_line(tcfg: dict) -> str:
     if "feature" not in tcfg["spatial_loss"]:
         return ""
     f = torch.load(tcfg["feature_net"], weights_only=False)
-    return (f"\n- Feature-loss network (Eq. 6, `jnds_deploy.feature_loss`): `{tcfg['feature_net']}`, "
+    return (f"\n- Feature-loss network (Eq. 6, `jnds_deploy.training.feature_loss`): `{tcfg['feature_net']}`, "
             f"`jnds train-feature-net`, {f['config']['steps']} steps predicting the G-buffer from converged "
             f"renders of data/train, final L1 {f['final_l1']:.4f}.")
 
@@ -222,7 +221,7 @@ def _feature_net_line(tcfg: dict) -> str:
 def _compare_table(runs: list[str], report: dict) -> str:
     """Runs scored by the same ``jnds evaluate``, with the training settings they differ in
     (read from their checkpoints, so the sentence cannot go stale)."""
-    ckpts = [torch.load(Path(r) / "checkpoint.pt", weights_only=False) for r in runs]
+    ckpts = [read_checkpoint(Path(r) / "checkpoint.pt") for r in runs]
     tcfgs = [c["train_config"] for c in ckpts]
     seqs = [len(c["train_sequences"]) if c.get("train_sequences") else "not recorded" for c in ckpts]
     keys = sorted({k for t in tcfgs for k in t} - {"run"})

@@ -1,6 +1,7 @@
 """Where the model's error comes from: each filtered signal replaced by the reference.
 
-    .venv/bin/python benchmarks/error_sources.py --data data/val
+    .venv/bin/python experiments/error_sources.py --data data/val [--checkpoint CKPT]
+        [--out benchmarks/results/error_sources]
 
 PyTorch, the shipped checkpoint (or --checkpoint) at int8 fake quantization, every frame
 of every sequence, history as in ``jnds evaluate``. At each frame's composite (Eq. 2) the
@@ -23,8 +24,6 @@ Writes benchmarks/results/error_sources.md and .json.
 """
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -33,14 +32,15 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
+from benchmarks.common import RESULTS, arguments, command_line, write_report  # noqa: E402
 from jnds_deploy import baselines, filters  # noqa: E402
+from jnds_deploy.checkpoint import default_checkpoint, load_model  # noqa: E402
 from jnds_deploy.io import expand_sequences, open_sequence  # noqa: E402
 from jnds_deploy.metrics import psnr  # noqa: E402
 from jnds_deploy.model import pad_to_multiple  # noqa: E402
-from jnds_deploy.train import default_checkpoint, load_model, load_sequence  # noqa: E402
+from jnds_deploy.training.data import load_sequence  # noqa: E402
 
 REPLACED = ("none", "diffuse", "specular", "albedo", "all three")
 RESIZE = {"nearest": cv2.INTER_NEAREST, "bilinear": cv2.INTER_LINEAR, "bicubic": cv2.INTER_CUBIC}
@@ -95,10 +95,9 @@ def root_upsample(image: np.ndarray, scale: int) -> np.ndarray:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = arguments(__doc__, RESULTS / "error_sources")
     ap.add_argument("--data", nargs="+", default=["data/val"])
     ap.add_argument("--checkpoint", default=None)
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "error_sources"))
     args = ap.parse_args()
     torch.set_num_threads(2)
     model = load_model(args.checkpoint or default_checkpoint())
@@ -119,16 +118,12 @@ def main() -> int:
                                      for k, v in methods.items()}
         print(name, "  ".join(f"{k}: {v:.2f}" for k, v in result["sequences"][name].items()), flush=True)
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(result, indent=1))
-
     seqs = list(result["sequences"])
     cols = list(result["sequences"][seqs[0]])
     mean = {c: float(np.mean([result["sequences"][s][c] for s in seqs])) for c in cols}
     lines = ["# Where the model's error comes from",
              "",
-             f"Command: `python benchmarks/error_sources.py --data {' '.join(args.data)}"
-             + (f" --checkpoint {args.checkpoint}" if args.checkpoint else "") + "`  ",
+             f"Command: `{command_line()}`  ",
              f"Checkpoint: {result['checkpoint']}, PyTorch, int8 fake quantization. PSNR (dB) against the "
              "reference colour, mean over each sequence's frames. \"replaced\": that filtered signal is "
              "the reference's, pooled to native, at the composite (see the script's docstring).",
@@ -141,7 +136,7 @@ def main() -> int:
     base = mean["model, none replaced"]
     lines += ["", "Mean gain over the model when a signal is replaced: "
               + ", ".join(f"{r} {mean[f'model, {r} replaced'] - base:+.2f} dB" for r in REPLACED[1:]) + "."]
-    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    write_report(out, result, "\n".join(lines) + "\n")
     print(f"wrote {out.with_suffix('.md')}")
     return 0
 

@@ -1,7 +1,8 @@
 """What the history gives: the model with no history, with history as the paper uses it,
 and with the geometric history rejection (``filters.disoccluded``, the default).
 
-    .venv/bin/python benchmarks/history_gain.py --data data/val data/adaptive
+    .venv/bin/python experiments/history_gain.py --data data/val data/adaptive [--checkpoint CKPT]
+        [--out benchmarks/results/history_gain]
 
 PyTorch, the shipped checkpoint (or --checkpoint) at int8 fake quantization, every
 frame of every sequence. "no history": every frame is run as a first frame (the current
@@ -11,8 +12,6 @@ and per-frame PSNR. Writes benchmarks/results/history_gain.md and .json.
 """
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -20,20 +19,21 @@ from pathlib import Path
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
+from benchmarks.common import RESULTS, arguments, command_line, write_report  # noqa: E402
 from jnds_deploy import filters  # noqa: E402
-from jnds_deploy.evaluate import score_frames  # noqa: E402
+from jnds_deploy.checkpoint import default_checkpoint, load_model  # noqa: E402
 from jnds_deploy.io import expand_sequences  # noqa: E402
 from jnds_deploy.metrics import psnr  # noqa: E402
-from jnds_deploy.train import default_checkpoint, infer_sequence, load_model, load_sequence  # noqa: E402
+from jnds_deploy.training.data import load_sequence  # noqa: E402
+from jnds_deploy.training.evaluate import infer_sequence, score_frames  # noqa: E402
 
 MODES = ("no history", "history, no rejection", "history + rejection (default)")
 
 
 def run(model, seq, mode: str) -> list[np.ndarray]:
-    """``train.infer_sequence`` in one of MODES: no history is every frame a cut."""
+    """``training.evaluate.infer_sequence`` in one of MODES: no history is every frame a cut."""
     if mode == MODES[0]:
         return infer_sequence(model, replace(seq, cuts=[True] * len(seq.cuts)))
     keep = filters.disoccluded
@@ -46,10 +46,9 @@ def run(model, seq, mode: str) -> list[np.ndarray]:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = arguments(__doc__, RESULTS / "history_gain")
     ap.add_argument("--data", nargs="+", default=["data/val"])
     ap.add_argument("--checkpoint", default=None)
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "history_gain"))
     args = ap.parse_args()
     model = load_model(args.checkpoint or default_checkpoint())
     model.eval()
@@ -67,13 +66,9 @@ def main() -> int:
             per[mode] = m
         result["sequences"][name] = per
         print(name, "  ".join(f"{mode}: {per[mode]['psnr']:.2f}" for mode in MODES), flush=True)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(result, indent=1))
-
     lines = ["# What the history gives",
              "",
-             f"Command: `python benchmarks/history_gain.py --data {' '.join(args.data)}`  ",
+             f"Command: `{command_line()}`  ",
              "PyTorch, the shipped checkpoint at int8 fake quantization. PSNR (dB) / FLIP per "
              "sequence, mean over its frames; temporal error (Eq. 5) in brackets.",
              "",
@@ -94,7 +89,7 @@ def main() -> int:
         for m in MODES:
             lines.append(f"  - {m}: " + " ".join(f"{v:.1f}" for v in per[m]["psnr_per_frame"]))
     lines.append("")
-    out.with_suffix(".md").write_text("\n".join(lines))
+    write_report(Path(args.out), result, "\n".join(lines))
     print("\n".join(lines[:8 + len(seqs) + 2]))
     return 0
 

@@ -1,7 +1,7 @@
 """Energy the model keeps: mean linear output against the mean reference, per sequence.
 
-    .venv/bin/python benchmarks/brightness.py --checkpoints runs/small/checkpoint.pt \\
-        runs/ft-feature-long/checkpoint.pt [--data data/val]
+    .venv/bin/python experiments/brightness.py --checkpoints runs/small/checkpoint.pt \\
+        runs/ft-feature-long/checkpoint.pt [--data data/val] [--out benchmarks/results/brightness]
 
 PSNR, SSIM and FLIP here compare tonemapped images, where the brightest HDR pixels weigh
 little; this report looks at linear radiance. Per sequence and checkpoint (PyTorch,
@@ -12,18 +12,19 @@ benchmarks/results/brightness.md and .json.
 """
 from __future__ import annotations
 
-import argparse
-import json
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from jnds_deploy.evaluate import method_name
-from jnds_deploy.io import find_sequences
-from jnds_deploy.train import infer_sequence, load_model, load_sequence
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
-ROOT = Path(__file__).resolve().parents[1]
+from benchmarks.common import RESULTS, arguments, command_line, write_report  # noqa: E402
+from jnds_deploy.checkpoint import load_model  # noqa: E402
+from jnds_deploy.io import find_sequences  # noqa: E402
+from jnds_deploy.training.data import load_sequence  # noqa: E402
+from jnds_deploy.training.evaluate import infer_sequence, method_name  # noqa: E402
 
 
 def ratios(outs: np.ndarray, refs: np.ndarray) -> dict[str, float]:
@@ -37,11 +38,10 @@ def ratios(outs: np.ndarray, refs: np.ndarray) -> dict[str, float]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
+    ap = arguments(__doc__, RESULTS / "brightness")
     ap.add_argument("--checkpoints", nargs="+", required=True)
     ap.add_argument("--data", default="data/val")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "brightness"))
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     models = {method_name(c): load_model(c) for c in args.checkpoints}
@@ -54,7 +54,7 @@ def main() -> None:
                                 for name, m in models.items()}
     names = list(models)
     md = ["# Brightness kept (linear radiance)", "",
-          f"Command: `python benchmarks/brightness.py --checkpoints {' '.join(args.checkpoints)} --data {args.data}`",
+          f"Command: `{command_line()}`",
           "", "Mean output / mean reference (luminance = channel mean, all frames), over all pixels, over the "
           "brightest 1 % of reference pixels and over the rest; and the ratio of medians. 1 = energy kept.", "",
           "| sequence | checkpoint | all | brightest 1 % | other 99 % | median |", "| --- | --- | ---: | ---: | ---: | ---: |"]
@@ -62,9 +62,7 @@ def main() -> None:
         for name in names:
             x = per[name]
             md.append(f"| {seq} | {name} | {x['mean']:.3f} | {x['top1']:.3f} | {x['rest']:.3f} | {x['median']:.3f} |")
-    out = Path(args.out)
-    out.with_suffix(".json").write_text(json.dumps(report, indent=1))
-    out.with_suffix(".md").write_text("\n".join(md) + "\n")
+    write_report(Path(args.out), report, "\n".join(md) + "\n")
     print("\n".join(md))
 
 

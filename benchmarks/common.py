@@ -1,0 +1,309 @@
+"""What the benchmark scripts (and the studies in experiments/) share: the machine a
+report was made on, the process tuned as `jnds run` tunes its own, timed repeats and
+their summaries, frames at a benchmark's size, and writing a report.
+
+A script imports it by putting the repository root on ``sys.path`` first (which also
+makes ``jnds_deploy`` importable from a checkout that is not installed)::
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from benchmarks.common import ...  # noqa: E402
+
+Heavy modules (onnxruntime, numba, cv2, the runtime) are imported by the functions that
+need them, so a script that renders or reads checkpoints pays nothing for them.
+"""
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import os
+import platform
+import sys
+import time
+from importlib import metadata
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+
+# --- the machine -------------------------------------------------------------------------
+
+# instruction-set flags of /proc/cpuinfo that the pipeline's speed depends on
+FLAGS = ("avx2", "fma", "f16c", "avx512f", "avx512_vnni", "avx_vnni", "amx_int8")
+VERSIONS = ("onnxruntime", "numpy", "numba")
+# int8 multiply-accumulates per cycle and core, by the widest int8 dot product the CPU
+# has, assuming two vector multiply ports (server cores of the last years): AVX-512 VNNI
+# vpdpbusd does 64 int8 MACs per instruction (16 lanes x 4) and AVX-VNNI 32; plain AVX2
+# needs vpmaddubsw + vpmaddwd for 32 MACs (two multiply uops), so 32 per cycle. fp32 FMA
+# does 16 MACs per 512-bit instruction, 8 per 256-bit one.
+INT8_MACS_PER_CYCLE = {"avx512_vnni": 2 * 64, "avx_vnni": 2 * 32, "avx2": 32}
+
+
+@functools.cache
+def _cpuinfo() -> dict[str, str]:
+    """The first processor's entries of /proc/cpuinfo (empty where there is none)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return {}
+    info: dict[str, str] = {}
+    for line in text.split("\n\n")[0].splitlines():
+        key, sep, value = line.partition(":")
+        if sep:
+            info.setdefault(key.strip(), value.strip())
+    return info
+
+
+def cpu_model() -> str:
+    """The processor's model name (/proc/cpuinfo), else what ``platform`` knows."""
+    return _cpuinfo().get("model name") or platform.processor() or platform.machine()
+
+
+def cpu_flags() -> set[str]:
+    return set(_cpuinfo().get("flags", "").split())
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity; a container may get fewer than
+    ``os.cpu_count``)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+def versions() -> dict[str, str | None]:
+    """Python's version and the installed versions of the packages the timings depend on."""
+    out: dict[str, str | None] = {"python": platform.python_version()}
+    for name in VERSIONS:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def machine_info() -> dict:
+    """The machine a report was made on: ``platform`` and ``cpu_count`` (the keys the
+    reports always had), the CPU model, its usable cores, the instruction-set flags of
+    ``FLAGS`` it has and the versions of ``VERSIONS``."""
+    flags = cpu_flags()
+    return {"platform": platform.platform(), "cpu_count": os.cpu_count(), "processor": cpu_model(),
+            "usable_cores": usable_cores(), "flags": [f for f in FLAGS if f in flags], "versions": versions()}
+
+
+def machine_line() -> str:
+    """The short machine description some reports keep in their ``machine`` key."""
+    return f"{platform.machine()}, {usable_cores()} cores"
+
+
+def cpu_peaks() -> dict:
+    """Peak multiply-accumulates per second of this CPU, from its core count, clock and
+    instruction set (``INT8_MACS_PER_CYCLE``). The clock is the nominal one /proc/cpuinfo
+    reports (no turbo information under KVM), so the peak is an estimate."""
+    cores = os.cpu_count()
+    mhz = _cpuinfo().get("cpu MHz")
+    flags = cpu_flags()
+    ghz = (float(mhz) if mhz else 2000.0) / 1000
+    isa = next((i for i in INT8_MACS_PER_CYCLE if i in flags), "avx2")
+    fp32 = 2 * 16 if "avx512f" in flags else 2 * 8
+    return {"cores": cores, "ghz": ghz, "avx512_vnni": "avx512_vnni" in flags, "amx_int8": "amx_int8" in flags,
+            "int8_isa": isa, "int8_gmacs": cores * ghz * INT8_MACS_PER_CYCLE[isa], "fp32_fma_gmacs": cores * ghz * fp32,
+            "derivation": f"cores x GHz x {INT8_MACS_PER_CYCLE[isa]} int8 MACs per cycle ({isa}) or {fp32} fp32 "
+                          f"MACs per cycle (two {'512' if fp32 == 32 else '256'}-bit FMAs)"}
+
+
+def cpu_times() -> list[int]:
+    """The aggregate CPU line of /proc/stat (user, nice, system, idle, iowait, irq, softirq, steal)."""
+    with open("/proc/stat") as f:
+        return [int(x) for x in f.readline().split()[1:9]]
+
+
+class CpuSteal:
+    """Virtual machines lose CPU to their host ("steal"): timings taken under steal are
+    slower and noisier. ``share()``: the share of CPU time stolen since construction."""
+
+    def __init__(self):
+        self.start = cpu_times()
+
+    def share(self) -> float:
+        d = [b - a for a, b in zip(self.start, cpu_times())]
+        return d[7] / max(1, sum(d))
+
+
+# --- the process, tuned as `jnds run` tunes its own ----------------------------------------
+
+def tune_process() -> None:
+    """Tune this process as `jnds run` and `jnds serve` tune theirs, so that timings
+    compare with the committed reports: numba's threading layer and SLP vectorizer
+    (``jnds_deploy.runtime.tune_numba``) and glibc's malloc keeping freed memory
+    (``PipelineConfig.keep_freed_memory``). Call it first in ``main``, before anything
+    compiles or runs a numba loop."""
+    from jnds_deploy.runtime import tune_numba
+    from jnds_deploy.runtime.pipeline import keep_freed_memory
+
+    tune_numba()
+    keep_freed_memory()
+
+
+def pipeline(artifacts: str | Path, **config):
+    """A ``Pipeline`` over ``artifacts`` configured as `jnds run` configures one
+    (``keep_freed_memory``); ``config``: the other ``PipelineConfig`` fields."""
+    from jnds_deploy.runtime import Pipeline, PipelineConfig
+
+    return Pipeline(PipelineConfig(artifacts=str(artifacts), keep_freed_memory=True, **config))
+
+
+# --- timed repeats -------------------------------------------------------------------------
+
+def timed(fn: Callable, *args, **kwargs) -> tuple[Any, float]:
+    """``fn(*args, **kwargs)`` and the milliseconds it took (wall clock)."""
+    t0 = time.perf_counter()
+    result = fn(*args, **kwargs)
+    return result, 1000 * (time.perf_counter() - t0)
+
+
+def interleaved(calls: dict[str, Callable[[], Any]], runs: int, warmup: int = 1) -> dict[str, list[float]]:
+    """ms of each call over ``runs`` rounds, each round calling every one in turn, after
+    ``warmup`` untimed calls each. Interleaving lets every call see the same machine
+    state: these VMs drift within minutes (see benchmarks/results/timing.md)."""
+    for fn in calls.values():
+        for _ in range(warmup):
+            fn()
+    ms: dict[str, list[float]] = {name: [] for name in calls}
+    for _ in range(runs):
+        for name, fn in calls.items():
+            ms[name].append(timed(fn)[1])
+    return ms
+
+
+def run_frames(runners: dict[str, Callable[[dict, bool], Any]],
+               frames: list[tuple[dict, bool]]) -> dict[str, list[tuple[Any, float]]]:
+    """Every runner on every (layers, camera_cut) frame, interleaved: all run frame t
+    before any runs frame t + 1 (each keeps its own history). Per runner: (result, wall
+    ms) per frame."""
+    out: dict[str, list[tuple[Any, float]]] = {name: [] for name in runners}
+    for layers, cut in frames:
+        for name, run in runners.items():
+            out[name].append(timed(run, layers, cut))
+    return out
+
+
+def spread(values, prefix: str = "", suffix: str = "") -> dict[str, float]:
+    """Median, 10th and 90th percentile: {prefix}median{suffix}, {prefix}p10{suffix},
+    {prefix}p90{suffix} (``spread(ms, suffix="_ms")`` gives median_ms, p10_ms, p90_ms)."""
+    v = np.asarray(values, np.float64)
+    return {f"{prefix}median{suffix}": float(np.median(v)), f"{prefix}p10{suffix}": float(np.percentile(v, 10)),
+            f"{prefix}p90{suffix}": float(np.percentile(v, 90))}
+
+
+def time_sessions(paths: dict[str, Path], feeds: dict, runs: int, threads: int, levels: dict[str, str]) -> dict:
+    """Median and range (ms) of each ONNX graph run on ``feeds`` with ONNX Runtime's
+    optimization ``levels[name]`` ("all" or "extended"), interleaved run by run in one
+    process after a warm-up run each."""
+    import onnxruntime as ort
+
+    opt = {"all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL, "extended": ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED}
+    sessions = {}
+    for name, path in paths.items():
+        o = ort.SessionOptions()
+        o.intra_op_num_threads, o.inter_op_num_threads = threads, 1
+        o.graph_optimization_level = opt[levels[name]]
+        sessions[name] = ort.InferenceSession(str(path), o, providers=["CPUExecutionProvider"])
+    ms = interleaved({name: functools.partial(s.run, None, feeds) for name, s in sessions.items()}, runs)
+    return {name: {"median_ms": float(np.median(v)), "min_ms": float(np.min(v)), "max_ms": float(np.max(v)),
+                   "runs": v} for name, v in ms.items()}
+
+
+# --- frames at a benchmark's size ----------------------------------------------------------
+
+def parse_size(text: str, multiple: int = 1) -> tuple[int, int]:
+    """"1280x720" -> (1280, 720); exits with a message unless both are multiples of
+    ``multiple`` (the network graphs take multiples of the artifacts' ``pad_multiple``)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise SystemExit(f"size {text!r}: expected WxH, e.g. 1280x720") from None
+    if w < 1 or h < 1 or w % multiple or h % multiple:
+        raise SystemExit(f"size {text!r}: width and height must be positive multiples of {multiple}")
+    return w, h
+
+
+def resized_frames(seq, size: tuple[int, int] | None) -> list[tuple[dict, bool]]:
+    """The sequence's (layers, camera_cut) frames, optionally resized to ``size`` (W, H)
+    (motion scaled with the image)."""
+    import cv2
+
+    frames = []
+    for i in range(len(seq)):
+        layers = seq.inputs(i)
+        if size:
+            sx = size[0] / seq.native_size[0]
+            sy = size[1] / seq.native_size[1]
+            out = {}
+            for k, v in layers.items():
+                r = cv2.resize(v, size, interpolation=cv2.INTER_LINEAR).reshape(size[1], size[0], -1)
+                if k == "motion":
+                    r = r * np.array([sx, sy], np.float32)
+                out[k] = np.ascontiguousarray(r, np.float32)
+            layers = out
+        frames.append((layers, seq.frames[i].camera_cut))
+    return frames
+
+
+def network_feeds(seq_path: Path, size: tuple[int, int]) -> dict[str, np.ndarray]:
+    """The network graph's inputs from a real frame resized to ``size`` (history: the
+    current inputs, as on a first frame)."""
+    import cv2
+
+    from jnds_deploy.io import open_sequence
+    from jnds_deploy.layout import CURRENT, N_HISTORY
+
+    layers = open_sequence(seq_path).inputs(0)
+    cur = np.concatenate([cv2.resize(layers[n], size, interpolation=cv2.INTER_LINEAR).reshape(size[1], size[0], -1)
+                          for n, _ in CURRENT], -1).transpose(2, 0, 1)
+    cur = np.ascontiguousarray(cur[None], np.float32)
+    return {"current": cur, "history": np.ascontiguousarray(cur[:, :N_HISTORY])}
+
+
+# --- reports -------------------------------------------------------------------------------
+
+def arguments(doc: str, out: Path | None = None,
+              out_help: str = "the report's path without suffix: .json and .md are written") -> argparse.ArgumentParser:
+    """A script's argument parser: its docstring as the help and, with ``out``, ``--out``
+    (default ``out``, e.g. ``RESULTS / "timing"``); smoke runs point it elsewhere."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    if out is not None:
+        ap.add_argument("--out", default=str(out), help=out_help)
+    return ap
+
+
+def command_line() -> str:
+    """This run's command as the reports quote it: ``python <script, relative to the
+    repository> <arguments>``."""
+    script = Path(sys.argv[0]).resolve()
+    if script.is_relative_to(ROOT):
+        script = script.relative_to(ROOT)
+    return " ".join(["python", str(script), *sys.argv[1:]])
+
+
+def write_text(path: Path, text: str) -> None:
+    """``text`` at ``path``, atomically: a reader, or a run killed while writing, never
+    leaves half a file."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def write_report(out: Path, report: dict, markdown: str | None = None) -> None:
+    """``out``.json (``report``, indent 1) and, if given, ``out``.md, each atomically;
+    creates ``out``'s directory."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_text(out.with_suffix(".json"), json.dumps(report, indent=1))
+    if markdown is not None:
+        write_text(out.with_suffix(".md"), markdown)
