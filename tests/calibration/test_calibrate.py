@@ -142,3 +142,14 @@ def test_bad_calibration_requests(tmp_path):
         CalibrateConfig(artifacts=str(tmp_path), data=())
     with pytest.raises(CalibrationError, match="manifest.json: missing"):
         calibrate(CalibrateConfig(artifacts=str(tmp_path), data=(str(SAMPLE),)))
+
+
+def test_end_to_end_report_scores_int8_against_fp32_and_the_reference(calibrated):
+    from jnds_deploy.calibration.report import end_to_end
+
+    d, _, _ = calibrated
+    report = end_to_end(d, "qat", [SAMPLE], progress=False)
+    m = report["mean"]
+    assert set(report["per_sequence"]) == {SAMPLE.name}
+    assert m["int8_vs_fp32_psnr"] > 25 and abs(m["psnr_loss_db"]) < 1.0
+    assert 0 < m["int8_flip"] < 1 and 0 < m["fp32_flip"] < 1
