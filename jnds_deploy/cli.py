@@ -28,10 +28,11 @@ def cmd_render(args) -> int:
     from .io import validate
     from .render import RenderConfig, render_sequence
 
-    cfg = RenderConfig(scene=args.scene, seed=args.seed, camera=args.camera, frames=args.frames,
+    scene = args.scene or ("procedural" if args.engine == "mitsuba" else "sunroom")
+    cfg = RenderConfig(scene=scene, seed=args.seed, camera=args.camera, frames=args.frames,
                        size=args.size, scale=args.scale, spp=args.spp, spp_input=args.spp_input,
                        max_depth=args.max_depth, reference=not args.no_reference,
-                       variant=args.variant)
+                       variant=args.variant, engine=args.engine)
     t0 = time.perf_counter()
     times = render_sequence(cfg, args.out, progress=not args.quiet)
     report = validate(args.out)
@@ -53,17 +54,25 @@ def cmd_validate(args) -> int:
     return status
 
 
+def cmd_import_cycles(args) -> int:
+    from .cycles import import_cycles
+
+    report = import_cycles(args.raw, args.out, args.reference, progress=not args.quiet)
+    print(report.summary())
+    return 0
+
+
 def cmd_dataset(args) -> int:
     from .render.dataset import dataset_specs, render_dataset
 
     if args.list:
-        for rel, cfg in dataset_specs(args.split, args.train_sequences):
+        for rel, cfg in dataset_specs(args.split, args.train_sequences, args.engine):
             print(rel, json.dumps({"scene": cfg.scene, "seed": cfg.seed, "camera": cfg.camera,
                                    "frames": cfg.frames, "size": cfg.size, "spp": cfg.spp}))
         return 0
     t0 = time.perf_counter()
     done = render_dataset(args.out, args.split, args.limit, variant=args.variant,
-                          train_sequences=args.train_sequences, jobs=args.jobs)
+                          train_sequences=args.train_sequences, jobs=args.jobs, engine=args.engine)
     for path, times in done:
         print(f"{path}: inputs {times['inputs']:.2f} s/frame, reference {times['reference']:.2f} s/frame")
     print(f"{len(done)} sequence(s) rendered in {time.perf_counter() - t0:.0f} s")
@@ -160,15 +169,20 @@ def cmd_serve(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .blender_scene import CYCLES_SCENE_KINDS
     from .render.camera import CAMERA_PATHS
     from .render.dataset import TRAIN_SEQUENCES
     from .render.scene import SCENE_KINDS
+    from .render.sequence import ENGINES
 
     p = argparse.ArgumentParser(prog="jnds", description="Joint neural denoising and supersampling, deployed.")
     sub = p.add_subparsers(dest="command", required=True)
 
-    r = sub.add_parser("render", help="render a camera-animated sequence with Mitsuba 3")
-    r.add_argument("--scene", default="procedural", choices=SCENE_KINDS)
+    r = sub.add_parser("render", help="render an animated sequence with Mitsuba 3 or Blender Cycles")
+    r.add_argument("--engine", default="mitsuba", choices=ENGINES,
+                   help="mitsuba: this package's path tracer; cycles: Blender (its environment, .venv-blender)")
+    r.add_argument("--scene", default=None, choices=SCENE_KINDS + CYCLES_SCENE_KINDS,
+                   help=f"default: procedural (mitsuba), {CYCLES_SCENE_KINDS[0]} (cycles)")
     r.add_argument("--seed", type=int, default=0, help="scene, camera path and noise seed")
     r.add_argument("--camera", default="orbit", choices=CAMERA_PATHS)
     r.add_argument("--frames", type=int, default=8)
@@ -188,6 +202,16 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--strict", action="store_true", help="exit 1 if any channel holds NaN/Inf")
     v.set_defaults(func=cmd_validate)
 
+    im = sub.add_parser("import", help="convert another renderer's frames into jnds-sequence/1")
+    im_sub = im.add_subparsers(dest="source", required=True)
+    ic = im_sub.add_parser("cycles", help="Blender Cycles frames rendered after jnds_deploy.blender.configure")
+    ic.add_argument("raw", help="directory of Blender's <prefix>NNNN.exr multilayer frames (and jnds.json)")
+    ic.add_argument("--out", required=True, help="the sequence directory to write")
+    ic.add_argument("--reference", default=None,
+                    help="directory of the same frames rendered by jnds_deploy.blender.configure_reference")
+    ic.add_argument("--quiet", action="store_true")
+    ic.set_defaults(func=cmd_import_cycles)
+
     d = sub.add_parser("dataset", help="render (or resume) the training and validation sets")
     d.add_argument("--out", default="data")
     d.add_argument("--split", default="all", choices=("train", "val", "all"))
@@ -197,6 +221,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="training sequences (seeds 1000, 1001, ...; the first 24 are the default set)")
     d.add_argument("--jobs", type=int, default=1, help="sequences rendered at once, in separate processes")
     d.add_argument("--variant", default=None, help="Mitsuba variant, e.g. cuda_ad_rgb on a GPU machine")
+    d.add_argument("--engine", default="mitsuba", choices=ENGINES,
+                   help="cycles: the Blender Cycles sets (seeds 5000+ / 6000+, train/cycles-*, val/cycles-*)")
     d.set_defaults(func=cmd_dataset)
 
     t = sub.add_parser("train", help="train the network (fp32, then QAT); resumes from <run>/checkpoint.pt")

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Set up a fresh machine: Debian's libllvm19 (Mitsuba's LLVM backend), then .venv with the
-# package and the extras named in $EXTRAS. Safe to re-run.
+# package and the extras named in $EXTRAS, then .venv-blender with Blender (bpy). Safe to re-run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 EXTRAS="${EXTRAS:-render,dev}"
@@ -29,3 +29,13 @@ fi
 # torch==2.13.0 resolves to the CPU wheel this machine keeps on disk (pip's find-links)
 .venv/bin/pip install -q -e ".[${EXTRAS}]" 2>&1 | grep -v "^WARNING: Location" || true
 .venv/bin/python -c "import jnds_deploy, torch, onnxruntime, OpenEXR, cv2; print('setup: ok, torch', torch.__version__)"
+
+# Blender as a Python module, for `jnds render --engine cycles` and the Blender tests: its
+# own environment, as bpy pins numpy < 2 (BLENDER=0 skips it)
+if [ "${BLENDER:-1}" != 0 ]; then
+  if [ ! -x .venv-blender/bin/python ]; then
+    "${PYTHON:-python3}" -m venv .venv-blender
+  fi
+  .venv-blender/bin/pip install -q bpy==5.0.1 2>&1 | grep -v "^WARNING: Location" || true
+  .venv-blender/bin/python -c "import bpy; print('setup: ok, Blender', bpy.app.version_string)"
+fi

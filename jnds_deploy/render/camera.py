@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError
+from ..sampling import halton, jitter  # noqa: F401 (the renderer's jitter)
 
 CAMERA_PATHS = ("static", "dolly", "orbit", "pan", "cut")
 
@@ -67,22 +68,6 @@ class Camera:
         px = (sx + 1.0) * 0.5 * w
         py = (1.0 - sy) * 0.5 * h
         return np.stack([px, py], axis=1), front
-
-
-def halton(index: int, base: int) -> float:
-    """Radical inverse of ``index`` in ``base`` (index >= 1 avoids the 0 sample)."""
-    f, r = 1.0, 0.0
-    while index > 0:
-        f /= base
-        r += f * (index % base)
-        index //= base
-    return r
-
-
-def jitter(frame: int, period: int = 16) -> tuple[float, float]:
-    """Halton (2, 3) sub-pixel offset in [-0.5, 0.5) for a frame, repeating every ``period``."""
-    k = frame % period + 1
-    return (halton(k, 2) - 0.5, halton(k, 3) - 0.5)
 
 
 def _rotate_y(v: np.ndarray, angle: float) -> np.ndarray:

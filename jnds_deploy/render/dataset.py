@@ -2,44 +2,57 @@
 
 ``jnds dataset --out data`` renders (or resumes) every sequence; re-running it after an
 interruption continues from the last finished frame. Validation seeds never appear in
-training.
+training. ``--engine cycles`` renders the Blender Cycles sets (``blender_scene``: other
+scene kinds, other seeds) into the same train/ and val/ directories, named ``cycles-*``.
 """
 from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
 
+from ..blender_scene import CYCLES_SCENE_KINDS
 from ..errors import ConfigError
 from .camera import CAMERA_PATHS
-from .sequence import RenderConfig
+from .sequence import ENGINES, RenderConfig
 
 SIZE = (192, 108)
 
 
-def _specs(split: str, seeds: range, frames: int, spp: int) -> list[tuple[str, RenderConfig]]:
+def _specs(split: str, seeds: range, frames: int, spp: int, engine: str = "mitsuba") -> list[tuple[str, RenderConfig]]:
     out = []
     for k, seed in enumerate(seeds):
         camera = CAMERA_PATHS[k % len(CAMERA_PATHS)]
-        scene = "diffuse" if k % 8 == 3 else "metal" if k % 8 == 6 else "procedural"
-        cfg = RenderConfig(scene=scene, seed=seed, camera=camera, frames=frames, size=SIZE, spp=spp)
-        out.append((f"{split}/{scene}-{camera}-{seed:04d}", cfg))
+        if engine == "cycles":
+            scene = CYCLES_SCENE_KINDS[(k // len(CAMERA_PATHS) + k) % len(CYCLES_SCENE_KINDS)]
+            name = f"cycles-{scene}"
+        else:
+            scene = "diffuse" if k % 8 == 3 else "metal" if k % 8 == 6 else "procedural"
+            name = scene
+        cfg = RenderConfig(scene=scene, seed=seed, camera=camera, frames=frames, size=SIZE, spp=spp, engine=engine)
+        out.append((f"{split}/{name}-{camera}-{seed:04d}", cfg))
     return out
 
 
 TRAIN_SEQUENCES = 24  # the training set's default size; seeds 1000, 1001, ...
+# first seeds of each engine's training and validation sequences (never overlapping)
+SEEDS = {"mitsuba": (1000, 2000), "cycles": (5000, 6000)}
 
 
-def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES) -> list[tuple[str, RenderConfig]]:
+def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
+                  engine: str = "mitsuba") -> list[tuple[str, RenderConfig]]:
     """(relative directory, config) of every sequence in a split: train, val or all.
 
     ``train_sequences`` grows the training set with further seeds (the first 24 are
-    always the same sequences); validation seeds (2000+) never overlap it.
+    always the same sequences); validation seeds (2000+; Cycles: 6000+) never overlap it.
     """
     if not 1 <= train_sequences <= 1000:
         raise ConfigError(f"train_sequences must be in 1..1000, got {train_sequences}")
+    if engine not in ENGINES:
+        raise ConfigError(f"unknown engine {engine!r}, expected one of {', '.join(ENGINES)}")
+    train0, val0 = SEEDS[engine]
     specs = {
-        "train": _specs("train", range(1000, 1000 + train_sequences), frames=12, spp=64),
-        "val": _specs("val", range(2000, 2006), frames=12, spp=128),
+        "train": _specs("train", range(train0, train0 + train_sequences), frames=12, spp=64, engine=engine),
+        "val": _specs("val", range(val0, val0 + 6), frames=12, spp=128, engine=engine),
     }
     if split == "all":
         return specs["train"] + specs["val"]
@@ -57,13 +70,13 @@ def _render_one(job: tuple[RenderConfig, Path]) -> tuple[Path, dict]:
 
 def render_dataset(out: str | Path, split: str = "all", limit: int | None = None,
                    variant: str | None = None, train_sequences: int = TRAIN_SEQUENCES,
-                   jobs: int = 1) -> list[tuple[Path, dict]]:
+                   jobs: int = 1, engine: str = "mitsuba") -> list[tuple[Path, dict]]:
     """Render every missing sequence of a split; ``jobs`` > 1 renders that many sequences
     at once in separate processes (Mitsuba's Python-side tracing is single-threaded, so
     many cores or a GPU are only kept busy by several sequences at a time)."""
     todo = []
-    for rel, cfg in dataset_specs(split, train_sequences)[:limit]:
-        if variant:
+    for rel, cfg in dataset_specs(split, train_sequences, engine)[:limit]:
+        if variant and engine == "mitsuba":
             cfg = replace(cfg, variant=variant)
         path = Path(out) / rel
         if not (path / "sequence.json").exists():

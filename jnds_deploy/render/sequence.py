@@ -32,6 +32,7 @@ from ..io import (
     SequenceWriter,
     read_layers,
 )
+from ..blender_scene import CYCLES_SCENE_KINDS
 from .camera import CAMERA_PATHS, Camera, camera_path, jitter
 from .scene import EXTENT, SCENE_KINDS, build_scene
 
@@ -39,9 +40,12 @@ ALBEDO_EPS = 1e-3  # below this albedo, demodulated diffuse is written as 0 (for
 MAX_LANES = 1 << 21  # paths traced per Mitsuba call: bounds memory, amortizes tracing
 
 
+ENGINES = ("mitsuba", "cycles")
+
+
 @dataclass(frozen=True)
 class RenderConfig:
-    scene: str = "procedural"  # one of SCENE_KINDS
+    scene: str = "procedural"  # one of SCENE_KINDS (mitsuba) or CYCLES_SCENE_KINDS (cycles)
     seed: int = 0
     camera: str = "orbit"  # one of CAMERA_PATHS
     frames: int = 8
@@ -52,10 +56,14 @@ class RenderConfig:
     max_depth: int = 5  # path vertices, the first included
     reference: bool = True
     variant: str | None = None  # Mitsuba variant; None picks llvm_ad_rgb or scalar_rgb
+    engine: str = "mitsuba"  # mitsuba (this package's path tracer) | cycles (Blender, render.cycles)
 
     def __post_init__(self):
-        if self.scene not in SCENE_KINDS:
-            raise RenderError(f"--scene {self.scene!r}: expected one of {', '.join(SCENE_KINDS)}")
+        if self.engine not in ENGINES:
+            raise RenderError(f"--engine {self.engine!r}: expected one of {', '.join(ENGINES)}")
+        kinds = CYCLES_SCENE_KINDS if self.engine == "cycles" else SCENE_KINDS
+        if self.scene not in kinds:
+            raise RenderError(f"--scene {self.scene!r} (engine {self.engine}): expected one of {', '.join(kinds)}")
         if self.camera not in CAMERA_PATHS:
             raise RenderError(f"--camera {self.camera!r}: expected one of {', '.join(CAMERA_PATHS)}")
         if self.frames < 1:
@@ -165,6 +173,10 @@ def render_sequence(cfg: RenderConfig, out: str | Path, progress: bool = True) -
 
     Returns timing statistics: seconds per frame for inputs (+ motion) and reference.
     """
+    if cfg.engine == "cycles":
+        from .cycles import render_sequence as render_cycles
+
+        return render_cycles(cfg, out, progress)
     from .integrator import SplitPathTracer, load_mitsuba
 
     out = Path(out)

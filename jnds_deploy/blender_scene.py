@@ -1,0 +1,357 @@
+"""Procedural Cycles scenes for training and test data, built with ``bpy`` (Blender side:
+bpy and the standard library only), and the driver that renders one sequence.
+
+Deliberately unlike the Mitsuba scenes (``render.scene``): rooms lit by a sun and sky
+through a window, dark rooms lit by small emissive objects, collections of metals and
+glossy dielectrics, walls and floors with brick, checker, noise and voronoi textures,
+thin geometry, and objects that move on their own (not only the camera). Deterministic
+per seed: one ``random.Random(seed)``, emitters are icospheres (Cycles' light sampling
+varied from run to run with UV spheres), path guiding off, a fixed noise seed.
+
+Run by ``jnds render --engine cycles`` (``render.cycles``) in Blender's environment::
+
+    python -m jnds_deploy.blender_scene CONFIG_JSON RAW_DIR [REF_DIR]
+
+It renders frame by frame into RAW_DIR (inputs, ``blender.configure``) and REF_DIR (the
+reference, ``blender.configure_reference``), skipping frames already there (each file is
+written under a temporary name and renamed), and prints one ``jnds-frame`` line per frame.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import sys
+import time
+
+CYCLES_SCENE_KINDS = ("sunroom", "darkroom", "metals", "textures")
+TEXTURES = ("brick", "checker", "noise", "voronoi")
+
+
+def _material(name, rng, *, metal=False, rough=None, color=None, texture=None, emission=0.0, glass=False):
+    import bpy
+
+    m = bpy.data.materials.new(name)
+    m.use_nodes = True
+    nodes, links = m.node_tree.nodes, m.node_tree.links
+    bsdf = nodes["Principled BSDF"]
+    base = color or [rng.uniform(0.05, 0.9) for _ in range(3)]
+    bsdf.inputs["Base Color"].default_value = (*base, 1.0)
+    bsdf.inputs["Roughness"].default_value = rng.uniform(0.02, 0.9) if rough is None else rough
+    bsdf.inputs["Metallic"].default_value = 1.0 if metal else 0.0
+    if glass:
+        bsdf.inputs["Transmission Weight"].default_value = 1.0
+    if texture:
+        tex = _texture(nodes, texture, rng)
+        ramp = nodes.new("ShaderNodeMix")
+        ramp.data_type = "RGBA"
+        ramp.inputs[6].default_value = (*[rng.uniform(0.05, 0.9) for _ in range(3)], 1.0)
+        ramp.inputs[7].default_value = (*base, 1.0)
+        links.new(tex.outputs["Fac"] if "Fac" in tex.outputs else tex.outputs[0], ramp.inputs[0])
+        links.new(ramp.outputs[2], bsdf.inputs["Base Color"])
+        if rng.random() < 0.5:  # roughness varying with the texture too
+            rmap = nodes.new("ShaderNodeMapRange")
+            rmap.inputs["To Min"].default_value = rng.uniform(0.05, 0.4)
+            rmap.inputs["To Max"].default_value = rng.uniform(0.5, 1.0)
+            links.new(tex.outputs["Fac"] if "Fac" in tex.outputs else tex.outputs[0], rmap.inputs["Value"])
+            links.new(rmap.outputs["Result"], bsdf.inputs["Roughness"])
+    if emission:
+        bsdf.inputs["Emission Color"].default_value = (*[rng.uniform(0.6, 1.0) for _ in range(3)], 1.0)
+        bsdf.inputs["Emission Strength"].default_value = emission
+    return m
+
+
+def _texture(nodes, kind, rng):
+    scale = rng.uniform(4.0, 30.0)
+    if kind == "brick":
+        t = nodes.new("ShaderNodeTexBrick")
+        t.inputs["Scale"].default_value = scale / 4
+        t.inputs["Mortar Size"].default_value = rng.uniform(0.005, 0.03)
+    elif kind == "checker":
+        t = nodes.new("ShaderNodeTexChecker")
+        t.inputs["Scale"].default_value = scale
+    elif kind == "noise":
+        t = nodes.new("ShaderNodeTexNoise")
+        t.inputs["Scale"].default_value = scale
+        t.inputs["Detail"].default_value = rng.uniform(2, 12)
+    else:
+        t = nodes.new("ShaderNodeTexVoronoi")
+        t.inputs["Scale"].default_value = scale
+        return t  # outputs Distance first
+    return t
+
+
+def _box(name, size, location, material, rotation=(0, 0, 0)):
+    import bpy
+
+    bpy.ops.mesh.primitive_cube_add(size=1, location=location, rotation=rotation)
+    obj = bpy.context.object
+    obj.name = name
+    obj.scale = size
+    obj.data.materials.append(material)
+    return obj
+
+
+def _emitter(name, radius, location, material):
+    """An icosphere emitter: Cycles' light sampling is deterministic with these."""
+    import bpy
+
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2, radius=radius, location=location)
+    obj = bpy.context.object
+    obj.name = name
+    obj.data.materials.append(material)
+    return obj
+
+
+def _objects(rng, n, extent, metal_share, textured_share, frames):
+    """Props on the floor, some of them moving (location and rotation keyed linearly)."""
+    import bpy
+
+    moving = []
+    for i in range(n):
+        kind = rng.choice(("cube", "sphere", "cylinder", "torus", "cone", "thin"))
+        loc = (rng.uniform(-extent, extent), rng.uniform(-extent, extent), 0.0)
+        s = rng.uniform(0.3, 1.1)
+        if kind == "cube":
+            bpy.ops.mesh.primitive_cube_add(size=s, location=(loc[0], loc[1], s / 2))
+        elif kind == "sphere":
+            bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4, radius=s / 2, location=(loc[0], loc[1], s / 2))
+            bpy.ops.object.shade_smooth()
+        elif kind == "cylinder":
+            bpy.ops.mesh.primitive_cylinder_add(radius=s / 3, depth=s * 1.5, location=(loc[0], loc[1], s * 0.75))
+        elif kind == "torus":
+            bpy.ops.mesh.primitive_torus_add(major_radius=s / 2, minor_radius=s / 8, location=(loc[0], loc[1], s / 2),
+                                             rotation=(rng.uniform(0, 3), 0, 0))
+            bpy.ops.object.shade_smooth()
+        elif kind == "cone":
+            bpy.ops.mesh.primitive_cone_add(radius1=s / 2, depth=s, location=(loc[0], loc[1], s / 2))
+        else:  # thin geometry: a pole or a wire frame a pixel or two wide
+            bpy.ops.mesh.primitive_cylinder_add(radius=rng.uniform(0.01, 0.03), depth=rng.uniform(1.0, 3.0),
+                                                location=(loc[0], loc[1], 1.0),
+                                                rotation=(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), 0))
+        obj = bpy.context.object
+        r = rng.random()
+        mat = _material(f"m{i}", rng, metal=r < metal_share,
+                        texture=rng.choice(TEXTURES) if rng.random() < textured_share else None,
+                        glass=metal_share <= r < metal_share + 0.1)
+        obj.data.materials.append(mat)
+        if rng.random() < 0.4:  # moves on its own
+            d = (rng.uniform(-1.5, 1.5), rng.uniform(-1.5, 1.5))
+            spin = rng.uniform(-1.5, 1.5)
+            for f, t in ((0, 0.0), (frames + 1, 1.0)):
+                obj.location = (obj.location[0] + d[0] * t, obj.location[1] + d[1] * t, obj.location[2])
+                obj.rotation_euler[2] = spin * t
+                obj.keyframe_insert("location", frame=f)
+                obj.keyframe_insert("rotation_euler", frame=f)
+                obj.location = (obj.location[0] - d[0] * t, obj.location[1] - d[1] * t, obj.location[2])
+            moving.append(obj)
+    return moving
+
+
+def _room(rng, half, height, window: bool, texture_walls: bool):
+    walls = _material("walls", rng, rough=rng.uniform(0.5, 1.0),
+                      texture=rng.choice(TEXTURES) if texture_walls else None)
+    floor = _material("floor", rng, rough=rng.uniform(0.2, 0.9), texture=rng.choice(TEXTURES))
+    t = 0.1
+    _box("floor", (2 * half, 2 * half, t), (0, 0, -t / 2), floor)
+    _box("ceiling", (2 * half, 2 * half, t), (0, 0, height + t / 2), walls)
+    _box("wall_w", (t, 2 * half, height), (-half, 0, height / 2), walls)
+    _box("wall_e", (t, 2 * half, height), (half, 0, height / 2), walls)
+    _box("wall_s", (2 * half, t, height), (0, -half - 1.0, height / 2), walls)
+    if not window:
+        _box("wall_n", (2 * half, t, height), (0, half, height / 2), walls)
+        return
+    # the north wall with a window: four boxes around the opening
+    w0, w1, z0, z1 = -half * 0.5, half * 0.4, height * 0.3, height * 0.85
+    _box("wall_n_l", (w0 + half, t, height), ((-half + w0) / 2, half, height / 2), walls)
+    _box("wall_n_r", (half - w1, t, height), ((w1 + half) / 2, half, height / 2), walls)
+    _box("wall_n_b", (w1 - w0, t, z0), ((w0 + w1) / 2, half, z0 / 2), walls)
+    _box("wall_n_t", (w1 - w0, t, height - z1), ((w0 + w1) / 2, half, (z1 + height) / 2), walls)
+    # thin geometry: window bars
+    bar = _material("bars", rng, metal=True, rough=0.3)
+    for k in range(1, 4):
+        x = w0 + (w1 - w0) * k / 4
+        _box(f"bar{k}", (0.03, 0.03, z1 - z0), (x, half, (z0 + z1) / 2), bar)
+
+
+def _world(scene, rng, kind):
+    import bpy
+
+    world = bpy.data.worlds.new("world")
+    scene.world = world
+    world.use_nodes = True
+    bg = world.node_tree.nodes["Background"]
+    if kind == "sky":
+        sky = world.node_tree.nodes.new("ShaderNodeTexSky")
+        sky.sky_type = "PREETHAM"
+        sky.sun_direction = (rng.uniform(-0.3, 0.3), 0.8, rng.uniform(0.3, 0.7))
+        world.node_tree.links.new(sky.outputs["Color"], bg.inputs["Color"])
+        bg.inputs["Strength"].default_value = rng.uniform(0.3, 1.0)
+    elif kind == "dark":
+        bg.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
+        bg.inputs["Strength"].default_value = 0.0
+    else:
+        bg.inputs["Color"].default_value = (*[rng.uniform(0.3, 0.8) for _ in range(3)], 1.0)
+        bg.inputs["Strength"].default_value = rng.uniform(0.5, 1.5)
+    world.cycles.sampling_method = "MANUAL"  # the automatic importance map costs seconds a render
+    world.cycles.sample_map_resolution = 512
+
+
+def _camera(scene, rng, path, frames, target, radius, height):
+    """Keyed camera: static, dolly, orbit, pan or cut; returns the frames that are cuts."""
+    import bpy
+
+    bpy.ops.object.camera_add()
+    cam = bpy.context.object
+    scene.camera = cam
+    cam.data.lens = rng.uniform(24, 40)
+    track = cam.constraints.new("TRACK_TO")
+    empty = bpy.data.objects.new("target", None)
+    scene.collection.objects.link(empty)
+    empty.location = target
+    track.target = empty
+    a0 = rng.uniform(0, 2 * math.pi)
+    cuts = []
+    for f in range(0, frames + 2):
+        t = f / max(frames, 1)
+        a, r, aim = a0, radius, list(target)
+        if path == "orbit":
+            a = a0 + 0.5 * t
+        elif path == "dolly":
+            r = radius * (1.0 - 0.35 * t)
+        elif path == "pan":
+            aim = [target[0] + 2.0 * math.cos(a0 + math.pi / 2) * (t - 0.5),
+                   target[1] + 2.0 * math.sin(a0 + math.pi / 2) * (t - 0.5), target[2]]
+        elif path == "cut" and f > frames // 2:
+            a = a0 + 2.2
+        cam.location = (target[0] + r * math.cos(a), target[1] + r * math.sin(a), height)
+        empty.location = aim
+        cam.keyframe_insert("location", frame=f)
+        empty.keyframe_insert("location", frame=f)
+    if path == "cut":
+        cuts.append(frames // 2 + 1)  # scene frame numbers start at 1
+    return cuts
+
+
+def build(cfg: dict):
+    """A new scene for ``cfg`` (kind, seed, camera, frames, size); returns (scene, cuts)."""
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    rng = random.Random(cfg["seed"])
+    kind, frames = cfg["scene"], cfg["frames"]
+    w, h = cfg["size"]
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = w, h, 100
+    scene.frame_start, scene.frame_end = 1, frames
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.seed = cfg["seed"]
+    scene.cycles.blur_glossy = 0.0  # no "filter glossy": references stay sharp
+    scene.cycles.sample_clamp_indirect = 0.0
+    scene.cycles.max_bounces = 6
+    if kind == "sunroom":
+        _world(scene, rng, "sky")
+        _room(rng, 5.0, 3.2, window=True, texture_walls=rng.random() < 0.5)
+        bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(35, 60)), 0,
+                                                       math.radians(rng.uniform(160, 200))))
+        bpy.context.object.data.energy = rng.uniform(3.0, 8.0)
+        bpy.context.object.data.angle = math.radians(rng.uniform(0.5, 3))
+        moving = _objects(rng, rng.randint(4, 8), 3.5, 0.25, 0.4, frames)
+        target, radius, height = (0, 0, 0.8), rng.uniform(3.5, 4.5), rng.uniform(1.2, 2.4)
+    elif kind == "darkroom":
+        _world(scene, rng, "dark")
+        _room(rng, 5.0, 3.0, window=False, texture_walls=rng.random() < 0.5)
+        for i in range(rng.randint(2, 5)):
+            em = _material(f"em{i}", rng, emission=rng.uniform(10.0, 50.0), rough=0.5)
+            _emitter(f"lamp{i}", rng.uniform(0.05, 0.15),
+                     (rng.uniform(-3.5, 3.5), rng.uniform(-3.5, 3.5), rng.uniform(0.1, 2.5)), em)
+        moving = _objects(rng, rng.randint(4, 8), 3.5, 0.3, 0.4, frames)
+        target, radius, height = (0, 0, 0.8), rng.uniform(3.5, 4.5), rng.uniform(1.0, 2.2)
+    elif kind == "metals":
+        _world(scene, rng, "color")
+        floor = _material("floor", rng, rough=rng.uniform(0.05, 0.6), texture=rng.choice(TEXTURES))
+        _box("floor", (40, 40, 0.1), (0, 0, -0.05), floor)
+        for i in range(2):
+            em = _material(f"em{i}", rng, emission=rng.uniform(5.0, 20.0), rough=0.5)
+            _emitter(f"lamp{i}", rng.uniform(0.3, 0.8), (rng.uniform(-6, 6), rng.uniform(-6, 6), rng.uniform(3, 6)), em)
+        moving = _objects(rng, rng.randint(6, 10), 3.0, 0.6, 0.2, frames)
+        target, radius, height = (0, 0, 0.5), rng.uniform(5.0, 7.0), rng.uniform(1.5, 3.5)
+    elif kind == "textures":
+        _world(scene, rng, "sky")
+        _room(rng, 6.0, 3.5, window=True, texture_walls=True)
+        bpy.ops.object.light_add(type="AREA", location=(0, 0, 3.3))
+        bpy.context.object.data.energy = rng.uniform(200, 600)
+        bpy.context.object.data.size = rng.uniform(1.0, 2.5)
+        moving = _objects(rng, rng.randint(5, 9), 4.0, 0.2, 0.9, frames)
+        target, radius, height = (0, 0, 0.8), rng.uniform(3.5, 5.0), rng.uniform(1.2, 2.6)
+    else:
+        raise ValueError(f"unknown Cycles scene {kind!r}, expected one of {', '.join(CYCLES_SCENE_KINDS)}")
+    for obj in moving:
+        for fc in _all_fcurves(obj):
+            for k in fc.keyframe_points:
+                k.interpolation = "LINEAR"
+    cuts = _camera(scene, rng, cfg["camera"], frames, target, radius, height)
+    return scene, cuts
+
+
+def _all_fcurves(obj):
+    from .blender import _fcurves
+
+    if not (obj.animation_data and obj.animation_data.action):
+        return []
+    return _fcurves(obj.animation_data.action)
+
+
+def _render_frames(scene, folder: str, frames, label: str) -> None:
+    """Render each frame not yet in ``folder`` (written under a temporary name, renamed)."""
+    import bpy
+
+    os.makedirs(folder, exist_ok=True)
+    for f in frames:
+        final = os.path.join(folder, f"{f:04d}.exr")
+        if os.path.exists(final):
+            print(f"jnds-frame {label} {f} skipped", flush=True)
+            continue
+        scene.frame_set(f)
+        scene.render.filepath = os.path.join(folder, f".tmp{f:04d}")
+        t0 = time.perf_counter()
+        bpy.ops.render.render(write_still=True)
+        written = bpy.path.abspath(scene.render.frame_path(frame=f))
+        if not os.path.exists(written):
+            written = scene.render.filepath + ".exr"
+        os.replace(written, final)
+        print(f"jnds-frame {label} {f} {time.perf_counter() - t0:.3f}", flush=True)
+
+
+def render_sequence(cfg: dict, raw: str, ref: str | None) -> None:
+    from . import blender as jb
+
+    scene, cuts = build(cfg)
+    frames = range(scene.frame_start, scene.frame_end + 1)
+    changes = jb.configure(scene, output=os.path.join(raw, ""), log=lambda m: None)
+    _add_cuts(raw, cuts)
+    _render_frames(scene, raw, frames, "inputs")
+    if ref:
+        jb.restore(scene, changes, log=lambda m: None)
+        scene.cycles.seed = cfg["seed"] + 7919  # reference noise independent of the inputs'
+        jb.configure_reference(scene, output=os.path.join(ref, ""), spp=cfg["spp"], scale=cfg["scale"],
+                               log=lambda m: None)
+        _render_frames(scene, ref, frames, "reference")
+
+
+def _add_cuts(raw: str, cuts: list[int]) -> None:
+    from .blender import SIDECAR
+
+    path = os.path.join(raw, SIDECAR)
+    with open(path) as fh:
+        data = json.load(fh)
+    data["cuts"] = cuts
+    with open(path, "w") as fh:
+        json.dump(data, fh, indent=1)
+
+
+if __name__ == "__main__":
+    cfg_json, raw_dir = sys.argv[1], sys.argv[2]
+    render_sequence(json.loads(cfg_json), raw_dir, sys.argv[3] if len(sys.argv) > 3 else None)

@@ -1,0 +1,189 @@
+"""``jnds import cycles``: Blender Cycles renders into ``jnds-sequence/1``.
+
+Reads the multilayer EXRs Blender writes (``<prefix>NNNN.exr``, any frame range; Blender 5
+writes one EXR part per pass) after ``jnds_deploy.blender.configure``, and maps Cycles'
+passes onto the paper's split:
+
+- albedo = Diffuse Color (Cycles' diffuse light passes are already divided by it);
+- diffuse = Diffuse Direct + Diffuse Indirect;
+- specular = Glossy Color (Glossy Direct + Indirect) + Transmission Color (Direct +
+  Indirect) + Volume Direct + Volume Indirect + Emission + Environment, so that
+  albedo * diffuse + specular = Combined;
+- normal = Normal (world space; Blender's world is Z-up, kept as is);
+- roughness = the ``Roughness`` AOV squared (Blender's perceptual roughness to the
+  microfacet alpha, the format's convention); depth = Depth, 0 on the background;
+- motion = (Vector.X, -Vector.Y): Vector.xy is the previous-frame position minus the
+  current in Blender's y-up raster. Cycles computes it without the keyed lens shift: the
+  Vector pass of a jittered render equals an unjittered render's to a few thousandths of
+  a pixel (``tests/test_cycles.py``), i.e. it describes the pixel centre's point, as the
+  format wants; 0 on the background.
+
+A reference (``--reference``: the same frames rendered by ``blender.configure_reference``)
+gives ``color`` = Combined and the converged components by the same mapping.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from .errors import SequenceError
+from .io import FrameInfo, SequenceWriter, validate
+
+# the blender module's PASSES, restated: this side must not import bpy-side code paths
+SETTINGS = {  # pass -> the Blender setting that enables it
+    "Combined": "View Layer Properties > Passes > Data > Combined",
+    "Diffuse Direct": "Passes > Light > Diffuse > Direct",
+    "Diffuse Indirect": "Passes > Light > Diffuse > Indirect",
+    "Diffuse Color": "Passes > Light > Diffuse > Color",
+    "Glossy Direct": "Passes > Light > Glossy > Direct",
+    "Glossy Indirect": "Passes > Light > Glossy > Indirect",
+    "Glossy Color": "Passes > Light > Glossy > Color",
+    "Transmission Direct": "Passes > Light > Transmission > Direct",
+    "Transmission Indirect": "Passes > Light > Transmission > Indirect",
+    "Transmission Color": "Passes > Light > Transmission > Color",
+    "Volume Direct": "Passes > Light > Volume > Direct",
+    "Volume Indirect": "Passes > Light > Volume > Indirect",
+    "Emission": "Passes > Light > Other > Emission",
+    "Environment": "Passes > Light > Other > Environment",
+    "Normal": "Passes > Data > Normal",
+    "Vector": "Passes > Data > Vector (with Render Properties > Motion Blur off)",
+    "Depth": "Passes > Data > Z",
+    "Roughness": "Passes > Shader AOV: a Value AOV named 'Roughness' and an AOV Output node in each material",
+}
+REFERENCE_PASSES = ("Combined", "Diffuse Direct", "Diffuse Indirect", "Diffuse Color", "Glossy Direct",
+                    "Glossy Indirect", "Glossy Color", "Transmission Direct", "Transmission Indirect",
+                    "Transmission Color", "Volume Direct", "Volume Indirect", "Emission", "Environment")
+SIDECAR = "jnds.json"  # blender.SIDECAR
+_FRAME = re.compile(r"^(.*?)(\d+)\.exr$")
+
+
+def read_passes(path: Path) -> dict[str, np.ndarray]:
+    """Every pass of a Blender multilayer EXR as (H, W, C) float32, channels in the order
+    R, G, B (X, Y, Z, W; A dropped); pass names without the view layer."""
+    import OpenEXR
+
+    try:
+        exr = OpenEXR.File(str(path), separate_channels=True)
+        parts = [p.channels for p in exr.parts]
+    except Exception as exc:  # OpenEXR raises RuntimeError for truncated/corrupt files
+        raise SequenceError(path, f"unreadable OpenEXR file ({exc})") from exc
+    grouped: dict[str, dict[str, np.ndarray]] = {}
+    for channels in parts:
+        for name, ch in channels.items():
+            layer, _, comp = name.rpartition(".")
+            grouped.setdefault(layer.split(".", 1)[-1] if "." in layer else layer, {})[comp] = ch.pixels
+    order = "RGBXYZW"
+    out = {}
+    for name, comps in grouped.items():
+        keys = sorted((k for k in comps if k in order), key=order.index)
+        if keys:
+            out[name] = np.stack([comps[k].astype(np.float32) for k in keys], -1)
+    return out
+
+
+def _require(passes: dict, names, path: Path) -> None:
+    missing = [n for n in names if n not in passes]
+    if missing:
+        raise SequenceError(path, "missing Cycles pass(es): " + "; ".join(f"{n} ({SETTINGS[n]})" for n in missing)
+                            + ". `jnds_deploy.blender.configure(scene)` enables them all")
+
+
+def components(passes: dict) -> dict[str, np.ndarray]:
+    """albedo, diffuse (demodulated), specular of a frame's passes (the paper's split)."""
+    def rgb(n):
+        return passes[n][..., :3]
+
+    specular = (rgb("Glossy Color") * (rgb("Glossy Direct") + rgb("Glossy Indirect"))
+                + rgb("Transmission Color") * (rgb("Transmission Direct") + rgb("Transmission Indirect"))
+                + rgb("Volume Direct") + rgb("Volume Indirect") + rgb("Emission") + rgb("Environment"))
+    return {"albedo": np.clip(rgb("Diffuse Color"), 0.0, 1.0),
+            "diffuse": rgb("Diffuse Direct") + rgb("Diffuse Indirect"),
+            "specular": specular}
+
+
+def input_layers(passes: dict, path: Path) -> dict[str, np.ndarray]:
+    """The format's input layers (HWC float32) from one frame's passes."""
+    _require(passes, [n for n in SETTINGS if n != "Combined"], path)
+    layers = components(passes)
+    vec = passes["Vector"]
+    motion = np.stack([vec[..., 0], -vec[..., 1]], -1)  # y up -> y down
+    normal = passes["Normal"][..., :3]
+    background = ~np.any(normal != 0, axis=-1, keepdims=True)
+    motion = np.where(background, 0.0, motion).astype(np.float32)  # no surface, no motion: as Blender's
+    depth = np.where(background[..., 0], 0.0, passes["Depth"][..., 0])[..., None]
+    roughness = np.clip(passes["Roughness"][..., :1], 0.0, 1.0) ** 2
+    roughness = np.where(background, 1.0, roughness)
+    return {**layers, "normal": normal, "roughness": roughness.astype(np.float32), "motion": motion,
+            "depth": depth.astype(np.float32)}
+
+
+def reference_layers(passes: dict, path: Path) -> dict[str, np.ndarray]:
+    _require(passes, REFERENCE_PASSES, path)
+    return {"color": passes["Combined"][..., :3], **components(passes)}
+
+
+def find_frames(raw: Path) -> dict[int, Path]:
+    """{frame number: file} of Blender's ``<prefix>NNNN.exr`` in ``raw`` (one prefix)."""
+    if not raw.is_dir():
+        raise SequenceError(raw, "no such directory of Blender frames")
+    found: dict[str, dict[int, Path]] = {}
+    for p in raw.iterdir():
+        if not p.name.startswith(".") and (m := _FRAME.match(p.name)):
+            found.setdefault(m.group(1), {})[int(m.group(2))] = p
+    if not found:
+        raise SequenceError(raw, "no <prefix>NNNN.exr frames")
+    if len(found) > 1:
+        raise SequenceError(raw, f"frames with several prefixes ({', '.join(repr(k) for k in found)}); one per directory")
+    frames = next(iter(found.values()))
+    numbers = sorted(frames)
+    gaps = sorted(set(range(numbers[0], numbers[-1] + 1)) - set(numbers))
+    if gaps:
+        raise SequenceError(raw, f"frames missing in {numbers[0]}..{numbers[-1]}: {gaps[:10]}")
+    return {n: frames[n] for n in numbers}
+
+
+def _sidecar(raw: Path, numbers: list[int]) -> tuple[dict[int, tuple[float, float]], set[int]]:
+    """Per frame the jitter ``blender.configure`` keyed (0 without its ``jnds.json``), and
+    the frames that are camera cuts (``blender_scene`` records them)."""
+    side = raw / SIDECAR
+    data = json.loads(side.read_text()) if side.is_file() else {}
+    jit = {int(k): tuple(v) for k, v in data.get("jitter", {}).items()}
+    return {n: jit.get(n, (0.0, 0.0)) for n in numbers}, set(data.get("cuts", []))
+
+
+def import_cycles(raw: str | Path, out: str | Path, reference: str | Path | None = None, progress: bool = True):
+    """Write the jnds-sequence/1 of Blender frames ``raw`` (and reference ``reference``) to
+    ``out``; returns ``io.validate``'s report."""
+    from tqdm import tqdm
+
+    raw, out = Path(raw), Path(out)
+    frames = find_frames(raw)
+    numbers = list(frames)
+    refs = find_frames(Path(reference)) if reference else None
+    if refs is not None and list(refs) != numbers:
+        raise SequenceError(Path(reference), f"reference frames {list(refs)[0]}..{list(refs)[-1]} do not match "
+                                             f"the inputs' {numbers[0]}..{numbers[-1]}")
+    jitters, cuts = _sidecar(raw, numbers)
+    first = read_passes(frames[numbers[0]])
+    h, w = first["Combined"].shape[:2] if "Combined" in first else next(iter(first.values())).shape[:2]
+    target = None
+    if refs is not None:
+        rh, rw = read_passes(refs[numbers[0]])["Combined"].shape[:2]
+        target = (rw, rh)
+    writer = SequenceWriter(out, (w, h), target)
+    infos = []
+    for i, n in enumerate(tqdm(numbers, desc=f"import {raw.name}", unit="frame", disable=not progress)):
+        passes = first if i == 0 else read_passes(frames[n])
+        layers = input_layers(passes, frames[n])
+        cut = n in cuts
+        if i == 0 or cut:  # Vector points at a frame that is not in the sequence (or another shot)
+            layers["motion"][:] = 0.0
+        writer.write_inputs(i, layers)
+        if refs is not None:
+            writer.write_reference(i, reference_layers(read_passes(refs[n]), refs[n]))
+        infos.append(FrameInfo(i, jitters[n], cut))
+    writer.close(infos)
+    return validate(out)

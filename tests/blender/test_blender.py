@@ -1,0 +1,115 @@
+"""Blender in: a real Blender (bpy in its own environment) sets up and renders a scene, and
+``jnds import cycles`` turns it into a sequence the pipeline runs. Skipped only where the
+Blender environment is absent (``scripts/setup.sh`` makes it; CI has it)."""
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jnds_deploy.cli import main
+from jnds_deploy.cycles import components, import_cycles, read_passes
+from jnds_deploy.errors import RenderError, SequenceError
+from jnds_deploy.io import open_sequence, validate
+from jnds_deploy.runtime import filters as N
+from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
+
+from ..conftest import ROOT
+
+SCENE = Path(__file__).with_name("tiny_scene.py")
+
+
+def _blender_python():
+    from jnds_deploy.render.cycles import blender_python
+
+    try:
+        return blender_python()
+    except RenderError as exc:
+        pytest.skip(str(exc))
+
+
+def _render(out: Path, mode: str) -> Path:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([str(_blender_python()), str(SCENE), str(out), mode], env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    return out
+
+
+@pytest.fixture(scope="module")
+def renders(tmp_path_factory):
+    """The tiny scene rendered as JNDS inputs (jittered), without jitter, and as reference."""
+    root = tmp_path_factory.mktemp("blender")
+    return {mode: _render(root / mode, mode) for mode in ("inputs", "nojitter", "reference")}
+
+
+def test_configured_render_imports_validates_and_runs(renders, tmp_path, tiny_artifacts, capsys):
+    assert main(["import", "cycles", str(renders["inputs"]), "--out", str(tmp_path / "seq"),
+                 "--reference", str(renders["reference"]), "--quiet"]) == 0
+    report = validate(tmp_path / "seq")
+    assert report.clean
+    seq = open_sequence(tmp_path / "seq")
+    assert len(seq) == 4 and seq.native_size == (64, 40) and seq.target_size == (128, 80)
+    assert [f.jitter for f in seq.frames] != [(0.0, 0.0)] * 4  # the keyed Halton jitter
+    roughness = seq.inputs(1)["roughness"]
+    assert roughness.min() >= 0 and np.isclose(roughness.max(), 1.0)  # the background
+    assert np.isclose(np.median(roughness[roughness < 1]), 0.6 ** 2, atol=1e-3)  # floor: alpha = r^2
+    pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0])))
+    for i in range(len(seq)):
+        out = pipe(seq.inputs(i), seq.frames[i].camera_cut).output
+        assert out.shape == (80, 128, 3) and np.isfinite(out).all() and out.min() >= 0
+
+
+def test_composite_reproduces_combined(renders):
+    for n in (1, 2, 3, 4):
+        for kind in ("inputs", "reference"):
+            passes = read_passes(renders[kind] / f"{n:04d}.exr")
+            c = components(passes)
+            combined = passes["Combined"][..., :3]
+            err = np.abs(c["albedo"] * c["diffuse"] + c["specular"] - combined)
+            assert err.max() <= 1e-5 * np.abs(combined).max(), (kind, n, err.max())
+
+
+def test_motion_vectors_warp_the_previous_frame(renders, tmp_path):
+    """Warping frame t-1's G-buffer (albedo, normal: noise-free) along the motion vectors
+    into frame t cuts the error outside disocclusions at least 1.5x against zero motion,
+    and the jittered render's vectors equal an unjittered render's (the pixel centre's point)."""
+    import_cycles(renders["inputs"], tmp_path / "seq", progress=False)
+    import_cycles(renders["nojitter"], tmp_path / "plain", progress=False)
+    seq, plain = open_sequence(tmp_path / "seq"), open_sequence(tmp_path / "plain")
+    for i in (1, 2, 3):
+        a, b = plain.inputs(i - 1), plain.inputs(i)
+        prev = np.concatenate([a["albedo"], a["normal"]], -1).transpose(2, 0, 1)
+        cur = np.concatenate([b["albedo"], b["normal"]], -1).transpose(2, 0, 1)
+        warped = N.warp(prev, b["motion"].transpose(2, 0, 1))
+        same = ((warped[3:] * cur[3:]).sum(0) > 0.95) & (np.abs(cur[3:]).sum(0) > 0)  # not disoccluded
+        moved = np.abs(warped - cur).mean(0)[same].mean()
+        still = np.abs(prev - cur).mean(0)[same].mean()
+        assert moved * 1.5 < still, (i, moved, still)
+        assert np.abs(b["motion"]).max() > 0.5  # camera and cube do move
+        jittered = seq.inputs(i)["motion"]
+        fg = (np.abs(b["normal"]).sum(-1) > 0) & (np.abs(seq.inputs(i)["normal"]).sum(-1) > 0)
+        assert np.median(np.abs(jittered - b["motion"])[fg]) < 0.05
+
+
+def test_a_render_missing_passes_is_refused_naming_them(tmp_path):
+    raw = _render(tmp_path / "plain", "plain")
+    with pytest.raises(SequenceError, match=r"missing Cycles pass\(es\): .*Diffuse Direct \(Passes > Light.*"
+                                            r"Vector \(Passes > Data > Vector.*Roughness"):
+        import_cycles(raw, tmp_path / "seq", progress=False)
+    assert not (tmp_path / "seq" / "sequence.json").exists()
+
+
+def test_jnds_render_cycles_is_deterministic(tmp_path):
+    _blender_python()
+    args = ["render", "--engine", "cycles", "--scene", "metals", "--seed", "4", "--camera", "orbit",
+            "--frames", "2", "--size", "32x18", "--spp", "4", "--quiet"]
+    for d in ("a", "b"):
+        assert main(args + ["--out", str(tmp_path / d)]) == 0
+    a, b = open_sequence(tmp_path / "a"), open_sequence(tmp_path / "b")
+    assert not (tmp_path / "a" / ".cycles").exists()  # the raw frames are gone once imported
+    for i in range(2):
+        for k, v in a.inputs(i).items():
+            np.testing.assert_array_equal(b.inputs(i)[k], v, err_msg=f"frame {i} {k}")
+        np.testing.assert_array_equal(b.reference(i)["color"], a.reference(i)["color"])

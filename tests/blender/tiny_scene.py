@@ -1,0 +1,75 @@
+"""A tiny Blender scene for the tests, run in Blender's environment:
+
+    python tiny_scene.py OUT_DIR inputs|plain|nojitter|reference
+
+A checker floor, a metal cube that moves on its own, a sun, a world colour, a camera that
+dollies and trucks: set up by ``jnds_deploy.blender.configure`` (``plain``: not at all) and rendered
+by Blender's own ``render(animation=True)``."""
+import math
+import sys
+
+import bpy
+
+from jnds_deploy import blender as jb
+
+W, H, FRAMES = 64, 40, 4
+
+
+def build():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    s = bpy.context.scene
+    s.render.engine = "CYCLES"
+    s.render.resolution_x, s.render.resolution_y, s.render.resolution_percentage = W, H, 100
+    s.frame_start, s.frame_end = 1, FRAMES
+    s.cycles.seed = 3
+    world = bpy.data.worlds.new("w")
+    s.world = world
+    world.color = (0.3, 0.4, 0.6)
+    bpy.ops.mesh.primitive_plane_add(size=20)
+    floor = bpy.data.materials.new("floor")
+    floor.use_nodes = True
+    bsdf = floor.node_tree.nodes["Principled BSDF"]
+    tex = floor.node_tree.nodes.new("ShaderNodeTexChecker")
+    tex.inputs["Scale"].default_value = 6
+    floor.node_tree.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    bsdf.inputs["Roughness"].default_value = 0.6
+    bpy.context.object.data.materials.append(floor)
+    bpy.ops.mesh.primitive_cube_add(size=1.5, location=(0, 0, 0.75))
+    cube = bpy.context.object
+    metal = bpy.data.materials.new("metal")
+    metal.use_nodes = True
+    mb = metal.node_tree.nodes["Principled BSDF"]
+    mb.inputs["Metallic"].default_value = 1.0
+    mb.inputs["Roughness"].default_value = 0.3
+    cube.data.materials.append(metal)
+    for f, x in ((0, -1.0), (FRAMES + 1, 1.0)):
+        cube.location.x = x
+        cube.keyframe_insert("location", frame=f)
+    bpy.ops.object.light_add(type="SUN", rotation=(0.6, 0.2, 0.3))
+    bpy.context.object.data.energy = 3
+    bpy.ops.object.camera_add(location=(0, -8, 4), rotation=(math.radians(65), 0, 0))
+    cam = bpy.context.object
+    s.camera = cam
+    for f, x, y in ((0, -1.0, -8.0), (FRAMES + 1, 1.5, -7.0)):  # dolly and truck
+        cam.location.x, cam.location.y = x, y
+        cam.keyframe_insert("location", frame=f)
+    for obj in (cube, cam):
+        for fc in jb._fcurves(obj.animation_data.action):
+            for k in fc.keyframe_points:
+                k.interpolation = "LINEAR"
+    return s
+
+
+if __name__ == "__main__":
+    out, mode = sys.argv[1], sys.argv[2]
+    scene = build()
+    if mode == "plain":
+        scene.render.image_settings.media_type = "MULTI_LAYER_IMAGE"
+        scene.render.image_settings.file_format = "OPEN_EXR_MULTILAYER"
+        scene.render.filepath = out + "/"
+    elif mode == "reference":
+        jb.configure_reference(scene, output=out + "/", spp=4)
+    else:
+        changes = jb.configure(scene, output=out + "/", jitter_frames=mode == "inputs")
+        assert changes.settings and changes.nodes and changes.aov
+    bpy.ops.render.render(animation=True)
