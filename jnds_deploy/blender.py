@@ -64,6 +64,7 @@ ROUGHNESS_AOV = "Roughness"
 AOV_NODE = "jnds_roughness"  # the name of the AOV Output node added to each material
 SIDECAR = "jnds.json"  # frame range, size and jitter, beside the rendered frames
 JITTER_PERIOD = 16
+SHIFT_BASE = "jnds_shift_base"  # custom property: the camera's lens shift under the jitter keys
 FILTER_WIDTH = 0.01  # pixels: the box filter's smallest width, a point sample
 
 
@@ -76,7 +77,6 @@ class Changes:
     nodes: list = field(default_factory=list)  # (material, node name)
     aov: bool = False
     shift_keys: bool = False
-    shift_base: tuple = (0.0, 0.0)  # the camera's lens shift before the jitter keys
 
     def set(self, owner, attr: str, value, where: str, log) -> None:
         old = getattr(owner, attr)
@@ -149,7 +149,7 @@ def _key_jitter(scene, changes: Changes, log) -> dict:
         cam.keyframe_insert("shift_x", frame=f)
         cam.keyframe_insert("shift_y", frame=f)
     cam.shift_x, cam.shift_y = base
-    changes.shift_base = base
+    cam[SHIFT_BASE] = list(base)  # for _clear_shift_keys, whoever calls it
     for fc in _fcurves(cam.animation_data.action):
         if fc.data_path in ("shift_x", "shift_y"):
             for k in fc.keyframe_points:
@@ -198,7 +198,7 @@ def _output(scene, changes: Changes, output: str | None, log) -> None:
 
 
 def _passes(scene, changes: Changes, log) -> None:
-    vl = bpy_context_view_layer(scene) or scene.view_layers[0]
+    vl = _render_layer(scene) or scene.view_layers[0]
     for prop in PASSES:
         changes.set(vl, prop, True, f"view_layer[{vl.name!r}]", log)
     for prop in CYCLES_PASSES:
@@ -210,7 +210,7 @@ def _passes(scene, changes: Changes, log) -> None:
         log(f"jnds: view_layer[{vl.name!r}]: AOV {ROUGHNESS_AOV!r} (value) added")
 
 
-def bpy_context_view_layer(scene):
+def _render_layer(scene):
     """The view layer that renders: the first one with use set."""
     return next((vl for vl in scene.view_layers if vl.use), None)
 
@@ -276,26 +276,30 @@ def restore(scene, changes: Changes, log=print) -> None:
     for material, name in changes.nodes:
         if material.node_tree and name in material.node_tree.nodes:
             material.node_tree.nodes.remove(material.node_tree.nodes[name])
-    vl = bpy_context_view_layer(scene)
+    vl = _render_layer(scene)
     if changes.aov and vl is not None:
-        for i, a in enumerate(vl.aovs):
+        for a in vl.aovs:
             if a.name == ROUGHNESS_AOV:
                 vl.aovs.remove(a)
                 break
     if changes.shift_keys:
         _clear_shift_keys(scene)
-        scene.camera.data.shift_x, scene.camera.data.shift_y = changes.shift_base
     log(f"jnds: scene {scene.name!r} restored")
 
 
 def _clear_shift_keys(scene) -> None:
-    """Remove the lens-shift keys ``configure`` added (frames frame_start - 1 .. frame_end + 1)."""
+    """Remove the lens-shift keys ``configure`` added (frames frame_start - 1 .. frame_end + 1)
+    and put the shift back where it was: without keys, the property keeps the value of the
+    last frame evaluated, a jittered one."""
     cam = scene.camera.data
-    if not (cam.animation_data and cam.animation_data.action):
+    if SHIFT_BASE not in cam:
         return
-    for f in range(scene.frame_start - 1, scene.frame_end + 2):
-        for path in ("shift_x", "shift_y"):
-            try:
-                cam.keyframe_delete(path, frame=f)
-            except RuntimeError:  # no key there
-                pass
+    if cam.animation_data and cam.animation_data.action:
+        for f in range(scene.frame_start - 1, scene.frame_end + 2):
+            for path in ("shift_x", "shift_y"):
+                try:
+                    cam.keyframe_delete(path, frame=f)
+                except RuntimeError:  # no key there
+                    pass
+    cam.shift_x, cam.shift_y = cam[SHIFT_BASE]
+    del cam[SHIFT_BASE]

@@ -93,6 +93,15 @@ def test_motion_vectors_warp_the_previous_frame(renders, tmp_path):
         assert np.median(np.abs(jittered - b["motion"])[fg]) < 0.05
 
 
+def test_reference_after_configure_is_not_jittered(renders, tmp_path):
+    """configure_reference on a scene configure set up renders what it renders on a fresh
+    scene: the jitter keys are gone and the lens shift is back where it was."""
+    again = _render(tmp_path / "ref", "reference-after-inputs")
+    for n in (1, 4):
+        a, b = read_passes(renders["reference"] / f"{n:04d}.exr"), read_passes(again / f"{n:04d}.exr")
+        np.testing.assert_array_equal(a["Combined"], b["Combined"])
+
+
 def test_a_render_missing_passes_is_refused_naming_them(tmp_path):
     raw = _render(tmp_path / "plain", "plain")
     with pytest.raises(SequenceError, match=r"missing Cycles pass\(es\): .*Diffuse Direct \(Passes > Light.*"

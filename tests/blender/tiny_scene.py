@@ -1,6 +1,6 @@
 """A tiny Blender scene for the tests, run in Blender's environment:
 
-    python tiny_scene.py OUT_DIR inputs|plain|nojitter|reference
+    python tiny_scene.py OUT_DIR inputs|plain|nojitter|reference|reference-after-inputs
 
 A checker floor, a metal cube that moves on its own, a sun, a world colour, a camera that
 dollies and trucks: set up by ``jnds_deploy.blender.configure`` (``plain``: not at all) and rendered
@@ -68,6 +68,10 @@ if __name__ == "__main__":
         scene.render.image_settings.file_format = "OPEN_EXR_MULTILAYER"
         scene.render.filepath = out + "/"
     elif mode == "reference":
+        jb.configure_reference(scene, output=out + "/", spp=4)
+    elif mode == "reference-after-inputs":  # as the README shows: no restore in between
+        jb.configure(scene, output=out + "/")
+        scene.frame_set(3)  # leaves a jittered lens shift evaluated
         jb.configure_reference(scene, output=out + "/", spp=4)
     else:
         changes = jb.configure(scene, output=out + "/", jitter_frames=mode == "inputs")
