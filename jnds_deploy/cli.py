@@ -150,6 +150,8 @@ def cmd_run(args) -> int:
     if "metrics" in report:
         print(f"against the reference: PSNR {report['metrics']['psnr']:.2f} dB, FLIP {report['metrics']['flip']:.4f}")
     print(stage_table(report))
+    if "contact_sheet" in report:
+        print(f"contact sheet (input, OIDN, output, reference): {report['contact_sheet']}")
     return 0
 
 

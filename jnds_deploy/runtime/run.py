@@ -1,6 +1,8 @@
 """``jnds run``: a sequence through the pipeline, frames to ``OUT/NNNN.exr``, a report to
 ``OUT/run.json`` (artifacts, precision, per-frame and median stage timings, and PSNR/FLIP
-against the reference when the sequence has one)."""
+against the reference when the sequence has one), and for a sequence with references a
+contact sheet ``OUT/contact.png``: input, OIDN (where ``pyoidn`` is installed), the
+output and the reference of the first, middle and last frames."""
 from __future__ import annotations
 
 import json
@@ -10,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .. import contact_sheet
 from ..io import OUTPUT_LAYERS, open_sequence, write_exr
 from .pipeline import Pipeline, PipelineConfig
 
@@ -39,6 +42,8 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
     frames, scores, nonfinite, decisions, rejected = [], [], [], [], []
+    shown = set(contact_sheet.sheet_frames(len(seq))) if seq.has_reference else set()
+    sheet = []
     for i in tqdm(range(len(seq)), desc=f"run {seq.path.name}", unit="frame", disable=not progress):
         frame = pipe(seq.inputs(i), seq.frames[i].camera_cut)
         color = frame.output
@@ -54,6 +59,11 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
             if ref.shape[:2] != color.shape[:2]:  # --native: the reference at the output size
                 ref = cv2.resize(ref, color.shape[1::-1], interpolation=cv2.INTER_AREA)
             scores.append({"psnr": psnr(color, ref), "flip": flip(color, ref)})
+        if i in shown:
+            ref = seq.reference(i)["color"]
+            if ref.shape[:2] != color.shape[:2]:
+                ref = cv2.resize(ref, color.shape[1::-1], interpolation=cv2.INTER_AREA)
+            sheet.append((f"frame {i}", _sheet_row(seq.inputs(i), color, ref, pipe.out_scale)))
     stages = sorted({k for f in frames for k in f})
     report = {
         "input": str(seq.path), "artifacts": str(Path(cfg.artifacts)),
@@ -75,7 +85,24 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
     if scores:
         report["metrics"] = {"psnr": float(np.mean([s["psnr"] for s in scores])),
                              "flip": float(np.mean([s["flip"] for s in scores])), "per_frame": scores}
+    if sheet:
+        report["contact_sheet"] = str(contact_sheet.write(out / "contact.png", sheet))
     tmp = out / ".run.json.tmp"
     tmp.write_text(json.dumps(report, indent=1))
     os.replace(tmp, out / "run.json")
     return report
+
+
+def _sheet_row(inputs: dict, output, reference, scale: int) -> dict:
+    """The images of one contact-sheet row: the noisy input, OIDN (if installed), output, reference."""
+    import importlib.util
+
+    from .. import baselines
+
+    row = {"input": baselines.noisy_composite(inputs)}
+    if importlib.util.find_spec("pyoidn"):
+        row["OIDN balanced" + (" + bicubic" if scale > 1 else "")] = (
+            baselines.oidn_bicubic(inputs, scale) if scale > 1 else baselines.oidn(inputs))
+    row["JNDS"] = output
+    row["reference"] = reference
+    return row

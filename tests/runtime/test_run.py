@@ -1,0 +1,33 @@
+"""``jnds run``'s outputs besides the frames: the contact sheet a person looks at."""
+import importlib.util
+
+import cv2
+import numpy as np
+
+from jnds_deploy import contact_sheet
+from jnds_deploy.io import read_exr
+from jnds_deploy.metrics import to_ldr
+from jnds_deploy.runtime.pipeline import PipelineConfig
+from jnds_deploy.runtime.run import run_sequence
+
+from ..conftest import SAMPLE
+
+
+def test_run_writes_a_contact_sheet_of_first_middle_last_frames(tiny_artifacts, tmp_path):
+    report = run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0])), SAMPLE, tmp_path, progress=False)
+    sheet = cv2.imread(report["contact_sheet"])
+    columns = 4 if importlib.util.find_spec("pyoidn") else 3  # input, (OIDN,) JNDS, reference
+    w, h = 320, 180
+    assert sheet.shape == (3 * (h + contact_sheet.LABEL_H), columns * (w + contact_sheet.GAP) - contact_sheet.GAP, 3)
+    # the JNDS column of the last row is frame 7's output through the display mapping
+    out = read_exr(tmp_path / "0007.exr")
+    rgb = np.stack([out[f"color.{c}"] for c in "RGB"], -1)
+    x0 = (columns - 2) * (w + contact_sheet.GAP)
+    tile = sheet[-h:, x0:x0 + w, ::-1]
+    np.testing.assert_allclose(tile, to_ldr(rgb) * 255, atol=1.0)
+
+
+def test_sheet_frames():
+    assert contact_sheet.sheet_frames(8) == [0, 4, 7]
+    assert contact_sheet.sheet_frames(1) == [0]
+    assert contact_sheet.sheet_frames(0) == []
