@@ -104,10 +104,12 @@ def cmd_train_feature_net(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from .training.evaluate import markdown_table, run_evaluation
+    from .training.evaluate import evaluate_sets, markdown_sets
 
-    report = run_evaluation(args.checkpoint, args.data, args.baselines, args.out, args.threads)
-    print(markdown_table(report))
+    reports = evaluate_sets(args.checkpoint, args.data, args.baselines, args.out, args.threads, args.sheet)
+    print(markdown_sets(reports))
+    if args.sheet:
+        print(f"contact sheet (input, each method, reference): {args.sheet}")
     return 0
 
 
@@ -305,7 +307,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("evaluate", help="PSNR/SSIM/FLIP/temporal error of checkpoints and baselines")
     e.add_argument("--checkpoint", nargs="*", default=[], help="model checkpoints to score")
-    e.add_argument("--data", default="data/val", help="a sequence or a directory of sequences")
+    e.add_argument("--data", nargs="+", default=["data/val"],
+                   help="sets, each a sequence or a directory of sequences (e.g. data/val data/test): "
+                        "reported side by side")
+    e.add_argument("--sheet", default=None, help="write a contact sheet PNG here (middle frame of every sequence)")
     e.add_argument("--baselines", nargs="*", default=["bicubic", "oidn-balanced"],
                    help="bicubic, oidn-fast, oidn-balanced, oidn-high")
     e.add_argument("--out", default=None, help="write the report as JSON")

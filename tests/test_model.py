@@ -305,3 +305,24 @@ def test_train_on_a_missing_gpu_is_a_one_line_error(tmp_path):
     from jnds_deploy.cli import main
     rc = main(["train", "--data", str(tmp_path), "--run", str(tmp_path / "r"), "--device", "cuda", "--quiet"])
     assert rc == 2 and not (tmp_path / "r").exists()
+
+
+def test_evaluate_reports_sets_side_by_side_with_a_contact_sheet(tmp_path, make_sequence):
+    import cv2
+
+    from jnds_deploy.training.evaluate import evaluate_sets, markdown_sets
+    from .conftest import SAMPLE
+    torch.manual_seed(0)
+    model = JNDS(ModelConfig.preset("tiny"))
+    ckpt = tmp_path / "tiny.pt"
+    torch.save({"model": model.state_dict(), "model_config": asdict(model.cfg), "quantized": False}, ckpt)
+    other, _, _ = make_sequence(frames=3, size=(16, 12), name="test-set/seq-a")
+    reports = evaluate_sets([str(ckpt)], [str(SAMPLE), str(other.parent)], ["bicubic"], str(tmp_path / "e.json"),
+                            threads=1, sheet=str(tmp_path / "sheet.png"))
+    assert list(reports) == [SAMPLE.name, "test-set"]
+    assert list(reports["test-set"]["tiny"]["sequences"]) == ["seq-a"]
+    assert json.loads((tmp_path / "e.json").read_text()) == reports
+    text = markdown_sets(reports)
+    assert "### test-set (1 sequences)" in text and "| seq-a | " in text
+    sheet = cv2.imread(str(tmp_path / "sheet.png"))
+    assert sheet.shape[0] == 2 * (180 + 14) and sheet.shape[1] == 4 * 320 + 3 * 2  # input, tiny, bicubic, reference

@@ -33,8 +33,11 @@ class SequenceArrays:
 
 
 def load_sequence(path: str | Path) -> SequenceArrays:
+    """A sequence with references in memory: the reference components it has (colour
+    always; training needs diffuse, specular and albedo too, ``PatchSampler`` checks)."""
     seq = open_sequence(path)
-    cur, mot, refs = [], [], {k: [] for k in REFERENCE_COMPONENTS}
+    present = seq.reference(0) if len(seq) else {}
+    cur, mot, refs = [], [], {k: [] for k in REFERENCE_COMPONENTS if k in present}
     for i in range(len(seq)):
         a = seq.inputs(i)
         cur.append(np.concatenate([a[n] for n, _ in CURRENT], -1).transpose(2, 0, 1))
@@ -60,6 +63,10 @@ class PatchSampler:
 
     def __init__(self, seqs: list[SequenceArrays], patch: int, unroll: int, rng: np.random.Generator):
         self.seqs, self.patch, self.unroll, self.rng = seqs, patch, unroll, rng
+        for s in seqs:
+            if missing := [c for c in REFERENCE_COMPONENTS if c not in s.ref]:
+                raise TrainError(f"{s.name}: the reference has no {', '.join(missing)}; training needs every "
+                                 "component (the renderers write them)")
         self.windows = []
         for si, s in enumerate(seqs):
             starts = [0] + [t for t, c in enumerate(s.cuts) if c] + [len(s.cuts)]

@@ -92,9 +92,11 @@ def model_outputs(model, seq_path: Path) -> list[np.ndarray]:
     return infer_sequence(model, load_sequence(seq_path))
 
 
-def evaluate_methods(seq_paths: list[Path], methods: dict, with_flip: bool = True) -> dict:
+def evaluate_methods(seq_paths: list[Path], methods: dict, with_flip: bool = True,
+                     shown: dict | None = None) -> dict:
     """``methods``: name -> callable(seq_path) -> list of HWC frames. Returns per method
-    the mean over sequences of each metric, the per-sequence values and ms per frame."""
+    the mean over sequences of each metric, the per-sequence values and ms per frame.
+    ``shown``, if given, receives the contact sheet's images: {sequence: {column: middle frame}}."""
     truth = {p: ground_truth(p) for p in seq_paths}  # read once, shared by every method
     report = {}
     for name, run in methods.items():
@@ -104,6 +106,10 @@ def evaluate_methods(seq_paths: list[Path], methods: dict, with_flip: bool = Tru
             outs = run(p)
             ms.append(1000 * (time.perf_counter() - t0) / len(outs))
             per_seq[p.name] = score_frames(outs, *truth[p], with_flip)
+            if shown is not None:
+                mid = len(outs) // 2
+                row = shown.setdefault(p.name, {"input": baselines.noisy_composite(open_sequence(p).inputs(mid))})
+                row[name] = outs[mid]
         # ms_per_frame includes reading the input EXRs: a rough figure, not a benchmark
         report[name] = {"mean": mean_over_sequences(per_seq), "ms_per_frame": float(np.median(ms)),
                         "sequences": per_seq}
@@ -128,20 +134,64 @@ def method_name(checkpoint: str | Path) -> str:
 
 def run_evaluation(checkpoints: list[str], data: str, baselines_: list[str], out: str | None,
                    threads: int = 2) -> dict:
+    """``evaluate_sets`` on one set: its report."""
+    return next(iter(evaluate_sets(checkpoints, [data], baselines_, out, threads).values()))
+
+
+def evaluate_sets(checkpoints: list[str], sets: list[str], baselines_: list[str], out: str | None = None,
+                  threads: int = 2, sheet: str | None = None) -> dict:
+    """Every checkpoint and baseline on each set (a sequence or a directory of sequences,
+    e.g. data/val and a test set): {set name: report}, written to ``out`` as JSON (one
+    set: its report alone, the format of ``benchmarks/results/model_eval.json``), and a
+    contact sheet (``sheet``, PNG: per sequence the middle frame's input, each method's
+    output and the reference)."""
     import torch
 
+    from .. import contact_sheet
     from ..checkpoint import load_model
 
     torch.set_num_threads(threads)
-    seqs = expand_sequences([data])
     methods = {}
     for ck in checkpoints:
         model = load_model(ck)
         methods[method_name(ck)] = lambda p, m=model: model_outputs(m, p)
     for b in baselines_:
         methods[b] = lambda p, b=b: baseline_outputs(b, p)
-    report = evaluate_methods(seqs, methods)
+    reports, rows = {}, []
+    for data in sets:
+        seqs = expand_sequences([data])
+        shown = {} if sheet else None
+        reports[set_name(data)] = evaluate_methods(seqs, methods, shown=shown)
+        for p in seqs if sheet else []:
+            seq = open_sequence(p)
+            rows.append((f"{set_name(data)}/{p.name}", {**shown[p.name],
+                                                         "reference": seq.reference(len(seq) // 2)["color"]}))
     if out:
         Path(out).parent.mkdir(parents=True, exist_ok=True)
-        Path(out).write_text(json.dumps(report, indent=1))
-    return report
+        Path(out).write_text(json.dumps(reports if len(reports) > 1 else next(iter(reports.values())), indent=1))
+    if sheet:
+        contact_sheet.write(sheet, rows)
+    return reports
+
+
+def set_name(data: str | Path) -> str:
+    """A set's name in reports: its directory's name (data/val -> val)."""
+    return Path(data).resolve().name
+
+
+def markdown_sets(reports: dict) -> str:
+    """Per set the mean table and the per-sequence PSNR / FLIP of every method, so the sets
+    (validation, test) read side by side."""
+    parts = []
+    for name, report in reports.items():
+        methods = list(report)
+        seqs = list(next(iter(report.values()))["sequences"])
+        lines = [f"### {name} ({len(seqs)} sequences)", "", markdown_table(report), "",
+                 "| sequence | " + " | ".join(f"{m} PSNR / FLIP" for m in methods) + " |",
+                 "| --- |" + " --- |" * len(methods)]
+        for sq in seqs:
+            cells = [f"{report[m]['sequences'][sq]['psnr']:.2f} / {report[m]['sequences'][sq].get('flip', float('nan')):.4f}"
+                     for m in methods]
+            lines.append(f"| {sq} | " + " | ".join(cells) + " |")
+        parts.append("\n".join(lines))
+    return "\n\n".join(parts)
