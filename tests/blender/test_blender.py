@@ -11,9 +11,8 @@ import pytest
 from jnds_deploy.cli import main
 from jnds_deploy.cycles import components, import_cycles, read_passes
 from jnds_deploy.errors import RenderError, SequenceError
-from jnds_deploy.io import open_sequence, validate
+from jnds_deploy.io import open_sequence, read_exr, validate
 from jnds_deploy.runtime import filters as N
-from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
 
 from ..conftest import ROOT
 
@@ -55,10 +54,14 @@ def test_configured_render_imports_validates_and_runs(renders, tmp_path, tiny_ar
     roughness = seq.inputs(1)["roughness"]
     assert roughness.min() >= 0 and np.isclose(roughness.max(), 1.0)  # the background
     assert np.isclose(np.median(roughness[roughness < 1]), 0.6 ** 2, atol=1e-3)  # floor: alpha = r^2
-    pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0])))
+    assert main(["validate", str(tmp_path / "seq"), "--strict"]) == 0
+    assert main(["run", "--artifacts", str(tiny_artifacts[0]), "--input", str(tmp_path / "seq"),
+                 "--output", str(tmp_path / "run"), "--quiet"]) == 0
     for i in range(len(seq)):
-        out = pipe(seq.inputs(i), seq.frames[i].camera_cut).output
+        out = read_exr(tmp_path / "run" / f"{i:04d}.exr")
+        out = np.stack([out[f"color.{c}"] for c in "RGB"], -1)
         assert out.shape == (80, 128, 3) and np.isfinite(out).all() and out.min() >= 0
+    assert (tmp_path / "run" / "contact.png").is_file()
 
 
 def test_composite_reproduces_combined(renders):
