@@ -267,10 +267,14 @@ def test_evaluate_names_training_checkpoints_by_run_and_scores_them(tmp_path):
     assert json.loads((tmp_path / "eval.json").read_text()) == report
 
 
-def test_l1_plus_feature_spatial_loss_is_the_sum_of_both():
+def test_l1_plus_feature_spatial_loss_is_the_sum_of_both(tmp_path):
     from jnds_deploy.training.config import TrainConfig
+    from jnds_deploy.training.feature_loss import FeatureNet
     from jnds_deploy.training.losses import Loss
-    feat = str(Path(__file__).resolve().parents[1] / "runs" / "feature" / "feature_net.pt")
+    torch.manual_seed(0)  # a feature-loss network with random weights: training runs are not in git
+    net = FeatureNet()
+    feat = str(tmp_path / "feature_net.pt")
+    torch.save({"model": net.state_dict(), "widths": (16, 32, 64)}, feat)
     o, r = torch.rand(2, 3, 32, 32), torch.rand(2, 3, 32, 32)
     parts = {k: Loss(TrainConfig(spatial_loss=k, feature_net=None if k == "l1" else feat), scale=2).spatial(o, r)
              for k in ("l1", "feature", "l1+feature")}
