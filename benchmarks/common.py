@@ -95,6 +95,11 @@ def machine_info() -> dict:
             "usable_cores": usable_cores(), "flags": [f for f in FLAGS if f in flags], "versions": versions()}
 
 
+def cpu_line(info: dict) -> str:
+    """``machine_info``'s CPU for a report's text: model and the instruction sets that matter."""
+    return f"{info['processor']} ({', '.join(info['flags']) or 'no AVX2'})"
+
+
 def machine_line() -> str:
     """The short machine description some reports keep in their ``machine`` key."""
     return f"{platform.machine()}, {usable_cores()} cores"

@@ -25,7 +25,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
-from benchmarks.common import RESULTS, ROOT, arguments, command_line, machine_info, timed, write_report  # noqa: E402
+from benchmarks.common import cpu_line, RESULTS, ROOT, arguments, command_line, machine_info, timed, write_report  # noqa: E402
 from jnds_deploy.io import open_sequence  # noqa: E402
 from jnds_deploy.serve import Client  # noqa: E402
 from jnds_deploy.serve.server import rss_bytes  # noqa: E402
@@ -126,7 +126,8 @@ def main() -> int:
     out = Path(args.out)
     w, h = seq.native_size
     md = ["# `jnds serve` under load (loopback)", "", f"Command: `{report['command']}`  ",
-          f"Machine: {report['machine']['platform']}, {report['machine']['cpu_count']} cores; server: "
+          f"Machine: {cpu_line(report['machine'])}, {report['machine']['platform']}, "
+          f"{report['machine']['cpu_count']} cores; server: "
           f"{args.precision}, {args.workers} worker(s), 2 ORT threads, queue 2 per stream; frames of "
           f"{seq.path.name} ({w}x{h} → {2 * w}x{2 * h}), EXR float32 uncompressed both ways. Latency at the "
           "client: request sent to response decoded; each stream waits for a response before sending again.", "",

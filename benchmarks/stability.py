@@ -34,7 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
-from benchmarks.common import (RESULTS, arguments, command_line, machine_info, pipeline, tune_process,  # noqa: E402
+from benchmarks.common import (cpu_line, RESULTS, arguments, command_line, machine_info, pipeline, tune_process,  # noqa: E402
                                write_report)
 from jnds_deploy.errors import ExrReadError  # noqa: E402
 from jnds_deploy.io import INPUT_LAYERS, exr_bytes, find_sequences, open_sequence, read_exr_bytes  # noqa: E402
@@ -206,7 +206,7 @@ def main() -> int:
 
 def markdown(r: dict, args) -> str:
     md = ["# Numerical stability", "", f"Command: `{r['command']}`  ",
-          f"Machine: {r['machine']}; artifacts {r['artifacts']} (the shipped checkpoint); data {r['data']}; "
+          f"Machine: {cpu_line(r['machine_info'])}, {r['machine']}; artifacts {r['artifacts']} (the shipped checkpoint); data {r['data']}; "
           f"{r['wall_s'] / 60:.1f} min. Correctness cases with pass/fail are in `tests/runtime/test_stability.py` "
           "(extreme radiance, zero/constant frames, black albedo, broken motion, sizes 1x1 to 1921x1081, fp16 "
           "overflow, the finite-output property, fuzzed EXR and sequence.json, broken frames in `jnds run`) and "

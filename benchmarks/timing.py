@@ -20,7 +20,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
-from benchmarks.common import (RESULTS, ROOT, CpuSteal, arguments, command_line, machine_info, parse_size,  # noqa: E402
+from benchmarks.common import (cpu_line, RESULTS, ROOT, CpuSteal, arguments, command_line, machine_info, parse_size,  # noqa: E402
                                pipeline, resized_frames, run_frames, spread, timed, tune_process, write_report)
 from jnds_deploy.artifacts import Manifest  # noqa: E402
 from jnds_deploy.io import open_sequence  # noqa: E402
@@ -234,7 +234,8 @@ def main() -> int:
     report["cpu_steal_share"] = steal.share()
     out = Path(args.out)
     md = ["# Per-stage timing (the paper's Table 4, on this CPU)", "", f"Command: `{report['command']}`  ",
-          f"Machine: {report['machine']['platform']}, {report['machine']['cpu_count']} cores, "
+          f"Machine: {cpu_line(report['machine'])}, {report['machine']['platform']}, "
+          f"{report['machine']['cpu_count']} cores, "
           f"{args.threads} threads; input {seq.path.name}, frames 2–{len(seq)} × {args.repeats} passes "
           f"(the first frame is a warm-up); filter stage float32; int8 graphs: {report['int8_method']}; "
           f"CPU time stolen by the VM host during the run: {100 * report['cpu_steal_share']:.0f} %.", ""]
