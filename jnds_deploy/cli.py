@@ -167,7 +167,8 @@ def cmd_serve(args) -> int:
     tune_numba()
     cfg = ServeConfig(artifacts=args.artifacts, host=args.host, port=args.port, precision=args.precision,
                       threads=args.threads, workers=args.workers, queue=args.queue,
-                      max_streams=args.max_streams, idle_timeout=args.idle_timeout, keep_freed_memory=True)
+                      max_streams=args.max_streams, idle_timeout=args.idle_timeout, max_pixels=args.max_pixels,
+                      keep_freed_memory=True)
     serve(cfg, ready=lambda h, p: print(f"jnds serve: listening on http://{h}:{p}", flush=True))
     return 0
 
@@ -288,6 +289,8 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--queue", type=int, default=2, help="frames waiting per stream before 429")
     sv.add_argument("--max-streams", type=int, default=64)
     sv.add_argument("--idle-timeout", type=float, default=300.0, help="seconds before an idle stream is closed")
+    sv.add_argument("--max-pixels", type=int, default=1920 * 1080,
+                    help="native pixels a frame may have (checked on its EXR header before decoding; 413 beyond)")
     sv.set_defaults(func=cmd_serve)
 
     rn = sub.add_parser("run", help="denoise and upsample a sequence with the exported pipeline")

@@ -10,6 +10,7 @@ order, one at a time; frames of different streams run concurrently on a bounded 
 """
 from __future__ import annotations
 
+import io
 import json
 import logging
 import os
@@ -56,7 +57,8 @@ HTTP/1.1, JSON for control, OpenEXR for frames (any language with an EXR writer 
                                             latency percentiles per stage, memory
 Errors: JSON {"error": message, "kind": type}. 400 bad frame (message names the
 channel, layer or value), 404 unknown stream (closed, or idle longer than the timeout),
-411/413 missing or too large body, 429 the stream's queue is full, 503 too many streams
+411/413 missing or too large body (413 also for a frame whose EXR header declares more
+pixels than --max-pixels, checked before decoding), 429 the stream's queue is full, 503 too many streams
 (429 and this 503 carry Retry-After in seconds) or shutting down (no Retry-After).
 """
 
@@ -73,6 +75,11 @@ class ServeConfig:
     max_streams: int = 64
     idle_timeout: float = 300.0  # seconds without a request before a stream is closed
     max_frame_bytes: int = 512 << 20
+    # native pixels per frame, checked on the EXR header before anything is decoded: the
+    # pipeline's memory grows with the frame (a compressed EXR of zeros declaring 4000x4000
+    # is a few hundred kB), so the size a body declares is refused, not discovered
+    max_pixels: int = 1920 * 1080
+    max_channels: int = 64  # EXR channels per frame (the format uses 15 or 16)
     max_nonfinite: float = 0.5  # a layer with more NaN/Inf than this fraction: 400 (a NaN flood)
     keep_freed_memory: bool = False  # PipelineConfig.keep_freed_memory (process-wide; `jnds serve` sets it)
 
@@ -217,8 +224,28 @@ class FrameServer:
 
     # frames -------------------------------------------------------------------------
 
+    def admit(self, body: bytes) -> None:
+        """Refuse a frame by its EXR header alone (413), before decoding: more native pixels
+        than ``max_pixels`` or more channels than ``max_channels`` in any part."""
+        try:
+            parts = OpenEXR.File(io.BytesIO(body), header_only=True).parts
+            windows = [(p.header["dataWindow"], p.header.get("channels", [])) for p in parts]
+        except Exception as exc:  # OpenEXR raises RuntimeError for what is not an EXR header
+            raise BadRequest(400, f"request body: unreadable OpenEXR header ({exc})") from exc
+        for (lo, hi), channels in windows:
+            w, h = int(hi[0]) - int(lo[0]) + 1, int(hi[1]) - int(lo[1]) + 1
+            if w < 1 or h < 1:
+                raise BadRequest(400, f"request body: EXR data window {w}x{h} is empty")
+            if w * h > self.cfg.max_pixels:
+                raise BadRequest(413, f"request body: a {w}x{h} frame ({w * h} pixels) exceeds the server's "
+                                      f"limit of {self.cfg.max_pixels} pixels (jnds serve --max-pixels)")
+            if len(channels) > self.cfg.max_channels:
+                raise BadRequest(413, f"request body: {len(channels)} EXR channels exceed the server's limit "
+                                      f"of {self.cfg.max_channels}")
+
     def decode(self, body: bytes) -> dict:
         """An EXR request body into the pipeline's layers, or BadRequest naming the problem."""
+        self.admit(body)
         try:
             raw = read_exr_bytes(body, "request body")
             layers = channels_to_layers(raw, "request body", None, INPUT_LAYERS, OPTIONAL_INPUT_LAYERS)

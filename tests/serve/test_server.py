@@ -218,3 +218,42 @@ def test_jnds_serve_command_serves_and_stops_on_sigterm(tiny_artifacts):
         assert "stopped after 1 frames" in proc.stderr.read()
     finally:
         proc.kill()
+
+
+def test_a_frame_declaring_too_many_pixels_is_refused_before_decoding(server):
+    """A 4000x4000 EXR of zeros in the 15 input channels compresses to a few hundred kB;
+    its header is refused with 413 at once, the process's memory does not grow by the
+    frame, and the stream goes on."""
+    import http.client
+    import io
+    import json
+    import resource
+    import time
+
+    import OpenEXR
+
+    url, fs = server()
+    zeros = np.zeros((4000, 4000), np.float16)
+    names = [f"{layer}.{c}" if c else layer for layer, cs in
+             (("diffuse", "RGB"), ("specular", "RGB"), ("albedo", "RGB"), ("normal", "XYZ"), ("roughness", [""]),
+              ("motion", "XY")) for c in cs]
+    buf = io.BytesIO()
+    OpenEXR.File({"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION},
+                 {n: zeros for n in names}).write(buf)
+    body = buf.getvalue()
+    assert len(body) < 1 << 20
+    with Client(url).open_stream() as stream:
+        host, port = url.split("//")[1].split(":")
+        conn = http.client.HTTPConnection(host, int(port), timeout=30)
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        t0 = time.perf_counter()
+        conn.request("POST", f"/streams/{stream.id}/frames", body=body,
+                     headers={"Content-Type": "image/x-exr", "Content-Length": str(len(body))})
+        resp = conn.getresponse()
+        answer = json.loads(resp.read())
+        assert resp.status == 413 and time.perf_counter() - t0 < 10
+        assert "4000x4000" in answer["error"] and "--max-pixels" in answer["error"]
+        grown_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak
+        assert grown_kib < 300 * 1024, grown_kib
+        layers, cut = _frames()[0]
+        assert stream.denoise(layers, cut).shape == (180, 320, 3)  # the stream goes on
