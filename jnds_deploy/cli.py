@@ -168,6 +168,7 @@ def cmd_serve(args) -> int:
     cfg = ServeConfig(artifacts=args.artifacts, host=args.host, port=args.port, precision=args.precision,
                       threads=args.threads, workers=args.workers, queue=args.queue,
                       max_streams=args.max_streams, idle_timeout=args.idle_timeout, max_pixels=args.max_pixels,
+                      request_timeout=args.request_timeout, max_connections=args.max_connections,
                       keep_freed_memory=True)
     serve(cfg, ready=lambda h, p: print(f"jnds serve: listening on http://{h}:{p}", flush=True))
     return 0
@@ -291,6 +292,9 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--idle-timeout", type=float, default=300.0, help="seconds before an idle stream is closed")
     sv.add_argument("--max-pixels", type=int, default=1920 * 1080,
                     help="native pixels a frame may have (checked on its EXR header before decoding; 413 beyond)")
+    sv.add_argument("--request-timeout", type=float, default=30.0,
+                    help="seconds a read may wait (request line, headers, keep-alive idle) before the connection closes")
+    sv.add_argument("--max-connections", type=int, default=256, help="connections at once; the next gets a 503")
     sv.set_defaults(func=cmd_serve)
 
     rn = sub.add_parser("run", help="denoise and upsample a sequence with the exported pipeline")

@@ -60,6 +60,9 @@ channel, layer or value), 404 unknown stream (closed, or idle longer than the ti
 411/413 missing or too large body (413 also for a frame whose EXR header declares more
 pixels than --max-pixels, checked before decoding), 429 the stream's queue is full, 503 too many streams
 (429 and this 503 carry Retry-After in seconds) or shutting down (no Retry-After).
+Connections: a read that waits longer than --request-timeout (request line, headers,
+keep-alive idle) closes the connection; a body not complete within body_timeout gets 408
+and the connection closes; beyond --max-connections a connection gets 503 at once.
 """
 
 
@@ -80,6 +83,13 @@ class ServeConfig:
     # is a few hundred kB), so the size a body declares is refused, not discovered
     max_pixels: int = 1920 * 1080
     max_channels: int = 64  # EXR channels per frame (the format uses 15 or 16)
+    # slow or careless clients: a connection is closed when a read waits longer than
+    # request_timeout (the request line and headers, or idle between keep-alive requests),
+    # or its body takes longer than body_timeout in all (408); at most max_connections at
+    # once, each a thread, the next one refused with 503
+    request_timeout: float = 30.0
+    body_timeout: float = 60.0
+    max_connections: int = 256
     max_nonfinite: float = 0.5  # a layer with more NaN/Inf than this fraction: 400 (a NaN flood)
     keep_freed_memory: bool = False  # PipelineConfig.keep_freed_memory (process-wide; `jnds serve` sets it)
 
@@ -371,7 +381,7 @@ class _Handler(BaseHTTPRequestHandler):
         kind = type(exc.__cause__).__name__ if exc.__cause__ else HTTPStatus(exc.status).phrase
         self.frames.metrics.error(str(exc.status))
         headers = {"Retry-After": f"{exc.retry_after:g}"} if exc.retry_after is not None else {}
-        if exc.status in (411, 413):  # the unread body makes the connection unusable
+        if exc.status in (408, 411, 413) or self.close_connection:  # an unread body: the connection is unusable
             headers["Connection"] = "close"
             self.close_connection = True
         self._json(exc.status, {"error": str(exc), "kind": kind}, headers)
@@ -380,10 +390,32 @@ class _Handler(BaseHTTPRequestHandler):
         n = self.headers.get("Content-Length")
         if n is None:
             raise BadRequest(411, "Content-Length required")
-        n = int(n)
-        if n > self.frames.cfg.max_frame_bytes:
-            raise BadRequest(413, f"body of {n} bytes exceeds the limit of {self.frames.cfg.max_frame_bytes}")
-        return self.rfile.read(n)
+        try:
+            n = int(n)
+        except ValueError:
+            raise BadRequest(400, f"Content-Length {n!r} is not a number") from None
+        cfg = self.frames.cfg
+        if n < 0 or n > cfg.max_frame_bytes:
+            raise BadRequest(413, f"body of {n} bytes exceeds the limit of {cfg.max_frame_bytes}")
+        # in chunks against one deadline: a client trickling bytes must not hold a thread
+        deadline, chunks, left = time.monotonic() + cfg.body_timeout, [], n
+        try:
+            while left:
+                wait = deadline - time.monotonic()
+                if wait <= 0:
+                    raise TimeoutError
+                self.connection.settimeout(min(cfg.request_timeout, wait))
+                chunk = self.rfile.read1(min(left, 1 << 20))
+                if not chunk:
+                    self.close_connection = True
+                    raise BadRequest(400, f"body truncated: {n - left} of {n} bytes")
+                chunks.append(chunk)
+                left -= len(chunk)
+        except TimeoutError:
+            raise BadRequest(408, f"body not received within {cfg.body_timeout:g} s ({n - left} of {n} bytes)") from None
+        finally:
+            self.connection.settimeout(cfg.request_timeout)
+        return b"".join(chunks)
 
     def _route(self, method: str) -> None:
         fs = self.frames
@@ -443,11 +475,49 @@ class _Handler(BaseHTTPRequestHandler):
         self._route("DELETE")
 
 
+class _BoundedServer(ThreadingHTTPServer):
+    """A thread per connection, at most ``max_connections`` at once: the next connection
+    gets a 503 and is closed, so slow clients cannot exhaust the process's threads."""
+
+    daemon_threads = True  # idle keep-alive connections do not hold up shutdown
+    # the listen backlog (socketserver's default is 5): a burst of connections must queue
+    # in the kernel, not be dropped and retried by the clients seconds later
+    request_queue_size = 128
+
+    def __init__(self, address, handler, max_connections: int):
+        super().__init__(address, handler)
+        self.max_connections = max_connections
+        self.connections = 0
+        self._count_lock = threading.Lock()
+
+    def process_request(self, request, client_address):
+        with self._count_lock:
+            full = self.connections >= self.max_connections
+            if not full:
+                self.connections += 1
+        if full:
+            try:
+                request.sendall(b"HTTP/1.1 503 Service Unavailable\r\nRetry-After: 1\r\nContent-Length: 0\r\n"
+                                b"Connection: close\r\n\r\n")
+            except OSError:
+                pass
+            self.shutdown_request(request)
+            return
+        super().process_request(request, client_address)
+
+    def process_request_thread(self, request, client_address):
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            with self._count_lock:
+                self.connections -= 1
+
+
 def make_http_server(frames: FrameServer) -> ThreadingHTTPServer:
-    handler = type("Handler", (_Handler,), {"frames": frames})
-    httpd = ThreadingHTTPServer((frames.cfg.host, frames.cfg.port), handler)
-    httpd.daemon_threads = True  # idle keep-alive connections do not hold up shutdown
-    return httpd
+    # timeout: StreamRequestHandler sets it on the socket; a read that waits longer ends
+    # the connection (BaseHTTPRequestHandler closes it on the timeout)
+    handler = type("Handler", (_Handler,), {"frames": frames, "timeout": frames.cfg.request_timeout})
+    return _BoundedServer((frames.cfg.host, frames.cfg.port), handler, frames.cfg.max_connections)
 
 
 def serve(cfg: ServeConfig, ready=None) -> None:

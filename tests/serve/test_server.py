@@ -257,3 +257,56 @@ def test_a_frame_declaring_too_many_pixels_is_refused_before_decoding(server):
         assert grown_kib < 300 * 1024, grown_kib
         layers, cut = _frames()[0]
         assert stream.denoise(layers, cut).shape == (180, 320, 3)  # the stream goes on
+
+
+def test_slow_clients_are_closed_and_do_not_starve_others(server):
+    """200 connections that send half a request line and stop are closed after the request
+    timeout, and a normal client is served meanwhile."""
+    import socket
+    import time
+
+    url, fs = server(request_timeout=3.0)
+    host, port = url.split("//")[1].split(":")
+    slow = []
+    for _ in range(200):
+        s = socket.create_connection((host, int(port)), timeout=20)
+        s.sendall(b"POST /str")
+        slow.append(s)
+    layers, cut = _frames()[0]
+    with Client(url).open_stream() as stream:
+        assert stream.denoise(layers, cut).shape == (180, 320, 3)
+    t0 = time.monotonic()
+    for s in slow:
+        assert s.recv(1000) == b""  # closed by the server
+        s.close()
+    assert time.monotonic() - t0 < 30
+
+
+def test_connections_beyond_the_limit_get_503(server):
+    import socket
+    import time
+
+    url, fs = server(max_connections=5)
+    host, port = url.split("//")[1].split(":")
+    idle = [socket.create_connection((host, int(port)), timeout=10) for _ in range(5)]
+    time.sleep(0.5)  # accepted: each holds a thread waiting for its request line
+    extra = socket.create_connection((host, int(port)), timeout=10)
+    assert extra.recv(200).startswith(b"HTTP/1.1 503 Service Unavailable\r\nRetry-After: 1")
+    for s in idle + [extra]:
+        s.close()
+
+
+def test_a_body_that_never_completes_gets_408(server):
+    import socket
+
+    url, fs = server(body_timeout=1.0, request_timeout=5.0)
+    host, port = url.split("//")[1].split(":")
+    with Client(url).open_stream() as stream:
+        s = socket.create_connection((host, int(port)), timeout=10)
+        s.sendall(f"POST /streams/{stream.id}/frames HTTP/1.1\r\nHost: x\r\nContent-Length: 1000\r\n\r\n".encode()
+                  + b"x" * 10)
+        reply = b""
+        while chunk := s.recv(4096):  # trickle nothing more; the server answers, then closes
+            reply += chunk
+        s.close()
+    assert reply.startswith(b"HTTP/1.1 408") and b"10 of 1000 bytes" in reply
