@@ -144,7 +144,7 @@ def main() -> int:
            + " → ".join(f"{m:.1f}" for m in long["rss_windows_mib"]) + " MiB.",
            f"Peak RSS over the whole test: {max(m for _, m in sampler.samples):.1f} MiB. Server exit code after "
            f"SIGTERM: {rc}.", "",
-           "The server's own per-stage percentiles over its last frames (`GET /metrics`, ms):", "",
+           "The server's own per-stage percentiles over its last frames (`GET /metrics.json`, ms):", "",
            "| stage | p50 | p90 | p99 |", "| --- | ---: | ---: | ---: |"]
     for k, v in metrics["latency_ms"].items():
         md.append(f"| {k} | {v['p50']:.1f} | {v['p90']:.1f} | {v['p99']:.1f} |")

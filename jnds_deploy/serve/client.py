@@ -81,7 +81,7 @@ class Client:
         return self._json("GET", "/health")
 
     def metrics(self) -> dict:
-        return self._json("GET", "/metrics")
+        return self._json("GET", "/metrics.json")
 
     def open_stream(self) -> "ClientStream":
         info = self._json("POST", "/streams")

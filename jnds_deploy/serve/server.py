@@ -53,7 +53,11 @@ HTTP/1.1, JSON for control, OpenEXR for frames (any language with an EXR writer 
   DELETE /streams/ID                     -> 200
   GET    /streams/ID                     -> 200 {"frames": n, "queued": q, ...}
   GET    /health                         -> 200 {"status": "ok" | "closing", ...}
-  GET    /metrics                        -> 200 JSON: frames, errors, queue depth,
+  GET    /metrics                        -> 200 Prometheus text format: jnds_frames_total,
+                                            jnds_errors_total{status}, jnds_queue_depth,
+                                            jnds_streams_open, jnds_rss_bytes,
+                                            jnds_stage_latency_seconds{stage} (histogram), ...
+  GET    /metrics.json                   -> 200 JSON: frames, errors, queue depth,
                                             latency percentiles per stage, memory
 Errors: JSON {"error": message, "kind": type}. 400 bad frame (message names the
 channel, layer or value), 404 unknown stream (closed, or idle longer than the timeout),
@@ -107,24 +111,44 @@ class Stream:
         self.closed = False
 
 
+# Prometheus latency buckets, seconds: from a small frame's filter step to a 1080p frame
+LATENCY_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0)
+
+
 class Metrics:
-    """Counters and a window of the last ``window`` frames' stage timings."""
+    """Counters and a window of the last ``window`` frames' stage timings (the JSON's
+    percentiles), and the same as Prometheus metrics in a registry of this server's own
+    (``prometheus_client``; names prefixed ``jnds_``), so that two servers in one process
+    do not share them."""
 
     def __init__(self, window: int = 2000):
+        from prometheus_client import CollectorRegistry, Counter, Histogram
+
         self.lock = threading.Lock()
         self.frames = 0
         self.errors: dict[str, int] = {}
         self.timings: deque = deque(maxlen=window)
         self.started = time.time()
+        self.registry = CollectorRegistry()
+        self.frames_total = Counter("jnds_frames", "Frames served", registry=self.registry)
+        self.errors_total = Counter("jnds_errors", "Requests refused or failed, by HTTP status", ["status"],
+                                    registry=self.registry)
+        self.latency = Histogram("jnds_stage_latency_seconds", "Time per pipeline stage and frame (queue, "
+                                 "server: the whole request)", ["stage"], buckets=LATENCY_BUCKETS,
+                                 registry=self.registry)
 
     def frame(self, ms: dict) -> None:
         with self.lock:
             self.frames += 1
             self.timings.append(ms)
+        self.frames_total.inc()
+        for stage, v in ms.items():
+            self.latency.labels(stage).observe(v / 1000)
 
     def error(self, kind: str) -> None:
         with self.lock:
             self.errors[kind] = self.errors.get(kind, 0) + 1
+        self.errors_total.labels(kind).inc()
 
     def snapshot(self) -> dict:
         with self.lock:
@@ -337,6 +361,30 @@ class FrameServer:
                 "streams_running": running, "requests_in_flight": self.inflight,
                 "rss_bytes": rss_bytes(), "workers": self.cfg.workers}
 
+    def prometheus(self) -> bytes:
+        """The metrics in Prometheus' text format: the counters and histogram kept per
+        frame, and the gauges of ``snapshot`` read now."""
+        from prometheus_client import generate_latest
+        from prometheus_client.core import GaugeMetricFamily
+
+        snap = self.snapshot()
+
+        class _Gauges:
+            def collect(self):
+                for key, doc in (("streams_open", "Open streams"), ("queue_depth", "Frames queued, all streams"),
+                                 ("streams_running", "Streams with a frame running"),
+                                 ("requests_in_flight", "HTTP requests being handled"),
+                                 ("rss_bytes", "Resident memory of the process"), ("workers", "Worker threads"),
+                                 ("uptime_s", "Seconds since the server started")):
+                    yield GaugeMetricFamily(f"jnds_{key}", doc, value=float(snap[key]))
+
+        gauges = _Gauges()
+        self.metrics.registry.register(gauges)
+        try:
+            return generate_latest(self.metrics.registry)
+        finally:
+            self.metrics.registry.unregister(gauges)
+
     def begin_request(self) -> None:
         with self.lock:
             self.inflight += 1
@@ -425,7 +473,9 @@ class _Handler(BaseHTTPRequestHandler):
             parts = [p for p in url.path.split("/") if p]
             if method == "GET" and parts == ["health"]:
                 return self._json(200, fs.health())
-            if method == "GET" and parts == ["metrics"]:
+            if method == "GET" and parts == ["metrics"]:  # Prometheus' text format
+                return self._send(200, fs.prometheus(), "text/plain; version=0.0.4; charset=utf-8")
+            if method == "GET" and parts == ["metrics.json"]:
                 return self._json(200, fs.snapshot())
             if method == "POST" and parts == ["streams"]:
                 if self.headers.get("Content-Length"):

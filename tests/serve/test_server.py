@@ -310,3 +310,24 @@ def test_a_body_that_never_completes_gets_408(server):
             reply += chunk
         s.close()
     assert reply.startswith(b"HTTP/1.1 408") and b"10 of 1000 bytes" in reply
+
+
+def test_metrics_in_prometheus_text_format(server):
+    import urllib.request
+
+    from prometheus_client.parser import text_string_to_metric_families
+
+    url, fs = server()
+    layers, cut = _frames()[0]
+    with Client(url).open_stream() as stream:
+        stream.denoise(layers, cut)
+        stream.denoise(layers, False)
+    with urllib.request.urlopen(url + "/metrics") as r:
+        assert r.headers["Content-Type"].startswith("text/plain")
+        families = {f.name: f for f in text_string_to_metric_families(r.read().decode())}
+    assert families["jnds_frames"].samples[0].value == 2
+    assert families["jnds_streams_open"].samples[0].value == 0 and families["jnds_rss_bytes"].samples[0].value > 0
+    counts = {s.labels["stage"]: s.value for s in families["jnds_stage_latency_seconds"].samples
+              if s.name.endswith("_count")}
+    assert counts["network"] == 2 and counts["server"] == 2
+    assert Client(url).metrics()["frames_served"] == 2  # the JSON stays, at /metrics.json
