@@ -169,6 +169,7 @@ def cmd_serve(args) -> int:
                       threads=args.threads, workers=args.workers, queue=args.queue,
                       max_streams=args.max_streams, idle_timeout=args.idle_timeout, max_pixels=args.max_pixels,
                       request_timeout=args.request_timeout, max_connections=args.max_connections,
+                      max_memory=int(args.max_memory * 2**30) if args.max_memory else None,
                       keep_freed_memory=True)
     serve(cfg, ready=lambda h, p: print(f"jnds serve: listening on http://{h}:{p}", flush=True))
     return 0
@@ -295,6 +296,8 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--request-timeout", type=float, default=30.0,
                     help="seconds a read may wait (request line, headers, keep-alive idle) before the connection closes")
     sv.add_argument("--max-connections", type=int, default=256, help="connections at once; the next gets a 503")
+    sv.add_argument("--max-memory", type=float, default=None,
+                    help="GiB the frames in flight may take (estimated per pixel); default: half the machine's memory")
     sv.set_defaults(func=cmd_serve)
 
     rn = sub.add_parser("run", help="denoise and upsample a sequence with the exported pipeline")

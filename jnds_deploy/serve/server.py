@@ -86,6 +86,10 @@ class ServeConfig:
     # pipeline's memory grows with the frame (a compressed EXR of zeros declaring 4000x4000
     # is a few hundred kB), so the size a body declares is refused, not discovered
     max_pixels: int = 1920 * 1080
+    # bytes the frames in flight may take, estimated at FRAME_BYTES_PER_PIXEL per native
+    # pixel; None: half the machine's memory. A frame that alone exceeds it gets 413, one
+    # that does not fit beside the frames in flight 503 + Retry-After
+    max_memory: int | None = None
     max_channels: int = 64  # EXR channels per frame (the format uses 15 or 16)
     # slow or careless clients: a connection is closed when a read waits longer than
     # request_timeout (the request line and headers, or idle between keep-alive requests),
@@ -109,6 +113,15 @@ class Stream:
         self.last_used = time.monotonic()
         self.users = 0  # requests holding the stream right now: never reaped while > 0
         self.closed = False
+
+
+# peak memory of a frame in the pipeline per native pixel (int8, 2x output, buffers kept):
+# measured at 640x360 and 1280x720 (docs/design-notes.md), rounded up
+FRAME_BYTES_PER_PIXEL = 4000
+
+
+def machine_memory() -> int:
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
 # Prometheus latency buckets, seconds: from a small frame's filter step to a 1080p frame
@@ -189,6 +202,8 @@ class FrameServer:
         self.metrics = Metrics()
         self.closing = False
         self.inflight = 0  # requests being handled (graceful shutdown waits for 0)
+        self.budget = cfg.max_memory if cfg.max_memory is not None else machine_memory() // 2
+        self.reserved = 0  # bytes of the budget held by frames in flight
         self.idle = threading.Event()
         self.idle.set()
         self._reaper = threading.Thread(target=self._reap, name="jnds-reaper", daemon=True)
@@ -273,6 +288,10 @@ class FrameServer:
             if w * h > self.cfg.max_pixels:
                 raise BadRequest(413, f"request body: a {w}x{h} frame ({w * h} pixels) exceeds the server's "
                                       f"limit of {self.cfg.max_pixels} pixels (jnds serve --max-pixels)")
+            if w * h * FRAME_BYTES_PER_PIXEL > self.budget:
+                raise BadRequest(413, f"request body: a {w}x{h} frame needs about "
+                                      f"{w * h * FRAME_BYTES_PER_PIXEL / 2**20:.0f} MiB, more than the server's memory "
+                                      f"budget of {self.budget / 2**20:.0f} MiB (jnds serve --max-memory)")
             if len(channels) > self.cfg.max_channels:
                 raise BadRequest(413, f"request body: {len(channels)} EXR channels exceed the server's limit "
                                       f"of {self.cfg.max_channels}")
@@ -294,8 +313,21 @@ class FrameServer:
 
     def denoise(self, s: Stream, layers: dict, cut: bool) -> tuple[np.ndarray, dict, dict, int]:
         """Queue one frame on its stream and wait for it: (colour HWC, ms per stage,
-        non-finite counts, index of the frame in the stream)."""
-        return self._submit(s, (layers, cut, time.perf_counter())).result()
+        non-finite counts, index of the frame in the stream). The frame's memory is
+        reserved from the budget until it is done; 503 + Retry-After if it does not fit."""
+        h, w = np.shape(layers["diffuse"])[:2]
+        need = w * h * FRAME_BYTES_PER_PIXEL
+        with self.lock:
+            if self.reserved + need > self.budget:
+                raise BadRequest(503, f"memory budget: {self.reserved / 2**20:.0f} of {self.budget / 2**20:.0f} MiB "
+                                      f"reserved by frames in flight, this one needs {need / 2**20:.0f}",
+                                 retry_after=1.0)
+            self.reserved += need
+        try:
+            return self._submit(s, (layers, cut, time.perf_counter())).result()
+        finally:
+            with self.lock:
+                self.reserved -= need
 
     def _submit(self, s: Stream, job) -> Future:
         fut: Future = Future()
@@ -359,7 +391,8 @@ class FrameServer:
             streams = len(self.streams)
         return {**self.metrics.snapshot(), "streams_open": streams, "queue_depth": queued,
                 "streams_running": running, "requests_in_flight": self.inflight,
-                "rss_bytes": rss_bytes(), "workers": self.cfg.workers}
+                "rss_bytes": rss_bytes(), "workers": self.cfg.workers, "memory_reserved_bytes": self.reserved,
+                "memory_budget_bytes": self.budget}
 
     def prometheus(self) -> bytes:
         """The metrics in Prometheus' text format: the counters and histogram kept per
@@ -375,6 +408,8 @@ class FrameServer:
                                  ("streams_running", "Streams with a frame running"),
                                  ("requests_in_flight", "HTTP requests being handled"),
                                  ("rss_bytes", "Resident memory of the process"), ("workers", "Worker threads"),
+                                 ("memory_reserved_bytes", "Memory budget held by frames in flight"),
+                                 ("memory_budget_bytes", "The memory budget (jnds serve --max-memory)"),
                                  ("uptime_s", "Seconds since the server started")):
                     yield GaugeMetricFamily(f"jnds_{key}", doc, value=float(snap[key]))
 

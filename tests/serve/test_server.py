@@ -331,3 +331,20 @@ def test_metrics_in_prometheus_text_format(server):
               if s.name.endswith("_count")}
     assert counts["network"] == 2 and counts["server"] == 2
     assert Client(url).metrics()["frames_served"] == 2  # the JSON stays, at /metrics.json
+
+
+def test_the_memory_budget_refuses_what_does_not_fit(server):
+    """A frame whose estimated memory exceeds the budget gets 413 from its header; the
+    budget reserved by a served frame is released."""
+    from jnds_deploy.serve.server import FRAME_BYTES_PER_PIXEL
+
+    layers, cut = _frames()[0]
+    need = 160 * 90 * FRAME_BYTES_PER_PIXEL
+    url, fs = server(max_memory=need - 1)
+    with Client(url).open_stream() as stream:
+        with pytest.raises(ServerError, match="HTTP 413: .*160x90 frame needs about .* memory budget"):
+            stream.denoise(layers, cut)
+    url, fs = server(max_memory=need)
+    with Client(url).open_stream() as stream:
+        stream.denoise(layers, cut)
+    assert fs.reserved == 0 and Client(url).metrics()["memory_budget_bytes"] == need
