@@ -146,6 +146,45 @@ def fuzz(url: str, cases: int, seed: int, reference=None, every: int = 100) -> d
     return dict(sorted(counts.items()))
 
 
+def slow_clients(url: str, frames, count: int = 200, rounds: int = 15) -> dict:
+    """Frame latency of a normal stream without and with ``count`` connections that sent
+    half a request line and stopped (interleaved by round), and how long the server takes
+    to close them all."""
+    from jnds_deploy.serve import Client
+
+    host, port = url.split("//")[1].split(":")
+
+    def frame_ms(stream):
+        t0 = time.perf_counter()
+        stream.denoise(*frames[0])
+        return 1000 * (time.perf_counter() - t0)
+
+    alone, beside = [], []
+    with Client(url).open_stream() as stream:
+        frame_ms(stream)  # warm-up
+        for _ in range(rounds):
+            alone.append(frame_ms(stream))
+        slow = []
+        for _ in range(count):
+            sock = socket.create_connection((host, int(port)), timeout=120)
+            sock.sendall(b"POST /str")
+            slow.append(sock)
+        t_open = time.monotonic()
+        for _ in range(rounds):
+            beside.append(frame_ms(stream))
+    closed_after = []
+    for sock in slow:
+        try:
+            sock.recv(100)
+        except OSError:
+            pass
+        closed_after.append(time.monotonic() - t_open)
+        sock.close()
+    return {"slow_connections": count, "frame_ms_alone": alone, "frame_ms_beside_slow": beside,
+            "median_ms_alone": float(np.median(alone)), "median_ms_beside_slow": float(np.median(beside)),
+            "all_closed_after_s": float(max(closed_after))}
+
+
 def main() -> None:
     ap = arguments(__doc__, RESULTS / "serve_fuzz")
     ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
@@ -177,6 +216,7 @@ def main() -> None:
         t0 = time.perf_counter()
         counts = fuzz(url, args.cases, args.seed, reference)
         wall = time.perf_counter() - t0
+        slow = slow_clients(url, frames)
         alive = Client(url).health()["status"] == "ok" and proc.poll() is None
     finally:
         proc.terminate()
@@ -185,7 +225,7 @@ def main() -> None:
     report = {"command": command_line(), "machine": machine_info(), "cases": args.cases, "seed": args.seed,
               "wall_s": wall, "statuses": counts, "server_alive": alive, "server_exit_code": proc.returncode,
               "reference_checks": len(mismatches), "reference_frames_changed": int(sum(mismatches)),
-              "rss_mib": mib}
+              "rss_mib": mib, "slow_clients": slow}
     md = ["# `jnds serve` under fuzzing", "", f"Command: `{report['command']}`  ",
           f"Machine: {cpu_line(report['machine'])}, {report['machine']['cpu_count']} cores.", "",
           f"{args.cases} hostile requests (seed {args.seed}), one connection each, in {wall:.0f} s; a reference "
@@ -193,7 +233,12 @@ def main() -> None:
           "| answer | requests |", "| --- | ---: |"] + [f"| {k} | {v} |" for k, v in counts.items()] + [
           "", f"- server alive at the end: {alive} (crashes: {0 if alive else 1})",
           f"- reference frames different from the first run's: {int(sum(mismatches))}",
-          f"- server RSS: {mib[0]:.0f} MiB at the start, max {max(mib):.0f}, last {mib[-1]:.0f} MiB", ""]
+          f"- server RSS: {mib[0]:.0f} MiB at the start, max {max(mib):.0f}, last {mib[-1]:.0f} MiB", "",
+          f"Slow clients: {slow['slow_connections']} connections send half a request line and stop (the "
+          f"server's --request-timeout 5 s). A normal stream's 160x90 frame, {len(slow['frame_ms_alone'])} each: "
+          f"median {slow['median_ms_alone']:.1f} ms alone, {slow['median_ms_beside_slow']:.1f} ms beside them; "
+          f"all {slow['slow_connections']} closed by the server {slow['all_closed_after_s']:.1f} s after they "
+          "were opened.", ""]
     write_report(Path(args.out), report, "\n".join(md))
     print("\n".join(md))
 
