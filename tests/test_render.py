@@ -238,3 +238,14 @@ def test_dataset_jobs_render_what_one_process_renders(tmp_path, monkeypatch):
                 np.testing.assert_array_equal(b.inputs(i)[k], v, err_msg=f"{rel} frame {i} {k}")
             np.testing.assert_array_equal(b.reference(i)["color"], a.reference(i)["color"])
     assert dataset.render_dataset(tmp_path / "two", jobs=2) == []  # finished sequences are kept
+
+
+def test_the_test_split_is_apart_and_only_rendered_when_asked_for():
+    from jnds_deploy.render.dataset import dataset_specs
+    for engine in ("mitsuba", "cycles"):
+        test = {cfg.seed for _, cfg in dataset_specs("test", engine=engine)}
+        seen = {cfg.seed for _, cfg in dataset_specs("all", 1000, engine=engine)}
+        assert len(test) == 6 and not test & seen
+        assert all(rel.startswith("test/") for rel, _ in dataset_specs("test", engine=engine))
+    assert not {cfg.seed for _, cfg in dataset_specs("test")} & {cfg.seed for _, cfg in
+                                                                 dataset_specs("all", 1000, engine="cycles")}

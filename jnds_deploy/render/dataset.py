@@ -34,30 +34,34 @@ def _specs(split: str, seeds: range, frames: int, spp: int, engine: str = "mitsu
 
 
 TRAIN_SEQUENCES = 24  # the training set's default size; seeds 1000, 1001, ...
-# first seeds of each engine's training and validation sequences (never overlapping)
-SEEDS = {"mitsuba": (1000, 2000), "cycles": (5000, 6000)}
+# first seeds of each engine's training, validation and test sequences (never overlapping)
+SEEDS = {"mitsuba": (1000, 2000, 8000), "cycles": (5000, 6000, 7000)}
 
 
 def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
                   engine: str = "mitsuba") -> list[tuple[str, RenderConfig]]:
-    """(relative directory, config) of every sequence in a split: train, val or all.
+    """(relative directory, config) of every sequence in a split: train, val, all (both)
+    or test.
 
     ``train_sequences`` grows the training set with further seeds (the first 24 are
     always the same sequences); validation seeds (2000+; Cycles: 6000+) never overlap it.
+    The test split (8000+; Cycles: 7000+) is rendered only when asked for: it is never
+    trained on, and no checkpoint or setting is chosen by it.
     """
     if not 1 <= train_sequences <= 1000:
         raise ConfigError(f"train_sequences must be in 1..1000, got {train_sequences}")
     if engine not in ENGINES:
         raise ConfigError(f"unknown engine {engine!r}, expected one of {', '.join(ENGINES)}")
-    train0, val0 = SEEDS[engine]
+    train0, val0, test0 = SEEDS[engine]
     specs = {
         "train": _specs("train", range(train0, train0 + train_sequences), frames=12, spp=64, engine=engine),
         "val": _specs("val", range(val0, val0 + 6), frames=12, spp=128, engine=engine),
+        "test": _specs("test", range(test0, test0 + 6), frames=12, spp=128, engine=engine),
     }
     if split == "all":
         return specs["train"] + specs["val"]
     if split not in specs:
-        raise ConfigError(f"unknown split {split!r}, expected train, val or all")
+        raise ConfigError(f"unknown split {split!r}, expected train, val, all or test")
     return specs[split]
 
 
