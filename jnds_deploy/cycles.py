@@ -29,10 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .blender import CYCLES_PASSES, PASSES, ROUGHNESS_AOV, SIDECAR  # names only: no bpy at import
 from .errors import SequenceError
-from .io import FrameInfo, SequenceWriter, validate
+from .io import FrameInfo, SequenceWriter, read_exr, validate
 
-# the blender module's PASSES, restated: this side must not import bpy-side code paths
 SETTINGS = {  # pass -> the Blender setting that enables it
     "Combined": "View Layer Properties > Passes > Data > Combined",
     "Diffuse Direct": "Passes > Light > Diffuse > Direct",
@@ -51,36 +51,27 @@ SETTINGS = {  # pass -> the Blender setting that enables it
     "Normal": "Passes > Data > Normal",
     "Vector": "Passes > Data > Vector (with Render Properties > Motion Blur off)",
     "Depth": "Passes > Data > Z",
-    "Roughness": "Passes > Shader AOV: a Value AOV named 'Roughness' and an AOV Output node in each material",
+    ROUGHNESS_AOV: f"Passes > Shader AOV: a Value AOV named {ROUGHNESS_AOV!r} and an AOV Output node in each material",
 }
-REFERENCE_PASSES = ("Combined", "Diffuse Direct", "Diffuse Indirect", "Diffuse Color", "Glossy Direct",
-                    "Glossy Indirect", "Glossy Color", "Transmission Direct", "Transmission Indirect",
-                    "Transmission Color", "Volume Direct", "Volume Indirect", "Emission", "Environment")
-SIDECAR = "jnds.json"  # blender.SIDECAR
+INPUT_PASSES = [p for p in [*PASSES.values(), *CYCLES_PASSES.values(), ROUGHNESS_AOV] if p != "Combined"]
+REFERENCE_PASSES = [p for p in [*PASSES.values(), *CYCLES_PASSES.values()] if p not in ("Normal", "Vector", "Depth")]
 _FRAME = re.compile(r"^(.*?)(\d+)\.exr$")
 
 
 def read_passes(path: Path) -> dict[str, np.ndarray]:
     """Every pass of a Blender multilayer EXR as (H, W, C) float32, channels in the order
-    R, G, B (X, Y, Z, W; A dropped); pass names without the view layer."""
-    import OpenEXR
-
-    try:
-        exr = OpenEXR.File(str(path), separate_channels=True)
-        parts = [p.channels for p in exr.parts]
-    except Exception as exc:  # OpenEXR raises RuntimeError for truncated/corrupt files
-        raise SequenceError(path, f"unreadable OpenEXR file ({exc})") from exc
+    R, G, B (X, Y, Z, W; A dropped); pass names without the view layer
+    (``ViewLayer.Diffuse Color.R`` -> ``Diffuse Color``)."""
     grouped: dict[str, dict[str, np.ndarray]] = {}
-    for channels in parts:
-        for name, ch in channels.items():
-            layer, _, comp = name.rpartition(".")
-            grouped.setdefault(layer.split(".", 1)[-1] if "." in layer else layer, {})[comp] = ch.pixels
+    for name, pixels in read_exr(path).items():
+        layer, _, comp = name.rpartition(".")
+        grouped.setdefault(layer.split(".", 1)[-1], {})[comp] = pixels
     order = "RGBXYZW"
     out = {}
     for name, comps in grouped.items():
         keys = sorted((k for k in comps if k in order), key=order.index)
         if keys:
-            out[name] = np.stack([comps[k].astype(np.float32) for k in keys], -1)
+            out[name] = np.stack([comps[k] for k in keys], -1)
     return out
 
 
@@ -106,7 +97,7 @@ def components(passes: dict) -> dict[str, np.ndarray]:
 
 def input_layers(passes: dict, path: Path) -> dict[str, np.ndarray]:
     """The format's input layers (HWC float32) from one frame's passes."""
-    _require(passes, [n for n in SETTINGS if n != "Combined"], path)
+    _require(passes, INPUT_PASSES, path)
     layers = components(passes)
     vec = passes["Vector"]
     motion = np.stack([vec[..., 0], -vec[..., 1]], -1)  # y up -> y down
@@ -114,7 +105,7 @@ def input_layers(passes: dict, path: Path) -> dict[str, np.ndarray]:
     background = ~np.any(normal != 0, axis=-1, keepdims=True)
     motion = np.where(background, 0.0, motion).astype(np.float32)  # no surface, no motion: as Blender's
     depth = np.where(background[..., 0], 0.0, passes["Depth"][..., 0])[..., None]
-    roughness = np.clip(passes["Roughness"][..., :1], 0.0, 1.0) ** 2
+    roughness = np.clip(passes[ROUGHNESS_AOV][..., :1], 0.0, 1.0) ** 2
     roughness = np.where(background, 1.0, roughness)
     return {**layers, "normal": normal, "roughness": roughness.astype(np.float32), "motion": motion,
             "depth": depth.astype(np.float32)}

@@ -56,7 +56,7 @@ Layers = dict[str, np.ndarray]
 
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:
-    """Read every channel of an EXR file as ``{full channel name: (H, W) float32}``."""
+    """Read every channel of an EXR file, of every part, as ``{full channel name: (H, W) float32}``."""
     path = Path(path)
     if not path.is_file():
         raise ExrReadError(path, "file does not exist")
@@ -73,7 +73,17 @@ def read_exr_bytes(data: bytes, name: str = "<frame>") -> dict[str, np.ndarray]:
 def _read_exr(source, name) -> dict[str, np.ndarray]:
     try:
         exr = OpenEXR.File(source, separate_channels=True)
-        channels = exr.channels()
+        # every part: ``File.channels()`` is the first one only, and a multi-part file
+        # (Blender 5 writes one part per pass) would lose the rest. The binding drops a
+        # part whose pixels it cannot read (with a warning), so the parts read are
+        # counted against the parts the header declares
+        if hasattr(source, "seek"):
+            source.seek(0)
+        declared = len(OpenEXR.File(source, header_only=True).parts)
+        if len(exr.parts) < max(declared, 1):
+            raise ExrReadError(name, f"unreadable or truncated OpenEXR file ({len(exr.parts)} of {declared} "
+                                     "parts readable)")
+        channels = {c: ch for part in exr.parts for c, ch in part.channels.items()}
         out = {}
         for cname, ch in channels.items():
             px = ch.pixels
