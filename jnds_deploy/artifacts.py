@@ -23,11 +23,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from .errors import ArtifactError
+from .layout import UPSAMPLE_ROOTS
 
 FORMAT = "jnds-artifacts/2"  # 2: the upsample kernel in phase layout at native resolution
 MANIFEST = "manifest.json"
-UPSAMPLE_ROOTS = (1, 2, 4, 8)  # model.UPSAMPLE_ROOTS (the runtime has no torch)
-PRECISIONS = ("fp32", "int8")
 
 # what the runtime must do around the graphs, written for a reader of the manifest
 DESCRIPTION = {

@@ -35,7 +35,6 @@ LAYERS = (
     Layer("roughness", ("",), 0.0, 1.0),
     Layer("motion", ("X", "Y"), -HDR_MAX, HDR_MAX),
 )
-LAYER = {layer.name: layer for layer in LAYERS}
 INPUT_CHANNELS = {layer.name: layer.channels for layer in LAYERS}  # what a frame must hold
 
 # channels of the current inputs and of the history, in order: (name, channel count)
@@ -60,6 +59,10 @@ def channels(name: str, layout=CURRENT) -> slice:
 # another surface; a normal with |x| + |y| + |z| below BACKGROUND is background (unit: >= 1)
 REJECT_COS = 0.7
 BACKGROUND = 0.5
+
+# the roots the upsample filter may interpolate in (model.ModelConfig.upsample_root; here,
+# so that the runtime, which has no torch, checks a manifest against the same list)
+UPSAMPLE_ROOTS = (1, 2, 4, 8)
 
 # the upsample filter's root interpolation (jnds_deploy.filters.upsample_filter) raises the
 # composite to this floor first: the derivative of x^(1/root) is infinite at 0

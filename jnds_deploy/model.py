@@ -34,10 +34,8 @@ import torch.nn.functional as F
 
 from . import filters
 from .errors import ConfigError
-from .layout import CURRENT, HISTORY, N_CURRENT, N_HISTORY  # noqa: F401 (re-exported)
+from .layout import CURRENT, HISTORY, N_CURRENT, N_HISTORY, UPSAMPLE_ROOTS  # noqa: F401 (re-exported)
 
-
-UPSAMPLE_ROOTS = (1, 2, 4, 8)
 
 
 @dataclass(frozen=True)

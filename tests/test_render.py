@@ -9,7 +9,8 @@ import pytest
 from jnds_deploy.errors import RenderError
 from jnds_deploy.io import open_sequence, validate
 from jnds_deploy.metrics import motion_warp_error
-from jnds_deploy.render.camera import Camera, camera_path, jitter
+from jnds_deploy.render.camera import Camera, camera_path
+from jnds_deploy.sampling import jitter
 
 from .conftest import SAMPLE
 

@@ -1,7 +1,6 @@
 """PyTorch -> ONNX conversion of the two graphs, their pruned variants, the manifest, and validation."""
 from __future__ import annotations
 
-import json
 import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path

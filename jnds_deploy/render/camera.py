@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError
-from ..sampling import halton, jitter  # noqa: F401 (the renderer's jitter)
 
 CAMERA_PATHS = ("static", "dolly", "orbit", "pan", "cut")
 

@@ -33,7 +33,8 @@ from ..io import (
     read_layers,
 )
 from ..blender_scene import CYCLES_SCENE_KINDS
-from .camera import CAMERA_PATHS, Camera, camera_path, jitter
+from ..sampling import jitter
+from .camera import CAMERA_PATHS, Camera, camera_path
 from .scene import EXTENT, SCENE_KINDS, build_scene
 
 ALBEDO_EPS = 1e-3  # below this albedo, demodulated diffuse is written as 0 (format contract)

@@ -21,7 +21,7 @@ from urllib.parse import urlsplit
 import numpy as np
 import OpenEXR
 
-from ..errors import JndsError, ServerError
+from ..errors import ServerError
 from ..io import INPUT_LAYERS, OPTIONAL_INPUT_LAYERS, OUTPUT_LAYERS, channels_to_layers, exr_bytes, read_exr_bytes
 
 

@@ -184,6 +184,27 @@ def rss_bytes(pid: int | str = "self") -> int | None:
         return None
 
 
+class _Gauges:
+    """A Prometheus collector of a server's ``snapshot`` values, read when scraped."""
+
+    GAUGES = (("streams_open", "Open streams"), ("queue_depth", "Frames queued, all streams"),
+              ("streams_running", "Streams with a frame running"), ("requests_in_flight", "HTTP requests being handled"),
+              ("rss_bytes", "Resident memory of the process"), ("workers", "Worker threads"),
+              ("memory_reserved_bytes", "Memory budget held by frames in flight"),
+              ("memory_budget_bytes", "The memory budget (jnds serve --max-memory)"),
+              ("uptime_s", "Seconds since the server started"))
+
+    def __init__(self, server: "FrameServer"):
+        self.server = server
+
+    def collect(self):
+        from prometheus_client.core import GaugeMetricFamily
+
+        snap = self.server.snapshot()
+        for key, doc in self.GAUGES:
+            yield GaugeMetricFamily(f"jnds_{key}", doc, value=float(snap[key] or 0))
+
+
 class FrameServer:
     """The server's state and work: streams, the worker pool, metrics. The HTTP layer
     (``_Handler``) only parses requests and calls these methods."""
@@ -204,6 +225,7 @@ class FrameServer:
         self.inflight = 0  # requests being handled (graceful shutdown waits for 0)
         self.budget = cfg.max_memory if cfg.max_memory is not None else machine_memory() // 2
         self.reserved = 0  # bytes of the budget held by frames in flight
+        self.metrics.registry.register(_Gauges(self))
         self.idle = threading.Event()
         self.idle.set()
         self._reaper = threading.Thread(target=self._reap, name="jnds-reaper", daemon=True)
@@ -396,29 +418,10 @@ class FrameServer:
 
     def prometheus(self) -> bytes:
         """The metrics in Prometheus' text format: the counters and histogram kept per
-        frame, and the gauges of ``snapshot`` read now."""
+        frame, and the gauges of ``snapshot`` (``_Gauges``, read at the scrape)."""
         from prometheus_client import generate_latest
-        from prometheus_client.core import GaugeMetricFamily
 
-        snap = self.snapshot()
-
-        class _Gauges:
-            def collect(self):
-                for key, doc in (("streams_open", "Open streams"), ("queue_depth", "Frames queued, all streams"),
-                                 ("streams_running", "Streams with a frame running"),
-                                 ("requests_in_flight", "HTTP requests being handled"),
-                                 ("rss_bytes", "Resident memory of the process"), ("workers", "Worker threads"),
-                                 ("memory_reserved_bytes", "Memory budget held by frames in flight"),
-                                 ("memory_budget_bytes", "The memory budget (jnds serve --max-memory)"),
-                                 ("uptime_s", "Seconds since the server started")):
-                    yield GaugeMetricFamily(f"jnds_{key}", doc, value=float(snap[key]))
-
-        gauges = _Gauges()
-        self.metrics.registry.register(gauges)
-        try:
-            return generate_latest(self.metrics.registry)
-        finally:
-            self.metrics.registry.unregister(gauges)
+        return generate_latest(self.metrics.registry)
 
     def begin_request(self) -> None:
         with self.lock:

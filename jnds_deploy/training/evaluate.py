@@ -96,7 +96,8 @@ def evaluate_methods(seq_paths: list[Path], methods: dict, with_flip: bool = Tru
                      shown: dict | None = None) -> dict:
     """``methods``: name -> callable(seq_path) -> list of HWC frames. Returns per method
     the mean over sequences of each metric, the per-sequence values and ms per frame.
-    ``shown``, if given, receives the contact sheet's images: {sequence: {column: middle frame}}."""
+    ``shown``, if given, receives the contact sheet's images: {sequence: {column: middle
+    frame}}, the input first and the reference last."""
     truth = {p: ground_truth(p) for p in seq_paths}  # read once, shared by every method
     report = {}
     for name, run in methods.items():
@@ -108,11 +109,15 @@ def evaluate_methods(seq_paths: list[Path], methods: dict, with_flip: bool = Tru
             per_seq[p.name] = score_frames(outs, *truth[p], with_flip)
             if shown is not None:
                 mid = len(outs) // 2
-                row = shown.setdefault(p.name, {"input": baselines.noisy_composite(open_sequence(p).inputs(mid))})
-                row[name] = outs[mid]
+                if p.name not in shown:
+                    shown[p.name] = {"input": baselines.noisy_composite(open_sequence(p).inputs(mid))}
+                shown[p.name][name] = outs[mid]
         # ms_per_frame includes reading the input EXRs: a rough figure, not a benchmark
         report[name] = {"mean": mean_over_sequences(per_seq), "ms_per_frame": float(np.median(ms)),
                         "sequences": per_seq}
+    for p in seq_paths if shown is not None else []:
+        refs = truth[p][0]
+        shown[p.name]["reference"] = refs[len(refs) // 2]
     return report
 
 
@@ -162,10 +167,7 @@ def evaluate_sets(checkpoints: list[str], sets: list[str], baselines_: list[str]
         seqs = expand_sequences([data])
         shown = {} if sheet else None
         reports[set_name(data)] = evaluate_methods(seqs, methods, shown=shown)
-        for p in seqs if sheet else []:
-            seq = open_sequence(p)
-            rows.append((f"{set_name(data)}/{p.name}", {**shown[p.name],
-                                                         "reference": seq.reference(len(seq) // 2)["color"]}))
+        rows += [(f"{set_name(data)}/{p.name}", shown[p.name]) for p in seqs] if sheet else []
     if out:
         Path(out).parent.mkdir(parents=True, exist_ok=True)
         Path(out).write_text(json.dumps(reports if len(reports) > 1 else next(iter(reports.values())), indent=1))

@@ -5,10 +5,10 @@ import numpy as np
 from jnds_deploy.serve import Client
 from jnds_deploy.serve.server import rss_bytes
 
-from .test_server import _frames, server  # noqa: F401 (the fixture)
+from .test_server import _frames
 
 
-def test_hostile_requests_are_answered_and_change_nothing(server):  # noqa: F811
+def test_hostile_requests_are_answered_and_change_nothing(server):
     from benchmarks.serve_fuzz import fuzz
 
     url, fs = server(request_timeout=2.0)

@@ -10,31 +10,10 @@ import pytest
 from jnds_deploy.io import INPUT_LAYERS, exr_bytes, open_sequence, read_exr
 from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
 from jnds_deploy.runtime.run import run_sequence
-from jnds_deploy.serve import Client, FrameServer, ServeConfig, ServerError, make_http_server
+from jnds_deploy.serve import Client, ServerError
 from jnds_deploy.serve.server import BadRequest
 
 from ..conftest import SAMPLE
-
-
-@pytest.fixture
-def server(tiny_artifacts):
-    """Start a server on a free loopback port; yields a function making (url, FrameServer)
-    for a config, shuts everything down afterwards."""
-    started = []
-
-    def start(**kw):
-        cfg = ServeConfig(artifacts=str(tiny_artifacts[0]), port=0, precision="fp32", **kw)
-        fs = FrameServer(cfg)
-        httpd = make_http_server(fs)
-        threading.Thread(target=httpd.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True).start()
-        started.append((fs, httpd))
-        return f"http://127.0.0.1:{httpd.server_address[1]}", fs
-
-    yield start
-    for fs, httpd in started:
-        fs.close(timeout=10)
-        httpd.shutdown()
-        httpd.server_close()
 
 
 def _frames():
