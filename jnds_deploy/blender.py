@@ -1,7 +1,8 @@
 """The Blender side: make a scene render JNDS inputs with Cycles.
 
-Runs inside Blender's Python (``bpy`` and the standard library only; this package's own
-dependencies -- numpy 2, torch, onnxruntime -- are not needed and not imported). In
+Runs inside Blender's Python (``bpy``, the standard library and this package's pure-Python
+``errors`` and ``sampling`` only; the package's dependencies -- numpy 2, torch,
+onnxruntime -- are not needed and not imported). In
 Blender's Python console, or a script run by Blender, with this repository on ``sys.path``::
 
     import bpy
@@ -36,6 +37,7 @@ import json
 import os
 from dataclasses import dataclass, field
 
+from .errors import ConfigError
 from .sampling import jitter
 
 # view-layer property -> pass name in the EXR (``ViewLayer.<pass>.<channel>``)
@@ -135,7 +137,7 @@ def _key_jitter(scene, changes: Changes, log) -> dict:
     cam = scene.camera.data
     if cam.animation_data and cam.animation_data.action and any(
             fc.data_path in ("shift_x", "shift_y") for fc in _fcurves(cam.animation_data.action)):
-        raise ValueError(f"camera {scene.camera.name!r}: its lens shift is animated; jnds jitters it "
+        raise ConfigError(f"camera {scene.camera.name!r}: its lens shift is animated; jnds jitters it "
                          "per frame (pass jitter=False, or remove that animation)")
     unit = _shift_scale(scene, cam)
     base = (cam.shift_x, cam.shift_y)
@@ -236,7 +238,7 @@ def configure(scene=None, output: str | None = None, jitter_frames: bool = True,
 
     scene = scene or bpy.context.scene
     if scene.camera is None:
-        raise ValueError(f"scene {scene.name!r} has no camera")
+        raise ConfigError(f"scene {scene.name!r} has no camera")
     changes = Changes()
     _sampling(scene, changes, 1, FILTER_WIDTH, log)
     _passes(scene, changes, log)

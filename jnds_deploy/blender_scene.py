@@ -1,5 +1,5 @@
 """Procedural Cycles scenes for training and test data, built with ``bpy`` (Blender side:
-bpy and the standard library only), and the driver that renders one sequence.
+bpy, the standard library and this package's pure-Python modules), and the driver that renders one sequence.
 
 Deliberately unlike the Mitsuba scenes (``render.scene``): rooms lit by a sun and sky
 through a window, dark rooms lit by small emissive objects, collections of metals and
@@ -24,6 +24,8 @@ import os
 import random
 import sys
 import time
+
+from .errors import ConfigError
 
 CYCLES_SCENE_KINDS = ("sunroom", "darkroom", "metals", "textures")
 TEXTURES = ("brick", "checker", "noise", "voronoi")
@@ -287,7 +289,7 @@ def build(cfg: dict):
         moving = _objects(rng, rng.randint(5, 9), 4.0, 0.2, 0.9, frames)
         target, radius, height = (0, 0, 0.8), rng.uniform(3.5, 5.0), rng.uniform(1.2, 2.6)
     else:
-        raise ValueError(f"unknown Cycles scene {kind!r}, expected one of {', '.join(CYCLES_SCENE_KINDS)}")
+        raise ConfigError(f"unknown Cycles scene {kind!r}, expected one of {', '.join(CYCLES_SCENE_KINDS)}")
     for obj in moving:
         for fc in _all_fcurves(obj):
             for k in fc.keyframe_points:
