@@ -88,7 +88,8 @@ def cmd_train(args) -> int:
                       qat_steps=args.qat_steps, lr=args.lr, qat_lr=args.qat_lr, spatial_loss=args.spatial_loss,
                       feature_net=args.feature_net, init=args.init, val_every=args.val_every,
                       val_sequences=args.val_sequences, threads=args.threads, seed=args.seed,
-                      device=args.device)
+                      device=args.device, exposure=args.exposure, rotate_normals=args.rotate_normals,
+                      flips=args.flips)
     ckpt = train(cfg, progress=not args.quiet)
     print(f"checkpoint: {ckpt}")
     return 0
@@ -256,6 +257,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--threads", type=int, default=2)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--device", default="cpu", help="torch device of the training steps: cpu or cuda")
+    t.add_argument("--exposure", type=float, nargs=2, metavar=("LO", "HI"), default=None,
+                   help="augmentation: radiance (inputs and reference) x 2^u, u uniform in [LO, HI] stops")
+    t.add_argument("--rotate-normals", action="store_true",
+                   help="augmentation: a uniformly random rotation of the normals' world frame per sample")
+    t.add_argument("--flips", action="store_true", help="augmentation: random horizontal and vertical mirroring")
     t.add_argument("--quiet", action="store_true")
     t.set_defaults(func=cmd_train)
 

@@ -40,6 +40,7 @@ INPUT_CHANNELS = {layer.name: layer.channels for layer in LAYERS}  # what a fram
 # channels of the current inputs and of the history, in order: (name, channel count)
 CURRENT = tuple((layer.name, layer.channels) for layer in LAYERS if layer.name != "motion")
 HISTORY = CURRENT[:4]  # diffuse, specular, albedo, normal: the filtered outputs kept
+RADIANCE = ("diffuse", "specular")  # the layers that carry radiance: tonemapped, filtered, exposed
 N_CURRENT = sum(c for _, c in CURRENT)
 N_HISTORY = sum(c for _, c in HISTORY)
 

@@ -34,7 +34,7 @@ import torch.nn.functional as F
 
 from . import filters
 from .errors import ConfigError
-from .layout import CURRENT, HISTORY, N_CURRENT, N_HISTORY, UPSAMPLE_ROOTS  # noqa: F401 (re-exported)
+from .layout import CURRENT, HISTORY, N_CURRENT, N_HISTORY, RADIANCE, UPSAMPLE_ROOTS  # noqa: F401 (re-exported)
 
 
 
@@ -255,7 +255,7 @@ def tonemap_inputs(x: torch.Tensor, layout) -> torch.Tensor:
     parts, i = [], 0
     for name, c in layout:
         p = x[:, i:i + c]
-        if name in ("diffuse", "specular"):
+        if name in RADIANCE:
             p = filters.tonemap(p)
         elif name == "normal":
             p = p * 0.5 + 0.5

@@ -329,3 +329,78 @@ def test_evaluate_reports_sets_side_by_side_with_a_contact_sheet(tmp_path, make_
     assert "### test-set (1 sequences)" in text and "| seq-a | " in text
     sheet = cv2.imread(str(tmp_path / "sheet.png"))
     assert sheet.shape[0] == 2 * (180 + 14) and sheet.shape[1] == 4 * 320 + 3 * 2  # input, tiny, bicubic, reference
+
+
+def test_augmentations_keep_what_must_hold():
+    """Exposure scales inputs and references alike; the rotation keeps unit normals unit and
+    turns them all by one rotation; a mirror flips the patch and negates the motion across it."""
+    from jnds_deploy.layout import channels
+    from jnds_deploy.training.data import Augment, random_rotation
+    rng = np.random.default_rng(0)
+    T, p = 3, 8
+    n = rng.normal(size=(T, 3, p, p)).astype(np.float32)
+    current = rng.random((T, 13, p, p)).astype(np.float32)
+    current[:, channels("normal")] = n / np.linalg.norm(n, axis=1, keepdims=True)
+    sample = {"current": current, "motion": rng.normal(size=(T, 2, p, p)).astype(np.float32),
+              **{c: rng.random((T, 3, 2 * p, 2 * p)).astype(np.float32)
+                 for c in ("color", "diffuse", "specular", "albedo")}}
+    before = {k: v.copy() for k, v in sample.items()}
+
+    gains = set()
+    for s in range(12):  # half the samples keep their exposure, the others get x 2^3
+        out = Augment(exposure=(3.0, 3.0))(sample, np.random.default_rng(s))
+        gain = float(np.median(out["color"] / sample["color"]))
+        assert gain in (1.0, 8.0)
+        gains.add(gain)
+        for c in ("color", "diffuse", "specular"):
+            np.testing.assert_allclose(out[c], gain * sample[c], rtol=1e-6)
+        for name in ("diffuse", "specular"):
+            np.testing.assert_allclose(out["current"][:, channels(name)],
+                                       gain * sample["current"][:, channels(name)], rtol=1e-6)
+        for name in ("albedo", "normal", "roughness"):
+            np.testing.assert_array_equal(out["current"][:, channels(name)], sample["current"][:, channels(name)])
+        np.testing.assert_array_equal(out["albedo"], sample["albedo"])
+    assert gains == {1.0, 8.0}
+
+    out = Augment(rotate_normals=True)(sample, np.random.default_rng(5))
+    r = random_rotation(np.random.default_rng(5))
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-6)
+    assert np.linalg.det(r) == pytest.approx(1.0, abs=1e-5)
+    rotated = out["current"][:, channels("normal")]
+    np.testing.assert_allclose(np.linalg.norm(rotated, axis=1), 1.0, atol=1e-5)
+    np.testing.assert_allclose(rotated, np.einsum("ij,tjhw->tihw", r, sample["current"][:, channels("normal")]),
+                               atol=1e-6)
+
+    def mirrored(a, fx, fy, motion=False):
+        a = a.copy()
+        for axis, comp, flipped in ((-1, 0, fx), (-2, 1, fy)):
+            if flipped:
+                a = np.flip(a, axis).copy()
+                if motion:
+                    a[:, comp] *= -1
+        return a
+    seen = set()
+    for s in range(16):
+        out = Augment(flips=True)(sample, np.random.default_rng(s))
+        match = [(fx, fy) for fx in (False, True) for fy in (False, True)
+                 if np.array_equal(out["motion"], mirrored(sample["motion"], fx, fy, motion=True))]
+        assert len(match) == 1
+        seen.add(match[0])
+        for k in ("current", "color", "diffuse", "specular", "albedo"):
+            np.testing.assert_array_equal(out[k], mirrored(sample[k], *match[0]))
+    assert seen == {(False, False), (True, False), (False, True), (True, True)}
+    for k in sample:  # the sequence's arrays are never written
+        np.testing.assert_array_equal(sample[k], before[k])
+
+
+def test_sampler_without_augmentation_draws_what_it_drew_before(tmp_path):
+    from jnds_deploy.training.data import Augment, PatchSampler, load_sequence
+    from .conftest import SAMPLE
+    seq = load_sequence(SAMPLE)
+    a = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0)).batch(2)
+    b = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0), augment=Augment()).batch(2)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    c = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0),
+                     augment=Augment(exposure=(-4, 8), rotate_normals=True, flips=True)).batch(2)
+    assert all(torch.isfinite(v).all() for v in c.values())
+    assert not torch.equal(a["current"], c["current"])

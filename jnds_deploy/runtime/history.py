@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..layout import HISTORY, N_HISTORY, channels
+from ..layout import HISTORY, N_HISTORY, RADIANCE, channels
 from . import filters as F
 from .reformat import LIMITS
 
@@ -42,7 +42,6 @@ HISTORY_FLUSH = 1e-30
 REJECT_TILE = 32
 REJECT_RATIO = 8.0
 REJECT_FLOOR = 0.1
-RADIANCE = ("diffuse", "specular")
 
 
 def reject_history(current: np.ndarray, warped: np.ndarray) -> int:

@@ -30,9 +30,9 @@ import numpy as np
 from ..artifacts import Manifest
 from ..errors import ConfigError, FrameError
 from ..export.prune import variant_key
-from ..layout import CURRENT, HISTORY, INPUT_CHANNELS, channels
+from ..layout import CURRENT, HISTORY, INPUT_CHANNELS, RADIANCE, channels
 from . import filters as F
-from .history import RADIANCE, History, Warped, replace_nonfinite
+from .history import History, Warped, replace_nonfinite
 from .reformat import to_chw, to_hwc
 
 # albedo then normal: adjacent and at the same channels in the current inputs and the

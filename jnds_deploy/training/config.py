@@ -33,11 +33,19 @@ class TrainConfig:
     threads: int = 2
     seed: int = 0
     device: str = "cpu"  # torch device of the training steps (cpu, cuda); data stays on the host
+    # augmentations (training.data.Augment): exposure range in stops, normal-frame rotation, flips
+    exposure: tuple[float, float] | None = None
+    rotate_normals: bool = False
+    flips: bool = False
 
     def __post_init__(self):
         if self.spatial_loss not in SPATIAL_LOSSES:
             raise ConfigError(f"spatial_loss must be one of {', '.join(SPATIAL_LOSSES)}, got {self.spatial_loss!r}")
         if "feature" in self.spatial_loss and not self.feature_net:
             raise ConfigError(f"spatial_loss={self.spatial_loss} needs feature_net")
+        if self.exposure is not None:
+            self.exposure = tuple(float(v) for v in self.exposure)  # a list when read from config.json
+            if len(self.exposure) != 2 or not self.exposure[0] <= self.exposure[1]:
+                raise ConfigError(f"exposure must be (lo, hi) stops with lo <= hi, got {self.exposure}")
         if not 0 <= self.w_spatial <= 1:
             raise ConfigError(f"w_spatial must be in [0, 1], got {self.w_spatial}")

@@ -10,7 +10,7 @@ import torch
 
 from ..errors import TrainError
 from ..io import find_sequences, open_sequence
-from ..layout import CURRENT
+from ..layout import CURRENT, RADIANCE, channels
 
 REFERENCE_COMPONENTS = ("color", "diffuse", "specular", "albedo")
 
@@ -58,11 +58,64 @@ def load_split(root: str | Path, limit: int | None = None) -> list[SequenceArray
     return [load_sequence(p) for p in paths]
 
 
-class PatchSampler:
-    """Random (sequence, window, crop) samples; windows never cross a camera cut."""
+@dataclass(frozen=True)
+class Augment:
+    """What the renderers cannot give cheaply, applied per sample (all frames of its
+    window alike): ``exposure`` multiplies every radiance (inputs and reference) of half
+    the samples by 2^u, u uniform in (lo, hi) stops (the other half keep the renderer's
+    exposure, so the brightness the scenes were made with stays as common as before);
+    ``rotate_normals`` turns the world frame of the normals
+    by a uniformly random rotation (a Z-up renderer must look like a Y-up one);
+    ``flips`` mirrors the patch horizontally and/or vertically (each with probability
+    1/2), negating the motion component across the mirror. Off by default: the sampler
+    then draws exactly what it drew before augmentations existed."""
 
-    def __init__(self, seqs: list[SequenceArrays], patch: int, unroll: int, rng: np.random.Generator):
-        self.seqs, self.patch, self.unroll, self.rng = seqs, patch, unroll, rng
+    exposure: tuple[float, float] | None = None
+    rotate_normals: bool = False
+    flips: bool = False
+
+    def __bool__(self) -> bool:
+        return bool(self.exposure) or self.rotate_normals or self.flips
+
+    def __call__(self, sample: dict[str, np.ndarray], rng: np.random.Generator) -> dict[str, np.ndarray]:
+        """``sample``: current (T, 13, p, p), motion (T, 2, p, p) and the reference
+        components (T, 3, kp, kp); returns new arrays, never views of the sequence."""
+        out = {k: v.copy() for k, v in sample.items()}
+        if self.exposure and rng.random() < 0.5:
+            gain = np.float32(2.0 ** rng.uniform(*self.exposure))
+            for name in RADIANCE:
+                out["current"][:, channels(name)] *= gain
+            for name in ("color", "diffuse", "specular"):
+                out[name] *= gain
+        if self.rotate_normals:
+            n = channels("normal")
+            out["current"][:, n] = np.einsum("ij,tjhw->tihw", random_rotation(rng), out["current"][:, n])
+        if self.flips:
+            for axis, component in ((-1, 0), (-2, 1)):  # mirror x, then y
+                if rng.random() < 0.5:
+                    out = {k: np.flip(v, axis) for k, v in out.items()}
+                    out["motion"][:, component] *= -1
+        return out
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """A rotation matrix drawn uniformly from SO(3): the Q of a Gaussian matrix's QR
+    decomposition, signs fixed so that the distribution is uniform (Mezzadri 2007), and
+    made proper (det +1)."""
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    if np.linalg.det(q) < 0:
+        q[:, 0] = -q[:, 0]
+    return q.astype(np.float32)
+
+
+class PatchSampler:
+    """Random (sequence, window, crop) samples; windows never cross a camera cut;
+    ``augment`` applied to each sample."""
+
+    def __init__(self, seqs: list[SequenceArrays], patch: int, unroll: int, rng: np.random.Generator,
+                 augment: Augment = Augment()):
+        self.seqs, self.patch, self.unroll, self.rng, self.augment = seqs, patch, unroll, rng, augment
         for s in seqs:
             if missing := [c for c in REFERENCE_COMPONENTS if c not in s.ref]:
                 raise TrainError(f"{s.name}: the reference has no {', '.join(missing)}; training needs every "
@@ -88,8 +141,11 @@ class PatchSampler:
             x = int(self.rng.integers(0, w - p + 1))
             k = s.scale
             sl = slice(t, t + self.unroll)
-            out["current"].append(s.current[sl, :, y:y + p, x:x + p])
-            out["motion"].append(s.motion[sl, :, y:y + p, x:x + p])
+            sample = {"current": s.current[sl, :, y:y + p, x:x + p], "motion": s.motion[sl, :, y:y + p, x:x + p]}
             for c in REFERENCE_COMPONENTS:
-                out[c].append(s.ref[c][sl, :, k * y:k * (y + p), k * x:k * (x + p)])
+                sample[c] = s.ref[c][sl, :, k * y:k * (y + p), k * x:k * (x + p)]
+            if self.augment:
+                sample = self.augment(sample, self.rng)
+            for key, value in sample.items():
+                out[key].append(value)
         return {k: torch.from_numpy(np.ascontiguousarray(np.stack(v, 1))).to(device) for k, v in out.items()}

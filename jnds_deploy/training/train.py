@@ -25,7 +25,7 @@ from ..errors import ConfigError, TrainError
 from ..io import find_sequences
 from ..model import JNDS, ActQuant, ModelConfig, quant_ranges, set_observing, set_quantization
 from .config import TrainConfig
-from .data import PatchSampler, SequenceArrays, load_sequence, load_split
+from .data import Augment, PatchSampler, SequenceArrays, load_sequence, load_split
 from .evaluate import evaluate_model
 from .losses import Loss
 
@@ -115,7 +115,8 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
             if p not in val_seqs:
                 val_seqs[p] = load_sequence(p)
         return list(val_seqs.values())
-    sampler = PatchSampler(train_seqs, cfg.patch, cfg.unroll, rng)
+    sampler = PatchSampler(train_seqs, cfg.patch, cfg.unroll, rng,
+                           Augment(cfg.exposure, cfg.rotate_normals, cfg.flips))
     loss_fn = Loss(cfg, model.cfg.scale)
     total_steps = cfg.fp32_steps + cfg.qat_steps
     log = (run / "log.jsonl").open("a")
