@@ -2,7 +2,7 @@
 # make test: set up, then run the test suite.
 VENV   := .venv
 JNDS   := $(VENV)/bin/jnds
-EXTRAS ?= render,dev,bench
+EXTRAS ?= render,dev,bench,cluster
 comma  := ,
 STAMP  := $(VENV)/.installed-$(subst $(comma),-,$(EXTRAS))
 

@@ -72,7 +72,8 @@ def cmd_dataset(args) -> int:
         return 0
     t0 = time.perf_counter()
     done = render_dataset(args.out, args.split, args.limit, variant=args.variant,
-                          train_sequences=args.train_sequences, jobs=args.jobs, engine=args.engine)
+                          train_sequences=args.train_sequences, jobs=args.jobs, engine=args.engine,
+                          address=args.address, progress=not args.quiet)
     for path, times in done:
         print(f"{path}: inputs {times['inputs']:.2f} s/frame, reference {times['reference']:.2f} s/frame")
     print(f"{len(done)} sequence(s) rendered in {time.perf_counter() - t0:.0f} s")
@@ -158,6 +159,23 @@ def cmd_run(args) -> int:
     return 0
 
 
+def cmd_batch(args) -> int:
+    from .cluster import BatchConfig, batch
+
+    cfg = BatchConfig(artifacts=args.artifacts, input=args.input, output=args.output, precision=args.precision,
+                      filter_dtype=args.filter_dtype, adaptive=not args.no_adaptive, threads=args.threads,
+                      workers=args.workers, address=args.address, retries=args.retries)
+    summary = batch(cfg, progress=not args.quiet)
+    c = summary["counts"]
+    print(f"{c['done']} sequence(s) done, {c['skipped']} already complete, {c['failed']} failed: "
+          f"{summary['frames_processed']} frames in {summary['wall_s']:.1f} s "
+          f"({summary['workers']} worker(s) x {args.threads} thread(s)); summary: {args.output}/batch.json")
+    for name, rec in summary["sequences"].items():
+        if rec["status"] == "failed":
+            print(f"failed: {name}: {rec['error']}", file=sys.stderr)
+    return 1 if c["failed"] else 0
+
+
 def cmd_serve(args) -> int:
     import logging
 
@@ -232,6 +250,10 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--variant", default=None, help="Mitsuba variant, e.g. cuda_ad_rgb on a GPU machine")
     d.add_argument("--engine", default="mitsuba", choices=ENGINES,
                    help="cycles: the Blender Cycles sets (seeds 5000+ / 6000+, train/cycles-*, val/cycles-*)")
+    d.add_argument("--address", default=None,
+                   help="render the sequences as Ray tasks on this cluster ('local': an embedded Ray here); "
+                        "RAY_ADDRESS also selects a cluster")
+    d.add_argument("--quiet", action="store_true")
     d.set_defaults(func=cmd_dataset)
 
     t = sub.add_parser("train", help="train the network (fp32, then QAT); resumes from <run>/checkpoint.pt")
@@ -306,6 +328,22 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--max-memory", type=float, default=None,
                     help="GiB the frames in flight may take (estimated per pixel); default: half the machine's memory")
     sv.set_defaults(func=cmd_serve)
+
+    b = sub.add_parser("batch", help="every sequence under a directory through the pipeline, on Ray "
+                                     "(embedded locally, or a cluster)")
+    b.add_argument("--artifacts", required=True)
+    b.add_argument("--input", required=True, help="ROOT: every directory under it with a sequence.json")
+    b.add_argument("--output", required=True, help="OUT: ROOT/<path> goes to OUT/<path>; OUT/batch.json sums up")
+    b.add_argument("--precision", default="fp32", choices=("fp32", "int8"))
+    b.add_argument("--filter-dtype", default="float32", choices=("float32", "float16"))
+    b.add_argument("--no-adaptive", action="store_true")
+    b.add_argument("--threads", type=int, default=1, help="threads (and Ray CPUs) per worker")
+    b.add_argument("--workers", type=int, default=None, help="default: the cluster's CPUs / --threads")
+    b.add_argument("--address", default=None,
+                   help="a Ray cluster (ray start --head prints it; default RAY_ADDRESS, else a local Ray)")
+    b.add_argument("--retries", type=int, default=2, help="further attempts of a sequence whose worker died")
+    b.add_argument("--quiet", action="store_true")
+    b.set_defaults(func=cmd_batch)
 
     rn = sub.add_parser("run", help="denoise and upsample a sequence with the exported pipeline")
     rn.add_argument("--artifacts", required=True)

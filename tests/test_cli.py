@@ -20,6 +20,8 @@ from .conftest import SAMPLE
      "{tmp}/noseq"),
     (["validate", "{tmp}/noseq"], "{tmp}/noseq"),
     (["serve", "--artifacts", "{tmp}/noart"], "{tmp}/noart/manifest.json"),
+    (["batch", "--artifacts", "{tmp}/noart", "--input", str(SAMPLE), "--output", "{tmp}/o", "--quiet"],
+     "{tmp}/noart/manifest.json"),
 ])
 def test_missing_paths_are_one_line_errors(argv, names, tmp_path, capsys):
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
@@ -35,3 +37,12 @@ def test_a_file_that_is_not_a_checkpoint_is_named(tmp_path, capsys):
     assert main(["export", "--checkpoint", str(bad), "--out", str(tmp_path / "a")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"{bad}: unreadable checkpoint" in err[0]
+
+
+def test_batch_without_sequences_is_a_one_line_error(tiny_artifacts, tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    for root in ("empty", "missing"):
+        assert main(["batch", "--artifacts", str(tiny_artifacts[0]), "--input", str(tmp_path / root),
+                     "--output", str(tmp_path / "o"), "--quiet"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("jnds batch: error: ") and str(tmp_path / root) in err[0], err

@@ -12,7 +12,7 @@ from jnds_deploy.metrics import motion_warp_error
 from jnds_deploy.render.camera import Camera, camera_path
 from jnds_deploy.sampling import jitter
 
-from .conftest import SAMPLE
+from .conftest import SAMPLE, assert_same_sequences
 
 mitsuba = pytest.importorskip("mitsuba", reason="render extra not installed")
 
@@ -232,12 +232,7 @@ def test_dataset_jobs_render_what_one_process_renders(tmp_path, monkeypatch):
     one = dataset.render_dataset(tmp_path / "one", jobs=1)
     two = dataset.render_dataset(tmp_path / "two", jobs=2)
     assert [p.name for p, _ in one] == [p.name for p, _ in two] == ["s0", "s1"]
-    for rel, _ in specs:
-        a, b = open_sequence(tmp_path / "one" / rel), open_sequence(tmp_path / "two" / rel)
-        for i in range(2):
-            for k, v in a.inputs(i).items():
-                np.testing.assert_array_equal(b.inputs(i)[k], v, err_msg=f"{rel} frame {i} {k}")
-            np.testing.assert_array_equal(b.reference(i)["color"], a.reference(i)["color"])
+    assert_same_sequences(tmp_path / "one", tmp_path / "two", [rel for rel, _ in specs])
     assert dataset.render_dataset(tmp_path / "two", jobs=2) == []  # finished sequences are kept
 
 

@@ -7,6 +7,7 @@ scene kinds, other seeds) into the same train/ and val/ directories, named ``cyc
 """
 from __future__ import annotations
 
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -74,10 +75,13 @@ def _render_one(job: tuple[RenderConfig, Path]) -> tuple[Path, dict]:
 
 def render_dataset(out: str | Path, split: str = "all", limit: int | None = None,
                    variant: str | None = None, train_sequences: int = TRAIN_SEQUENCES,
-                   jobs: int = 1, engine: str = "mitsuba") -> list[tuple[Path, dict]]:
+                   jobs: int = 1, engine: str = "mitsuba", address: str | None = None,
+                   progress: bool = True) -> list[tuple[Path, dict]]:
     """Render every missing sequence of a split; ``jobs`` > 1 renders that many sequences
     at once in separate processes (Mitsuba's Python-side tracing is single-threaded, so
-    many cores or a GPU are only kept busy by several sequences at a time)."""
+    many cores or a GPU are only kept busy by several sequences at a time). ``address``
+    (a Ray cluster, or ``local``; ``RAY_ADDRESS`` too) renders them as Ray tasks instead
+    (``jnds_deploy.cluster.render_on_ray``)."""
     todo = []
     for rel, cfg in dataset_specs(split, train_sequences, engine)[:limit]:
         if variant and engine == "mitsuba":
@@ -85,6 +89,10 @@ def render_dataset(out: str | Path, split: str = "all", limit: int | None = None
         path = Path(out) / rel
         if not (path / "sequence.json").exists():
             todo.append((cfg, path))
+    if address or os.environ.get("RAY_ADDRESS"):
+        from ..cluster import render_on_ray
+
+        return render_on_ray(todo, None if address == "local" else address, progress) if todo else []
     if jobs <= 1 or len(todo) <= 1:
         return [_render_one(job) for job in todo]
     import multiprocessing as mp

@@ -35,16 +35,31 @@ def stage_table(report: dict) -> str:
 
 def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path,
                  progress: bool = True, metrics: bool = True) -> dict:
+    """The sequence through a new pipeline; returns the report ``OUT/run.json`` holds."""
     from tqdm import tqdm
 
+    n = len(open_sequence(input_path))
+    with tqdm(total=n, desc=f"run {Path(input_path).name}", unit="frame", disable=not progress) as bar:
+        for item in iter_run(Pipeline(cfg), input_path, output, metrics):
+            if isinstance(item, dict):
+                return item
+            bar.update(1)
+    raise AssertionError("iter_run ends with its report")
+
+
+def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics: bool = True):
+    """``run_sequence`` on an existing pipeline (its history is reset first), one step at a
+    time: yields each frame's index once the frame is written, then the report, after
+    ``OUT/run.json`` (written last, atomically: a directory with it is complete)."""
+    cfg = pipe.cfg
     seq = open_sequence(input_path)
-    pipe = Pipeline(cfg)
+    pipe.reset()
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
     frames, scores, nonfinite, decisions, rejected = [], [], [], [], []
     shown = set(contact_sheet.sheet_frames(len(seq))) if seq.has_reference else set()
     sheet = []
-    for i in tqdm(range(len(seq)), desc=f"run {seq.path.name}", unit="frame", disable=not progress):
+    for i in range(len(seq)):
         frame = pipe(seq.inputs(i), seq.frames[i].camera_cut)
         color = frame.output
         write_exr(out / f"{i:04d}.exr", {"color": color}, OUTPUT_LAYERS)
@@ -64,6 +79,7 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
             if ref.shape[:2] != color.shape[:2]:
                 ref = cv2.resize(ref, color.shape[1::-1], interpolation=cv2.INTER_AREA)
             sheet.append((f"frame {i}", _sheet_row(seq.inputs(i), color, ref, pipe.out_scale)))
+        yield i
     stages = sorted({k for f in frames for k in f})
     report = {
         "input": str(seq.path), "artifacts": str(Path(cfg.artifacts)),
@@ -90,7 +106,7 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
     tmp = out / ".run.json.tmp"
     tmp.write_text(json.dumps(report, indent=1))
     os.replace(tmp, out / "run.json")
-    return report
+    yield report
 
 
 def _sheet_row(inputs: dict, output, reference, scale: int) -> dict:

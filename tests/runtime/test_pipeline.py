@@ -1,7 +1,6 @@
 """The onnxruntime pipeline against the PyTorch model, frame after frame."""
 import numpy as np
 import pytest
-import torch
 
 from jnds_deploy.io import open_sequence
 from jnds_deploy.errors import ArtifactError, FrameError

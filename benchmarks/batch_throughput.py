@@ -1,0 +1,144 @@
+"""Throughput of `jnds batch` on Ray: one worker, two workers, and two Ray nodes started on
+this machine (`ray start --head`, `ray start --address`), with what limits scaling.
+
+    .venv/bin/python benchmarks/batch_throughput.py [--artifacts out/artifacts] [--sequences 6]
+        [--frames 8] [--size 640x360] [--runs 3] [--out benchmarks/results/batch_throughput]
+
+The input: --sequences copies of the bundled sample resized to --size (motion scaled),
+--frames frames each, no reference (so no metrics or contact sheet: the pipeline's work
+only), int8. Each configuration runs the whole batch --runs times into a fresh output
+directory; frames/s counts from the first sequence submitted to the last one finished
+(the batch summary's wall_s), "with start" adds connecting to Ray and starting the
+workers (their ONNX Runtime sessions). Medians of the runs. The two-node cluster is made
+with Ray's own command line, each node given one CPU, and the batch connects with
+--address; it is stopped afterwards.
+"""
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
+
+from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info,  # noqa: E402
+                               parse_size, resized_frames, tune_process, write_report)
+from jnds_deploy.io import FrameInfo, SequenceWriter, open_sequence  # noqa: E402
+
+RAY = str(Path(sys.executable).with_name("ray"))
+
+
+def make_input(root: Path, n: int, frames: int, size: tuple[int, int]) -> None:
+    seq = open_sequence(ROOT / "samples" / "orbit-160x90")
+    layers = resized_frames(seq, size)
+    for k in range(n):
+        w = SequenceWriter(root / f"shot{k // 2}" / f"seq{k}", size, None)
+        infos = []
+        for i in range(frames):
+            w.write_inputs(i, layers[i % len(layers)][0])
+            infos.append(FrameInfo(i, seq.frames[i % len(seq)].jitter, i == 0))
+        w.close(infos)
+
+
+def run_batch(artifacts: str, root: Path, workers: int, threads: int, address: str | None) -> dict:
+    import ray
+
+    from jnds_deploy.cluster import BatchConfig, batch
+
+    out = Path(tempfile.mkdtemp(prefix="batch-out-"))
+    t0 = time.perf_counter()
+    try:
+        summary = batch(BatchConfig(artifacts=artifacts, input=str(root), output=str(out), precision="int8",
+                                    workers=workers, threads=threads, address=address), progress=False)
+    finally:
+        ray.shutdown()
+        shutil.rmtree(out, ignore_errors=True)
+    summary["with_start_s"] = time.perf_counter() - t0
+    assert summary["counts"]["done"] == len(summary["sequences"]), summary["counts"]
+    return summary
+
+
+def two_nodes() -> str:
+    """A head node and a worker node on this machine, one CPU each; returns the address."""
+    port = "6399"
+    subprocess.run([RAY, "start", "--head", f"--port={port}", "--num-cpus=1", "--include-dashboard=false",
+                    "--disable-usage-stats"], check=True, capture_output=True)
+    subprocess.run([RAY, "start", f"--address=127.0.0.1:{port}", "--num-cpus=1"], check=True, capture_output=True)
+    import ray
+    ray.init(address=f"127.0.0.1:{port}")
+    for _ in range(100):  # the second node registers within seconds
+        if len([n for n in ray.nodes() if n["Alive"]]) == 2:
+            break
+        time.sleep(0.2)
+    nodes = len([n for n in ray.nodes() if n["Alive"]])
+    ray.shutdown()
+    if nodes != 2:
+        raise SystemExit(f"the two-node cluster has {nodes} node(s)")
+    return f"127.0.0.1:{port}"
+
+
+def main() -> None:
+    ap = arguments(__doc__, RESULTS / "batch_throughput")
+    ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
+    ap.add_argument("--sequences", type=int, default=6)
+    ap.add_argument("--frames", type=int, default=8)
+    ap.add_argument("--size", default="640x360")
+    ap.add_argument("--runs", type=int, default=3)
+    args = ap.parse_args()
+    tune_process()
+    size = parse_size(args.size, 8)
+    root = Path(tempfile.mkdtemp(prefix="batch-in-"))
+    make_input(root, args.sequences, args.frames, size)
+    configs = {"1 worker x 1 thread": (1, 1, None), "1 worker x 2 threads": (1, 2, None),
+               "2 workers x 1 thread": (2, 1, None)}
+    results = {}
+    try:
+        for name, (workers, threads, address) in configs.items():
+            runs = [run_batch(args.artifacts, root, workers, threads, address) for _ in range(args.runs)]
+            results[name] = runs
+            print(name, [f"{r['frames_per_s']:.2f}" for r in runs], flush=True)
+        address = two_nodes()
+        try:
+            runs = [run_batch(args.artifacts, root, 2, 1, address) for _ in range(args.runs)]
+            results["2 nodes x 1 worker x 1 thread"] = runs
+            print("2 nodes", [f"{r['frames_per_s']:.2f}" for r in runs], [sorted({s.get("node") for s in r["sequences"].values()}) for r in runs], flush=True)
+        finally:
+            subprocess.run([RAY, "stop", "--force"], capture_output=True)
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+
+    info = machine_info()
+    total = args.sequences * args.frames
+    rows = {}
+    for name, runs in results.items():
+        rows[name] = {"frames_per_s": float(np.median([r["frames_per_s"] for r in runs])),
+                      "frames_per_s_runs": [r["frames_per_s"] for r in runs],
+                      "with_start_frames_per_s": float(np.median([total / r["with_start_s"] for r in runs])),
+                      "median_frame_ms": float(np.median([s["median_ms"] for r in runs for s in r["sequences"].values()])),
+                      "workers": runs[0]["workers"], "cluster_cpus": runs[0]["cluster_cpus"]}
+    base = rows["1 worker x 1 thread"]["frames_per_s"]
+    md = ["# `jnds batch` throughput on Ray\n",
+          f"`{command_line()}`\n",
+          f"Machine: {cpu_line(info)}, {info['usable_cores']} usable cores. {args.sequences} sequences of "
+          f"{args.frames} frames at {size[0]}x{size[1]} -> {2 * size[0]}x{2 * size[1]}, int8, no reference; "
+          f"medians of {args.runs} runs.\n",
+          "| configuration | frames/s | x 1 worker | frames/s with Ray and worker start | median ms per frame in a worker |",
+          "| --- | ---: | ---: | ---: | ---: |"]
+    for name, r in rows.items():
+        md.append(f"| {name} | {r['frames_per_s']:.2f} | {r['frames_per_s'] / base:.2f} | "
+                  f"{r['with_start_frames_per_s']:.2f} | {r['median_frame_ms']:.0f} |")
+    write_report(Path(args.out), {"machine": info, "command": command_line(), "size": list(size),
+                                  "sequences": args.sequences, "frames": args.frames, "results": rows,
+                                  "runs": {k: [{kk: v for kk, v in r.items() if kk != "config"} for r in runs]
+                                           for k, runs in results.items()}},
+                 "\n".join(md) + "\n")
+    print("\n".join(md))
+
+
+if __name__ == "__main__":
+    main()
