@@ -137,6 +137,23 @@ def keep_freed_memory() -> bool:
         return False
 
 
+@functools.cache
+def shared_arena() -> bool:
+    """Register one CPU arena allocator in ONNX Runtime's process-wide environment, for the
+    sessions that opt in (``session.use_env_allocators``); it extends by the size asked
+    (``kSameAsRequested``) instead of the default doubling. False where this ONNX Runtime
+    cannot (the sessions then keep their own arenas)."""
+    import onnxruntime as ort
+
+    try:
+        info = ort.OrtMemoryInfo("Cpu", ort.OrtAllocatorType.ORT_ARENA_ALLOCATOR, 0, ort.OrtMemType.DEFAULT)
+        # max_mem 0: no limit; arena_extend_strategy 1: kSameAsRequested; -1: defaults
+        ort.create_and_register_allocator(info, ort.OrtArenaCfg(0, 1, -1, -1))
+        return True
+    except (AttributeError, RuntimeError):
+        return False
+
+
 class Timer:
     def __init__(self):
         self.ms: dict[str, float] = {}
@@ -166,6 +183,13 @@ class Pipeline:
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = cfg.threads
         opts.inter_op_num_threads = 1
+        # memory (docs/design-notes.md, "ONNX Runtime's memory"): every session of the
+        # process allocates from one arena that grows by what is asked, not by powers of
+        # two, and no per-session pre-planned block: the graphs' intermediates reuse the
+        # same memory instead of each session keeping its own peak
+        opts.enable_mem_pattern = False
+        if shared_arena():
+            opts.add_session_config_entry("session.use_env_allocators", "1")
         # ORT's idle threads spin after each run by default and then compete with the
         # numba filter stage for the cores (docs/design-notes.md)
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")

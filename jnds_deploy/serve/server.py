@@ -116,8 +116,8 @@ class Stream:
 
 
 # peak memory of a frame in the pipeline per native pixel (int8, 2x output, buffers kept):
-# measured at 640x360 and 1280x720 (docs/design-notes.md), rounded up
-FRAME_BYTES_PER_PIXEL = 4000
+# measured at 320x180 to 1280x720 (docs/design-notes.md, benchmarks/results/memory.md), rounded up
+FRAME_BYTES_PER_PIXEL = 1700
 
 
 def machine_memory() -> int:
