@@ -139,10 +139,12 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_run(args) -> int:
+    from .io import exr_threads
     from .runtime import PipelineConfig, tune_numba
     from .runtime.run import run_sequence, stage_table
 
     tune_numba()
+    exr_threads(args.threads)
     cfg = PipelineConfig(artifacts=args.artifacts, precision=args.precision,
                          filter_dtype=args.filter_dtype, threads=args.threads, adaptive=not args.no_adaptive,
                          native_output=args.native, keep_freed_memory=True)
@@ -179,11 +181,13 @@ def cmd_batch(args) -> int:
 def cmd_serve(args) -> int:
     import logging
 
+    from .io import exr_threads
     from .runtime import tune_numba
     from .serve import ServeConfig, serve
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     tune_numba()
+    exr_threads(args.threads)
     cfg = ServeConfig(artifacts=args.artifacts, host=args.host, port=args.port, precision=args.precision,
                       threads=args.threads, workers=args.workers, queue=args.queue,
                       max_streams=args.max_streams, idle_timeout=args.idle_timeout, max_pixels=args.max_pixels,

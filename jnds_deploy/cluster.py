@@ -111,9 +111,11 @@ class SequenceWorker:
     def __init__(self, cfg: BatchConfig):
         import numba
 
+        from .io import exr_threads
         from .runtime import Pipeline, PipelineConfig, tune_numba
 
         tune_numba()
+        exr_threads(cfg.threads)
         # the filter stage's parallel loops on the worker's own CPUs, not on every core
         numba.set_num_threads(min(cfg.threads, numba.config.NUMBA_NUM_THREADS))
         self.pipe = Pipeline(PipelineConfig(artifacts=cfg.artifacts, precision=cfg.precision,

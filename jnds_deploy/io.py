@@ -165,6 +165,14 @@ def write_exr(path: str | Path, layers: Mapping[str, np.ndarray],
     os.replace(tmp, path)
 
 
+def exr_threads(n: int) -> None:
+    """OpenEXR compresses and decompresses with ``n`` threads (process-wide; 0: in the
+    calling thread, OpenEXR's default). Writing a 2x output frame takes longer than
+    computing it without (docs/design-notes.md): `jnds run`, `jnds batch`'s workers and
+    `jnds serve` set it to their thread count."""
+    OpenEXR.set_global_thread_count(max(0, int(n)))
+
+
 def _exr_file(layers, suffixes, half, compression=None) -> OpenEXR.File:
     channels = {}
     for layer, arr in layers.items():
