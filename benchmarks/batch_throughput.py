@@ -106,7 +106,7 @@ def main() -> None:
         try:
             runs = [run_batch(args.artifacts, root, 2, 1, address) for _ in range(args.runs)]
             results["2 nodes x 1 worker x 1 thread"] = runs
-            print("2 nodes", [f"{r['frames_per_s']:.2f}" for r in runs], [sorted({s.get("node") for s in r["sequences"].values()}) for r in runs], flush=True)
+            print("2 nodes", [f"{r['frames_per_s']:.2f}" for r in runs], flush=True)
         finally:
             subprocess.run([RAY, "stop", "--force"], capture_output=True)
     finally:
@@ -120,18 +120,22 @@ def main() -> None:
                       "frames_per_s_runs": [r["frames_per_s"] for r in runs],
                       "with_start_frames_per_s": float(np.median([total / r["with_start_s"] for r in runs])),
                       "median_frame_ms": float(np.median([s["median_ms"] for r in runs for s in r["sequences"].values()])),
-                      "workers": runs[0]["workers"], "cluster_cpus": runs[0]["cluster_cpus"]}
+                      "workers": runs[0]["workers"], "cluster_cpus": runs[0]["cluster_cpus"],
+                      # the Ray nodes that ran sequences, per run
+                      "nodes_used": [len({s["node_id"] for s in r["sequences"].values()}) for r in runs]}
     base = rows["1 worker x 1 thread"]["frames_per_s"]
     md = ["# `jnds batch` throughput on Ray\n",
           f"`{command_line()}`\n",
           f"Machine: {cpu_line(info)}, {info['usable_cores']} usable cores. {args.sequences} sequences of "
           f"{args.frames} frames at {size[0]}x{size[1]} -> {2 * size[0]}x{2 * size[1]}, int8, no reference; "
           f"medians of {args.runs} runs.\n",
-          "| configuration | frames/s | x 1 worker | frames/s with Ray and worker start | median ms per frame in a worker |",
-          "| --- | ---: | ---: | ---: | ---: |"]
+          "| configuration | frames/s | x 1 worker | frames/s with Ray and worker start | median ms per frame in a worker "
+          "| Ray nodes used |",
+          "| --- | ---: | ---: | ---: | ---: | ---: |"]
     for name, r in rows.items():
         md.append(f"| {name} | {r['frames_per_s']:.2f} | {r['frames_per_s'] / base:.2f} | "
-                  f"{r['with_start_frames_per_s']:.2f} | {r['median_frame_ms']:.0f} |")
+                  f"{r['with_start_frames_per_s']:.2f} | {r['median_frame_ms']:.0f} | "
+                  f"{', '.join(map(str, r['nodes_used']))} |")
     write_report(Path(args.out), {"machine": info, "command": command_line(), "size": list(size),
                                   "sequences": args.sequences, "frames": args.frames, "results": rows,
                                   "runs": {k: [{kk: v for kk, v in r.items() if kk != "config"} for r in runs]

@@ -121,7 +121,10 @@ class SequenceWorker:
         self.pipe = Pipeline(PipelineConfig(artifacts=cfg.artifacts, precision=cfg.precision,
                                             filter_dtype=cfg.filter_dtype, threads=cfg.threads,
                                             adaptive=cfg.adaptive, keep_freed_memory=True))
-        self.where = {"node": socket.gethostname(), "pid": os.getpid()}
+        import ray
+
+        self.where = {"node": socket.gethostname(), "node_id": ray.get_runtime_context().get_node_id(),
+                      "pid": os.getpid()}
 
     def run(self, seq: str, out: str):
         """Yields {"frame": i, "node", "pid"} per frame written, then {"report": run.json's}
@@ -223,7 +226,8 @@ def batch(cfg: BatchConfig, progress: bool = True,
                 write_summary(False)
             elif "report" in item:
                 report = item["report"]
-                records[key].update(status="done", node=item["node"], median_ms=report["median_ms"]["total"],
+                records[key].update(status="done", node=item["node"], node_id=item["node_id"],
+                                    median_ms=report["median_ms"]["total"],
                                     **({"psnr": report["metrics"]["psnr"]} if "metrics" in report else {}))
                 write_summary(False)
             else:
