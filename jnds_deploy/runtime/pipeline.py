@@ -225,8 +225,13 @@ class Pipeline:
         with self._sessions_lock:
             sess = self._variant_sessions.get((name, best))
             if sess is None:
+                # int8 graphs: no NCHWc layout. Their only fp32 convolution (the output
+                # block's head) would run in it, and reordering its 85 output channels back
+                # costs more than the layout gains (docs/design-notes.md)
+                int8 = self.graphs[name].precision == "int8"
                 sess = ort.InferenceSession(str(self.graphs[name].variants[best]), self._opts,
-                                            providers=["CPUExecutionProvider"])
+                                            providers=["CPUExecutionProvider"],
+                                            disabled_optimizers=["NchwcTransformer"] if int8 else None)
                 self._variant_sessions[(name, best)] = sess
         return sess
 
