@@ -89,7 +89,11 @@ def find_work(root: str | Path, output: str | Path) -> list[tuple[Path, Path]]:
 
 
 def frame_count(seq: Path) -> int:
-    return int(json.loads((seq / "sequence.json").read_text())["frame_count"])
+    """The sequence's frame count, or ConfigError naming its unreadable sequence.json."""
+    try:
+        return int(json.loads((seq / "sequence.json").read_text())["frame_count"])
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise ConfigError(f"{seq / 'sequence.json'}: no frame count ({type(e).__name__}: {e})") from None
 
 
 def is_complete(out: Path, frames: int, checkpoint_sha256: str, precision: str) -> bool:
@@ -163,8 +167,12 @@ def batch(cfg: BatchConfig, progress: bool = True,
     records: dict[str, dict] = {}
     todo: list[tuple[Path, Path, int]] = []
     for seq, out in work:
-        n = frame_count(seq)
         key = str(seq.relative_to(cfg.input))
+        try:
+            n = frame_count(seq)
+        except ConfigError as e:  # fails alone, like a bad frame
+            records[key] = {"status": "failed", "frames": 0, "output": str(out), "error": str(e)}
+            continue
         if is_complete(out, n, sha, cfg.precision):
             records[key] = {"status": "skipped", "frames": n, "output": str(out)}
         else:
@@ -211,6 +219,9 @@ def batch(cfg: BatchConfig, progress: bool = True,
             except ray.exceptions.RayError as e:  # the worker died: a new one, the sequence again
                 del running[gen]
                 ray.kill(worker, no_restart=True)
+                idle.append(Worker.remote(cfg))
+                if records[key]["status"] in ("done", "failed"):  # it died after its last word
+                    continue
                 bar.update(-reported)
                 records[key].setdefault("worker_deaths", []).append(type(e).__name__)
                 if records[key]["attempts"] > cfg.retries:
@@ -218,7 +229,6 @@ def batch(cfg: BatchConfig, progress: bool = True,
                     write_summary(False)
                 else:
                     queue.insert(0, (seq, out, n))
-                idle.append(Worker.remote(cfg))
                 continue
             if "error" in item:  # the sequence itself cannot be run (bad input)
                 bar.update(n - reported)

@@ -103,12 +103,16 @@ def test_a_bad_sequence_fails_alone_with_its_error(local_ray, tiny_artifacts, sh
     shutil.copytree(shots / "c", root / "good")
     shutil.copytree(shots / "c", root / "bad")
     (root / "bad" / "inputs" / "0001.exr").write_bytes(b"not an EXR")
+    shutil.copytree(shots / "c", root / "nometa")
+    (root / "nometa" / "sequence.json").write_text("{")
     summary = batch(BatchConfig(artifacts=str(tiny_artifacts[0]), input=str(root), output=str(tmp_path / "out"),
                                 workers=1, threads=1), progress=False)
     assert summary["sequences"]["good"]["status"] == "done"
     bad = summary["sequences"]["bad"]
     assert bad["status"] == "failed" and "0001.exr" in bad["error"]
     assert not (tmp_path / "out" / "bad" / "run.json").exists()
+    nometa = summary["sequences"]["nometa"]
+    assert nometa["status"] == "failed" and "sequence.json" in nometa["error"]
 
 
 def test_batch_errors_name_the_bad_argument(tmp_path, tiny_artifacts):
