@@ -27,7 +27,14 @@ import time
 
 from .errors import ConfigError
 
-CYCLES_SCENE_KINDS = ("sunroom", "darkroom", "metals", "textures")
+# the kinds the training and validation sets are made of
+CYCLES_TRAIN_KINDS = ("sunroom", "darkroom", "metals", "textures")
+# kinds only the test set is made of (render.dataset): built apart from the training kinds,
+# so that the test measures scenes the model never saw the like of. gallery: a long hall
+# under strip lights, a polished floor, finely textured panels, sculptures; night: an
+# outdoor ground under a dark sky, spot lights and small very bright neon tubes
+CYCLES_TEST_KINDS = ("gallery", "night")
+CYCLES_SCENE_KINDS = CYCLES_TRAIN_KINDS + CYCLES_TEST_KINDS
 TEXTURES = ("brick", "checker", "noise", "voronoi")
 
 
@@ -193,6 +200,9 @@ def _world(scene, rng, kind):
     elif kind == "dark":
         bg.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
         bg.inputs["Strength"].default_value = 0.0
+    elif kind == "night":  # a deep blue sky, dim
+        bg.inputs["Color"].default_value = (0.02, 0.03, rng.uniform(0.06, 0.12), 1.0)
+        bg.inputs["Strength"].default_value = rng.uniform(0.3, 1.0)
     else:
         bg.inputs["Color"].default_value = (*[rng.uniform(0.3, 0.8) for _ in range(3)], 1.0)
         bg.inputs["Strength"].default_value = rng.uniform(0.5, 1.5)
@@ -288,6 +298,39 @@ def build(cfg: dict):
         bpy.context.object.data.size = rng.uniform(1.0, 2.5)
         moving = _objects(rng, rng.randint(5, 9), 4.0, 0.2, 0.9, frames)
         target, radius, height = (0, 0, 0.8), rng.uniform(3.5, 5.0), rng.uniform(1.2, 2.6)
+    elif kind == "gallery":
+        _world(scene, rng, "dark")
+        _room(rng, 6.0, 4.0, window=False, texture_walls=False)
+        floor = _material("polished", rng, rough=rng.uniform(0.02, 0.12), texture="checker")
+        _box("polished_floor", (12, 12, 0.02), (0, 0, 0.01), floor)
+        for i in range(rng.randint(3, 5)):  # strip lights along the ceiling
+            strip = _material(f"strip{i}", rng, emission=rng.uniform(8.0, 25.0), rough=0.5, color=(1, 1, 1))
+            _box(f"strip{i}", (0.15, 9.0, 0.04), (-4.0 + 8.0 * i / 4, 0, 3.9), strip)
+        for i in range(rng.randint(3, 6)):  # panels of fine texture on the walls
+            x = rng.choice((-5.9, 5.9))
+            panel = _material(f"panel{i}", rng, rough=rng.uniform(0.3, 0.9), texture=rng.choice(TEXTURES))
+            _box(f"panel{i}", (0.02, rng.uniform(1.0, 2.5), rng.uniform(0.8, 1.8)),
+                 (x, rng.uniform(-4.5, 4.5), rng.uniform(1.4, 2.4)), panel)
+        moving = _objects(rng, rng.randint(5, 8), 3.5, 0.5, 0.3, frames)
+        target, radius, height = (0, 0, 1.0), rng.uniform(3.5, 5.0), rng.uniform(1.4, 2.6)
+    elif kind == "night":
+        _world(scene, rng, "night")
+        ground = _material("ground", rng, rough=rng.uniform(0.05, 0.4), texture=rng.choice(("brick", "noise")))
+        _box("ground", (40, 40, 0.1), (0, 0, -0.05), ground)
+        for i in range(rng.randint(2, 3)):
+            bpy.ops.object.light_add(type="SPOT", location=(rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(3, 5)))
+            light = bpy.context.object
+            light.data.energy = rng.uniform(300, 1500)
+            light.data.spot_size = math.radians(rng.uniform(30, 70))
+            light.data.spot_blend = rng.uniform(0.1, 0.5)
+        for i in range(rng.randint(2, 4)):  # neon tubes: thin and far brighter than anything lit
+            neon = _material(f"neon{i}", rng, emission=rng.uniform(20.0, 80.0), rough=0.5)
+            bpy.ops.mesh.primitive_cylinder_add(radius=rng.uniform(0.02, 0.05), depth=rng.uniform(0.8, 2.0),
+                                                location=(rng.uniform(-4, 4), rng.uniform(-4, 4), rng.uniform(0.5, 2.5)),
+                                                rotation=(rng.uniform(0, 3), rng.uniform(0, 3), 0))
+            bpy.context.object.data.materials.append(neon)
+        moving = _objects(rng, rng.randint(6, 10), 4.0, 0.4, 0.4, frames)
+        target, radius, height = (0, 0, 0.6), rng.uniform(4.5, 6.5), rng.uniform(1.2, 2.8)
     else:
         raise ConfigError(f"unknown Cycles scene {kind!r}, expected one of {', '.join(CYCLES_SCENE_KINDS)}")
     for obj in moving:

@@ -11,7 +11,7 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
-from ..blender_scene import CYCLES_SCENE_KINDS
+from ..blender_scene import CYCLES_TEST_KINDS, CYCLES_TRAIN_KINDS
 from ..errors import ConfigError
 from .camera import CAMERA_PATHS
 from .sequence import ENGINES, RenderConfig
@@ -24,7 +24,11 @@ def _specs(split: str, seeds: range, frames: int, spp: int, engine: str = "mitsu
     for k, seed in enumerate(seeds):
         camera = CAMERA_PATHS[k % len(CAMERA_PATHS)]
         if engine == "cycles":
-            scene = CYCLES_SCENE_KINDS[(k // len(CAMERA_PATHS) + k) % len(CYCLES_SCENE_KINDS)]
+            # the test set is made of scene kinds the training and validation sets never have
+            if split == "test":
+                scene = CYCLES_TEST_KINDS[k % len(CYCLES_TEST_KINDS)]
+            else:
+                scene = CYCLES_TRAIN_KINDS[(k // len(CAMERA_PATHS) + k) % len(CYCLES_TRAIN_KINDS)]
             name = f"cycles-{scene}"
         else:
             scene = "diffuse" if k % 8 == 3 else "metal" if k % 8 == 6 else "procedural"

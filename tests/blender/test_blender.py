@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from jnds_deploy.blender_scene import CYCLES_SCENE_KINDS
 from jnds_deploy.cli import main
 from jnds_deploy.cycles import components, import_cycles, read_passes
 from jnds_deploy.errors import RenderError, SequenceError
@@ -125,3 +126,24 @@ def test_jnds_render_cycles_is_deterministic(tmp_path):
         for k, v in a.inputs(i).items():
             np.testing.assert_array_equal(b.inputs(i)[k], v, err_msg=f"frame {i} {k}")
         np.testing.assert_array_equal(b.reference(i)["color"], a.reference(i)["color"])
+
+
+@pytest.mark.parametrize("kind", CYCLES_SCENE_KINDS)
+def test_every_cycles_scene_kind_renders_a_lit_valid_frame(kind, tmp_path):
+    _blender_python()
+    out = tmp_path / kind
+    assert main(["render", "--engine", "cycles", "--scene", kind, "--seed", "3", "--camera", "static",
+                 "--frames", "1", "--size", "32x18", "--spp", "2", "--quiet", "--out", str(out)]) == 0
+    assert validate(out).clean
+    seq = open_sequence(out)
+    inputs, ref = seq.inputs(0), seq.reference(0)["color"]
+    assert np.isfinite(ref).all() and ref.mean() > 0
+    assert (inputs["diffuse"] + inputs["specular"]).max() > 0
+
+
+def test_the_cycles_test_split_is_made_of_kinds_training_never_has():
+    from jnds_deploy.blender_scene import CYCLES_TEST_KINDS
+    from jnds_deploy.render.dataset import dataset_specs
+    test = {cfg.scene for _, cfg in dataset_specs("test", engine="cycles")}
+    seen = {cfg.scene for split in ("train", "val") for _, cfg in dataset_specs(split, 200, engine="cycles")}
+    assert test == set(CYCLES_TEST_KINDS) and not test & seen
