@@ -1,10 +1,11 @@
-"""int8 against fp32 across exposure: one sequence's radiance scaled by 2^k, the deployed
-pipeline (ONNX Runtime) at both precisions.
+"""int8 against fp32 across exposure and across sequences: radiance scaled by 2^k, the
+deployed pipeline (ONNX Runtime) at both precisions.
 
-    .venv/bin/python benchmarks/exposure_sweep.py --artifacts out/artifacts --input data/val/SEQ
+    .venv/bin/python benchmarks/exposure_sweep.py --artifacts out/artifacts --input data/val/SEQ [SEQ|DIR ...]
         [--stops -4 -2 0 2 4 6 8] [--out benchmarks/results/exposure_sweep]
 
-For each exposure 2^k, the input radiance layers (diffuse, specular) are multiplied by
+Every sequence given (or found in a directory given) at every exposure 2^k (``--stops 0``
+alone: int8 against fp32 per sequence). For each exposure, the input radiance layers (diffuse, specular) are multiplied by
 2^k and the sequence runs through the fp32 and the int8 pipelines (history carried, all
 frames); each output is divided by 2^k again before it is compared with the reference,
 so every exposure is scored on the same image (PSNR and FLIP of ``jnds_deploy.metrics``,
@@ -23,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository r
 
 from benchmarks.common import (RESULTS, arguments, command_line, cpu_line, machine_info, pipeline,  # noqa: E402
                                tune_process, write_report)
-from jnds_deploy.io import open_sequence  # noqa: E402
+from jnds_deploy.io import expand_sequences, open_sequence  # noqa: E402
 from jnds_deploy.layout import RADIANCE  # noqa: E402
 from jnds_deploy.metrics import flip, psnr  # noqa: E402
 
@@ -41,32 +42,34 @@ def run(pipe, frames, gain: float, refs) -> dict:
 def main() -> None:
     ap = arguments(__doc__, RESULTS / "exposure_sweep")
     ap.add_argument("--artifacts", required=True)
-    ap.add_argument("--input", required=True, help="a sequence with references")
+    ap.add_argument("--input", required=True, nargs="+", help="sequences with references, or directories of them")
     ap.add_argument("--stops", type=float, nargs="+", default=[-4, -2, 0, 2, 4, 6, 8])
     args = ap.parse_args()
     tune_process()
-    seq = open_sequence(args.input)
-    frames = [(seq.inputs(i), seq.frames[i].camera_cut) for i in range(len(seq))]
-    refs = [seq.reference(i)["color"] for i in range(len(seq))]
     pipes = {p: pipeline(args.artifacts, precision=p) for p in ("fp32", "int8")}
     rows = []
-    for k in args.stops:
-        r = {"stops": k, **{p: run(pipe, frames, 2.0 ** k, refs) for p, pipe in pipes.items()}}
-        r["int8_minus_fp32_db"] = r["int8"]["psnr"] - r["fp32"]["psnr"]
-        rows.append(r)
-        print(k, round(r["fp32"]["psnr"], 3), round(r["int8"]["psnr"], 3), flush=True)
+    for path in expand_sequences(args.input):
+        seq = open_sequence(path)
+        frames = [(seq.inputs(i), seq.frames[i].camera_cut) for i in range(len(seq))]
+        refs = [seq.reference(i)["color"] for i in range(len(seq))]
+        for k in args.stops:
+            r = {"sequence": str(path), "stops": k, **{p: run(pipe, frames, 2.0 ** k, refs) for p, pipe in pipes.items()}}
+            r["int8_minus_fp32_db"] = r["int8"]["psnr"] - r["fp32"]["psnr"]
+            rows.append(r)
+            print(path.name, k, round(r["fp32"]["psnr"], 3), round(r["int8"]["psnr"], 3), flush=True)
     info = machine_info()
     worst = min(r["int8_minus_fp32_db"] for r in rows)
-    md = ["# int8 against fp32 across exposure\n", f"`{command_line()}`\n",
-          f"Machine: {cpu_line(info)}. Sequence `{args.input}` ({len(seq)} frames), radiance x 2^k in, output / 2^k "
-          f"scored against the reference; the deployed ONNX Runtime pipeline at both precisions.\n",
-          "| exposure | fp32 PSNR (dB) | int8 PSNR (dB) | int8 - fp32 (dB) | fp32 FLIP | int8 FLIP |",
-          "| ---: | ---: | ---: | ---: | ---: | ---: |"]
-    for r in rows:
-        md.append(f"| 2^{r['stops']:g} | {r['fp32']['psnr']:.2f} | {r['int8']['psnr']:.2f} | "
-                  f"{r['int8_minus_fp32_db']:+.2f} | {r['fp32']['flip']:.4f} | {r['int8']['flip']:.4f} |")
     best = max(r["int8_minus_fp32_db"] for r in rows)
-    md += ["", f"int8 - fp32 from {worst:+.2f} to {best:+.2f} dB across the sweep."]
+    md = ["# int8 against fp32 across exposure\n", f"`{command_line()}`\n",
+          f"Machine: {cpu_line(info)}. Radiance x 2^k in, output / 2^k scored against the reference (all frames, "
+          f"history carried); the deployed ONNX Runtime pipeline at both precisions.\n",
+          "| sequence | exposure | fp32 PSNR (dB) | int8 PSNR (dB) | int8 - fp32 (dB) | fp32 FLIP | int8 FLIP |",
+          "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for r in rows:
+        md.append(f"| {Path(r['sequence']).parent.name}/{Path(r['sequence']).name} | 2^{r['stops']:g} | "
+                  f"{r['fp32']['psnr']:.2f} | {r['int8']['psnr']:.2f} | {r['int8_minus_fp32_db']:+.2f} | "
+                  f"{r['fp32']['flip']:.4f} | {r['int8']['flip']:.4f} |")
+    md += ["", f"int8 - fp32 from {worst:+.2f} to {best:+.2f} dB."]
     write_report(Path(args.out), {"machine": info, "command": command_line(), "input": args.input, "rows": rows,
                                   "worst_int8_minus_fp32_db": worst}, "\n".join(md) + "\n")
     print("\n".join(md))
