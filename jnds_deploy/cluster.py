@@ -260,17 +260,16 @@ def _task_error(e) -> str:
 
 # --- jnds dataset --address ----------------------------------------------------------------
 
-def render_on_ray(todo: list, address: str | None, progress: bool = True) -> list[tuple[Path, dict]]:
-    """Render ``todo`` ((RenderConfig, path) pairs) as Ray tasks, one CPU each; a task
-    whose worker dies is retried by Ray and resumes from the sequence's finished frames
-    (``render.sequence.render_sequence`` writes frames atomically, sequence.json last)."""
+def render_on_ray(render_one: Callable, todo: list, address: str | None, progress: bool = True) -> list:
+    """``render_one(job)`` for every job of ``todo`` ((RenderConfig, path) pairs, from
+    ``render.dataset``) as Ray tasks, one CPU each; a task whose worker dies is retried by
+    Ray and resumes from the sequence's finished frames (``render.sequence`` writes frames
+    atomically, sequence.json last). Returns the results in completion order."""
     import ray
     from tqdm import tqdm
 
-    from .render.dataset import _render_one
-
     connect(address)
-    task = ray.remote(num_cpus=1, max_retries=3, retry_exceptions=False)(_render_one)
+    task = ray.remote(num_cpus=1, max_retries=3, retry_exceptions=False)(render_one)
     pending = {task.remote(job): job for job in todo}
     done = []
     with tqdm(total=len(todo), unit="sequence", desc="dataset", disable=not progress) as bar:

@@ -96,7 +96,7 @@ def render_dataset(out: str | Path, split: str = "all", limit: int | None = None
     if address or os.environ.get("RAY_ADDRESS"):
         from ..cluster import render_on_ray
 
-        return render_on_ray(todo, None if address == "local" else address, progress) if todo else []
+        return render_on_ray(_render_one, todo, None if address == "local" else address, progress) if todo else []
     if jobs <= 1 or len(todo) <= 1:
         return [_render_one(job) for job in todo]
     import multiprocessing as mp
