@@ -145,6 +145,17 @@ class SequenceWorker:
             yield {"error": msg, **self.where}
 
 
+@dataclass
+class _Attempt:
+    """A sequence on a worker: ``reported`` frames written so far."""
+
+    worker: object
+    seq: Path
+    out: Path
+    frames: int
+    reported: int = 0
+
+
 def batch(cfg: BatchConfig, progress: bool = True,
           on_frame: Callable[[str, dict], None] | None = None) -> dict:
     """Every sequence under ``cfg.input`` through the pipeline on Ray; returns the summary
@@ -197,7 +208,7 @@ def batch(cfg: BatchConfig, progress: bool = True,
     Worker = ray.remote(num_cpus=cfg.threads, max_restarts=0)(SequenceWorker)
     idle = [Worker.remote(cfg) for _ in range(min(workers, len(todo)))]
     queue = list(todo)
-    running: dict = {}  # generator -> (worker, seq, out, n, frames reported)
+    running: dict[object, _Attempt] = {}  # a worker's generator -> what it is running
     bar = tqdm(total=sum(n for _, _, n in todo), unit="frame", desc="batch", disable=not progress)
     try:
         while queue or running:
@@ -205,10 +216,11 @@ def batch(cfg: BatchConfig, progress: bool = True,
                 seq, out, n = queue.pop(0)
                 worker = idle.pop()
                 records[str(seq.relative_to(cfg.input))]["attempts"] += 1
-                running[worker.run.remote(str(seq), str(out))] = [worker, seq, out, n, 0]
+                running[worker.run.remote(str(seq), str(out))] = _Attempt(worker, seq, out, n)
             ready, _ = ray.wait(list(running), num_returns=1)
             gen = ready[0]
-            worker, seq, out, n, reported = running[gen]
+            attempt = running[gen]
+            worker, seq, out, n, reported = attempt.worker, attempt.seq, attempt.out, attempt.frames, attempt.reported
             key = str(seq.relative_to(cfg.input))
             try:
                 item = ray.get(next(gen))
@@ -241,13 +253,13 @@ def batch(cfg: BatchConfig, progress: bool = True,
                                     **({"psnr": report["metrics"]["psnr"]} if "metrics" in report else {}))
                 write_summary(False)
             else:
-                running[gen][4] += 1
+                attempt.reported += 1
                 bar.update(1)
                 if on_frame:
                     on_frame(key, item)
     finally:
         bar.close()
-        for worker in idle + [r[0] for r in running.values()]:
+        for worker in idle + [a.worker for a in running.values()]:
             ray.kill(worker, no_restart=True)
     return write_summary(True)
 
