@@ -266,6 +266,41 @@ def test_evaluate_names_training_checkpoints_by_run_and_scores_them(tmp_path):
     assert json.loads((tmp_path / "eval.json").read_text()) == report
 
 
+def test_channels_last_training_step_equals_the_contiguous_one(tmp_path):
+    """jnds train's NHWC memory layout and its one-pass L1 change speed, not values: the
+    loss and every gradient of a step (L1 + feature loss) match NCHW with autograd's
+    abs().mean()."""
+    import copy
+
+    from jnds_deploy.training import feature_loss
+    from jnds_deploy.training.config import TrainConfig
+    from jnds_deploy.training.data import PatchSampler, load_sequence
+    from jnds_deploy.training.losses import Loss
+    from jnds_deploy.training.train import run_unroll
+    from .conftest import SAMPLE
+    torch.manual_seed(0)
+    feat = str(tmp_path / "feature_net.pt")
+    torch.save({"model": feature_loss.FeatureNet().state_dict(), "widths": (16, 32, 64)}, feat)
+    batch = PatchSampler([load_sequence(SAMPLE)], patch=32, unroll=3, rng=np.random.default_rng(0)).batch(2)
+    model = JNDS(ModelConfig.preset("tiny"))
+    cfg = TrainConfig(spatial_loss="l1+feature", feature_net=feat)
+    results = []
+    for layout, l1 in ((torch.contiguous_format, lambda a, b: (a - b).abs().mean()),
+                       (torch.channels_last, feature_loss.l1)):
+        m, loss_fn = copy.deepcopy(model).to(memory_format=layout), Loss(cfg, scale=2).to(memory_format=layout)
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr("jnds_deploy.training.losses.l1", l1)
+            mp.setattr("jnds_deploy.training.feature_loss.l1", l1)
+            loss, _ = loss_fn(run_unroll(m, batch), batch)
+            loss.backward()
+        results.append((loss.detach(), {n: p.grad for n, p in m.named_parameters() if p.grad is not None}))
+    (loss_a, grads_a), (loss_b, grads_b) = results
+    torch.testing.assert_close(loss_b, loss_a, rtol=1e-5, atol=1e-6)
+    assert grads_a.keys() == grads_b.keys() and grads_a
+    for n in grads_a:
+        torch.testing.assert_close(grads_b[n], grads_a[n], rtol=1e-3, atol=1e-5, msg=n)
+
+
 def test_l1_plus_feature_spatial_loss_is_the_sum_of_both(tmp_path):
     from jnds_deploy.training.config import TrainConfig
     from jnds_deploy.training.feature_loss import FeatureNet

@@ -33,6 +33,9 @@ class TrainConfig:
     threads: int = 2
     seed: int = 0
     device: str = "cpu"  # torch device of the training steps (cpu, cuda); data stays on the host
+    # convolutions in NHWC memory (the same values up to rounding): faster steps on a CPU
+    # (benchmarks/results/train_throughput.md)
+    channels_last: bool = True
     # augmentations (training.data.Augment): exposure range in stops, normal-frame rotation, flips
     exposure: tuple[float, float] | None = None
     rotate_normals: bool = False

@@ -10,6 +10,7 @@ import torch.nn.functional as F
 
 from .. import filters
 from .config import TrainConfig
+from .feature_loss import l1, load_feature_net
 
 
 def loss_tonemap(x: torch.Tensor) -> torch.Tensor:
@@ -31,8 +32,13 @@ class Loss:
         self.feature_net = None
         self.with_l1 = cfg.spatial_loss != "feature"
         if "feature" in cfg.spatial_loss:
-            from .feature_loss import load_feature_net
             self.feature_net = load_feature_net(cfg.feature_net).to(cfg.device)
+
+    def to(self, **kwargs) -> "Loss":
+        """Moves the feature network (``torch.nn.Module.to`` arguments)."""
+        if self.feature_net is not None:
+            self.feature_net.to(**kwargs)
+        return self
 
     def spatial(self, o: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
         """L1, the feature loss (of 3-channel images), or their sum: the feature loss alone
@@ -40,8 +46,8 @@ class Loss:
         (benchmarks/results/brightness.md); the L1 term holds their level."""
         if self.feature_net is not None and o.shape[1] == 3:
             feat = self.feature_net.loss(o, r)
-            return feat + (o - r).abs().mean() if self.with_l1 else feat
-        return (o - r).abs().mean()
+            return feat + l1(o, r) if self.with_l1 else feat
+        return l1(o, r)
 
     def __call__(self, outs: list, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
         s, tm = self.scale, loss_tonemap
@@ -64,7 +70,7 @@ class Loss:
                     mv = _upsampled_motion(mv, s)
                 o_prev = filters.warp(o[:-1].flatten(0, 1), mv)
                 r_prev = filters.warp(r[:-1].flatten(0, 1), mv)
-                l_t = ((o[1:].flatten(0, 1) - o_prev) - (r[1:].flatten(0, 1) - r_prev)).abs().mean()
+                l_t = l1(o[1:].flatten(0, 1) - o_prev, r[1:].flatten(0, 1) - r_prev)
             task = self.w * l_sp + (1 - self.w) * l_t
             total = total + task
             parts[name] = float(task.detach())

@@ -118,6 +118,9 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
     sampler = PatchSampler(train_seqs, cfg.patch, cfg.unroll, rng,
                            Augment(cfg.exposure, cfg.rotate_normals, cfg.flips))
     loss_fn = Loss(cfg, model.cfg.scale)
+    if cfg.channels_last:
+        model.to(memory_format=torch.channels_last)
+        loss_fn.to(memory_format=torch.channels_last)
     total_steps = cfg.fp32_steps + cfg.qat_steps
     log = (run / "log.jsonl").open("a")
 
