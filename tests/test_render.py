@@ -127,6 +127,47 @@ def test_tiny_render_motion_vectors(tiny):
     assert warped < 0.5 * identity, (warped, identity)
 
 
+def test_moving_objects_motion_vectors_follow_the_objects():
+    """Scene kind ``moving``: a static camera, objects that move and turn. Where a moving
+    object's pixel's vector points, the previous frame sees the same object, at the point
+    of it the pixel sees now (carried back with the object); nothing else moves."""
+    from jnds_deploy.render.integrator import SplitPathTracer, load_mitsuba
+    from jnds_deploy.render.scene import EXTENT, OBJECT_PREFIX, build_scene, object_motion
+    from jnds_deploy.render.sequence import _turn_y, motion_vectors, moved_objects
+
+    mi, dr = load_mitsuba(None)
+    seed, frames, size = 5, 4, (160, 90)
+    cam = camera_path("static", frames, np.random.default_rng(0), extent=EXTENT)[0][0]
+    names = [k for k in build_scene(mi, seed, "moving")[0] if k.startswith(OBJECT_PREFIX)]
+    motion = object_motion(seed, "moving", names)
+    assert 0 < len(motion) < len(names)
+    assert object_motion(seed, "procedural", names) == {}
+    moved = moved_objects(build_scene(mi, seed, "moving", 2, frames)[0],
+                          build_scene(mi, seed, "moving", 1, frames)[0], motion)
+    prev, now = (SplitPathTracer(mi, dr, *build_scene(mi, seed, "moving", i, frames)) for i in (1, 2))
+    mv = motion_vectors(now, cam, cam, size, moved).reshape(-1, 2)
+
+    rows, cols = np.mgrid[0:size[1], 0:size[0]]
+    pix = np.stack([cols.ravel() + 0.5, rows.ravel() + 0.5], 1)  # pixel centres (x, y)
+    o, d = cam.rays(pix[:, 0], pix[:, 1], size)
+    t, shape = now.intersect(o, d, shapes=True)
+    hit = np.array(now.shape_names + [""])[shape]
+    on = np.isin(hit, list(motion))
+    assert on.sum() > 100
+    assert np.abs(mv[~on]).max() < 1e-3  # the camera and the other objects stand still
+    q = pix + mv
+    o0, d0 = cam.rays(q[:, 0], q[:, 1], size)
+    t0, shape0 = prev.intersect(o0, d0, shapes=True)
+    same = on & (np.array(prev.shape_names + [""])[shape0] == hit)
+    assert same.sum() > 0.8 * on.sum()  # the rest: hidden in the previous frame
+    p_now, p_prev = o + t[:, None] * d, o0 + t0[:, None] * d0
+    carried = np.zeros_like(p_now)
+    for name, (centre, move, turn) in moved.items():
+        k = same & (hit == name)
+        carried[k] = _turn_y(p_now[k] - centre, -turn) + centre - move
+    assert np.abs(p_prev[same] - carried[same]).max() < 2e-3
+
+
 def test_render_is_deterministic_and_resumes(tmp_path, tiny):
     args = ("--camera", "cut", "--seed", "11", "--frames", "4", "--size", "64x36", "--spp", "16")
     first = open_sequence(tiny[0])
@@ -221,6 +262,13 @@ def test_dataset_grows_with_new_training_seeds_only():
     assert not val_seeds & {cfg.seed for _, cfg in dataset_specs("train", 1000)}
     with pytest.raises(ValueError, match="train_sequences"):
         dataset_specs("train", 0)
+    moving = dataset_specs("train", 24, moving_sequences=3)
+    assert moving[:24] == base and [(rel, cfg.scene) for rel, cfg in moving[24:]] == [
+        ("train/moving-static-4000", "moving"), ("train/moving-dolly-4001", "moving"),
+        ("train/moving-orbit-4002", "moving")]
+    assert not {cfg.seed for _, cfg in moving} & val_seeds
+    with pytest.raises(ValueError, match="moving_sequences"):
+        dataset_specs("train", 24, "cycles", moving_sequences=1)
 
 
 def test_dataset_jobs_render_what_one_process_renders(tmp_path, monkeypatch):
@@ -228,7 +276,7 @@ def test_dataset_jobs_render_what_one_process_renders(tmp_path, monkeypatch):
     from jnds_deploy.render import RenderConfig, dataset
     specs = [(f"train/s{i}", RenderConfig(scene="procedural", seed=30 + i, camera="orbit", frames=2,
                                           size=(32, 18), spp=4)) for i in range(2)]
-    monkeypatch.setattr(dataset, "dataset_specs", lambda split, n, engine="mitsuba": specs)
+    monkeypatch.setattr(dataset, "dataset_specs", lambda split, n, engine="mitsuba", moving=0: specs)
     one = dataset.render_dataset(tmp_path / "one", jobs=1)
     two = dataset.render_dataset(tmp_path / "two", jobs=2)
     assert [p.name for p, _ in one] == [p.name for p, _ in two] == ["s0", "s1"]

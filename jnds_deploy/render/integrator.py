@@ -74,11 +74,14 @@ class SplitPathTracer:
         self.vectorized = not mi.variant().startswith("scalar")
         rough = {s.id(): m.roughness for s, m in ((s, materials.get(s.id())) for s in self.scene.shapes()) if m}
         self._rough_by_id = rough
+        self.shape_names = [s.id() for s in self.scene.shapes()]  # the scene dict's keys
         if self.vectorized:
             ids = np.asarray(dr.reinterpret_array(mi.UInt32, self.scene.shapes_dr()))
             table = np.ones(int(ids.max()) + 1, np.float32)
-            for reg_id, shape in zip(ids, self.scene.shapes()):
+            self._index_by_reg = np.full(int(ids.max()) + 1, -1, np.int64)
+            for k, (reg_id, shape) in enumerate(zip(ids, self.scene.shapes())):
                 table[reg_id] = rough.get(shape.id(), 1.0)
+                self._index_by_reg[reg_id] = k
             self._rough_table = mi.Float(table)
 
     # -- public ---------------------------------------------------------------------
@@ -103,18 +106,24 @@ class SplitPathTracer:
             rows.append([np.atleast_1d(np.asarray(v, np.float32)) for v in out])
         return Samples(*[np.stack([r[j] for r in rows]) for j in range(6)])
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """Distance to the first hit along each ray, ``inf`` where it misses."""
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, shapes: bool = False):
+        """Distance to the first hit along each ray, ``inf`` where it misses; with
+        ``shapes``, also the index in ``shape_names`` of the shape hit (-1: none)."""
         mi, dr = self.mi, self.dr
         if self.vectorized:
             o = mi.Point3f(*[origins[:, i].astype(np.float32) for i in range(3)])
             d = mi.Vector3f(*[directions[:, i].astype(np.float32) for i in range(3)])
             si = self.scene.ray_intersect(mi.Ray3f(o, d))
-            return np.asarray(dr.select(si.is_valid(), si.t, dr.inf), np.float64)
-        return np.array([
-            float(si.t) if si.is_valid() else np.inf
-            for si in (self.scene.ray_intersect(mi.Ray3f(mi.Point3f(o), mi.Vector3f(d)))
-                       for o, d in zip(origins, directions))])
+            t = np.asarray(dr.select(si.is_valid(), si.t, dr.inf), np.float64)
+            if not shapes:
+                return t
+            reg = np.asarray(dr.reinterpret_array(mi.UInt32, si.shape))
+            return t, np.where(np.isfinite(t), self._index_by_reg[np.minimum(reg, len(self._index_by_reg) - 1)], -1)
+        hits = [self.scene.ray_intersect(mi.Ray3f(mi.Point3f(o), mi.Vector3f(d))) for o, d in zip(origins, directions)]
+        t = np.array([float(si.t) if si.is_valid() else np.inf for si in hits])
+        if not shapes:
+            return t
+        return t, np.array([self.shape_names.index(si.shape.id()) if si.is_valid() else -1 for si in hits])
 
     # -- internals ------------------------------------------------------------------
     def _roughness(self, si, valid):

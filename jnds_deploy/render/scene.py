@@ -7,7 +7,10 @@ Lighting mixes an environment map, rectangular area lights and small bright sphe
 lights.
 
 ``build_scene`` returns the Mitsuba scene dict and a per-shape material table
-(shape id -> roughness, is_metal) that the integrator uses for the roughness AOV.
+(shape id -> roughness, is_metal) that the integrator uses for the roughness AOV. In the
+``moving`` kind, half the objects move on their own (``ObjectMotion``): the scene of
+frame i has them where ``object_motion`` puts them, and the renderer's motion vectors
+follow them.
 """
 from __future__ import annotations
 
@@ -18,8 +21,43 @@ import numpy as np
 
 from ..errors import ConfigError
 
-SCENE_KINDS = ("procedural", "diffuse", "metal", "sky", "sunlit")
+SCENE_KINDS = ("procedural", "diffuse", "metal", "sky", "sunlit", "moving")
+OBJECT_PREFIX = "obj"  # scene-dict keys of the objects (the ground, lights and sky are not objects)
+MOVING_FRACTION = 0.5  # ``moving``: the share of objects that move on their own
 EXTENT = 4.0  # objects are scattered over [-EXTENT, EXTENT]^2 on the ground
+
+
+@dataclass(frozen=True)
+class ObjectMotion:
+    """Rigid motion of one object per frame: a translation ``velocity`` (world units a
+    frame) and a turn about its vertical axis through its centre (``spin``, degrees a
+    frame; spheres do not turn). Frame i is displaced by ``i - frames // 2`` steps, so a
+    sequence is centred on the generated layout."""
+
+    velocity: tuple[float, float, float]
+    spin: float
+
+    def offset(self, frame: int, frames: int) -> tuple[np.ndarray, float]:
+        k = frame - frames // 2
+        return np.asarray(self.velocity) * k, self.spin * k
+
+
+def object_motion(seed: int, kind: str, names: list[str]) -> dict[str, ObjectMotion]:
+    """The objects (``names``: all of the scene's, in order) of a ``moving`` scene that
+    move, and how (none in other kinds). Drawn from a stream of its own, so the static
+    layout of a seed is the same in every kind."""
+    if kind != "moving":
+        return {}
+    rng = np.random.default_rng([seed, 7])
+    out = {}
+    for name in names:
+        if rng.random() >= MOVING_FRACTION:
+            continue
+        heading, speed = rng.uniform(0, 2 * np.pi), rng.uniform(0.08, 0.35)
+        lift = rng.uniform(-0.02, 0.04) if rng.random() < 0.3 else 0.0
+        out[name] = ObjectMotion((float(speed * np.cos(heading)), float(lift), float(speed * np.sin(heading))),
+                                 float(rng.choice([-1, 1]) * rng.uniform(3, 15)))
+    return out
 
 
 @dataclass(frozen=True)
@@ -105,45 +143,58 @@ def _bsdf(mi, rng: np.random.Generator, kinds: tuple[str, ...]) -> tuple[dict, M
     return {"type": "diffuse", "reflectance": refl}, Material("diffuse", 1.0)
 
 
-def build_scene(mi, seed: int, kind: str = "procedural") -> tuple[dict, dict[str, Material]]:
-    """Mitsuba scene dict and the material of each shape id, for a seed and a scene kind.
+def build_scene(mi, seed: int, kind: str = "procedural", frame: int = 0, frames: int = 1
+                ) -> tuple[dict, dict[str, Material]]:
+    """Mitsuba scene dict and the material of each shape id, for a seed and a scene kind
+    (at ``frame`` of ``frames``, for the objects that move: ``object_motion``).
 
     ``diffuse``: only diffuse materials (no glossy signal); ``metal``: only metals (no
     diffuse signal); ``sky``: a few objects floating in front of the sky, no ground
     (most pixels see only the environment); ``sunlit``: diffuse materials lit by a sun (a
     directional light) with a black background, so that nothing seen directly emits and
-    the specular layer is exactly zero; ``procedural``: everything.
+    the specular layer is exactly zero; ``procedural``: everything; ``moving``: the
+    ``procedural`` scene of the seed with half its objects moving.
     """
     if kind not in SCENE_KINDS:
         raise ConfigError(f"unknown scene {kind!r}, expected one of {', '.join(SCENE_KINDS)}")
     rng = np.random.default_rng(seed)
     T = mi.ScalarTransform4f
-    kinds = {"procedural": ("diffuse", "plastic", "metal"), "diffuse": ("diffuse",),
-             "metal": ("metal",), "sky": ("diffuse", "plastic", "metal"), "sunlit": ("diffuse",)}[kind]
+    kinds = {"procedural": ("diffuse", "plastic", "metal"), "diffuse": ("diffuse",), "metal": ("metal",),
+             "sky": ("diffuse", "plastic", "metal"), "sunlit": ("diffuse",),
+             "moving": ("diffuse", "plastic", "metal")}[kind]
+    layout = "procedural" if kind == "moving" else kind
     scene: dict = {"type": "scene"}
     materials: dict[str, Material] = {}
 
     if kind != "sky":
-        bsdf, mat = _bsdf(mi, rng, ("diffuse", "plastic") if kind == "procedural" else kinds)
+        bsdf, mat = _bsdf(mi, rng, ("diffuse", "plastic") if layout == "procedural" else kinds)
         scene["ground"] = {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(3 * EXTENT),
                            "bsdf": bsdf}
         materials["ground"] = mat
 
-    for i in range(int(rng.integers(3, 6) if kind == "sky" else rng.integers(5, 12))):
+    n_objects = int(rng.integers(3, 6) if kind == "sky" else rng.integers(5, 12))
+    motion = object_motion(seed, kind, [f"{OBJECT_PREFIX}{i}" for i in range(n_objects)])
+    for i in range(n_objects):
         shape = str(rng.choice(["sphere", "cube", "panel"]))
         scale = float(np.exp(rng.uniform(np.log(0.15), np.log(1.6))))
         x, z = rng.uniform(-EXTENT, EXTENT, 2)
         yaw = float(rng.uniform(0, 360))
         bsdf, mat = _bsdf(mi, rng, kinds)
-        name = f"obj{i}"
+        name = f"{OBJECT_PREFIX}{i}"
+        if name in motion:
+            shift, turn = motion[name].offset(frame, frames)
+            x, z, yaw = x + shift[0], z + shift[2], yaw + (0.0 if shape == "sphere" else turn)
+            scale_y = scale + shift[1]  # the lift: centre height above the ground
+        else:
+            scale_y = scale
         if shape == "sphere":
-            scene[name] = {"type": "sphere", "center": [x, scale, z], "radius": scale, "bsdf": bsdf}
+            scene[name] = {"type": "sphere", "center": [x, scale_y, z], "radius": scale, "bsdf": bsdf}
         elif shape == "cube":
             scene[name] = {"type": "cube", "bsdf": bsdf,
-                           "to_world": T().translate([x, scale, z]).rotate([0, 1, 0], yaw).scale(scale)}
+                           "to_world": T().translate([x, scale_y, z]).rotate([0, 1, 0], yaw).scale(scale)}
         else:
             scene[name] = {"type": "rectangle", "bsdf": bsdf,
-                           "to_world": T().translate([x, 2 * scale, z]).rotate([0, 1, 0], yaw)
+                           "to_world": T().translate([x, scale_y + scale, z]).rotate([0, 1, 0], yaw)
                            .scale([scale, 2 * scale, 1])}
         materials[name] = mat
 

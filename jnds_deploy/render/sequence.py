@@ -5,7 +5,8 @@ Per frame:
   Halton-jittered sample position; diffuse radiance demodulated by the albedo of that
   same sample, specular with emission/background; G-buffer of the first vertex;
 - motion vectors: the pixel-centre surface point (or, for background, direction)
-  reprojected into the previous frame's camera;
+  reprojected into the previous frame's camera; on an object that moves (scene kind
+  ``moving``), the point carried back with the object's own motion first;
 - reference at ``scale`` x native resolution: ``spp`` paths per target pixel at
   uniformly random positions inside it (box filter), converged colour and components.
 
@@ -35,7 +36,7 @@ from ..io import (
 from ..blender_scene import CYCLES_SCENE_KINDS
 from ..sampling import jitter
 from .camera import CAMERA_PATHS, Camera, camera_path
-from .scene import EXTENT, SCENE_KINDS, build_scene
+from .scene import EXTENT, OBJECT_PREFIX, SCENE_KINDS, build_scene, object_motion
 
 ALBEDO_EPS = 1e-3  # below this albedo, demodulated diffuse is written as 0 (format contract)
 MAX_LANES = 1 << 21  # paths traced per Mitsuba call: bounds memory, amortizes tracing
@@ -90,18 +91,49 @@ def _pixel_grid(w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
     return x.ravel().astype(np.float64), y.ravel().astype(np.float64)
 
 
-def motion_vectors(tracer, cam: Camera, prev: Camera, size: tuple[int, int]) -> np.ndarray:
-    """(H, W, 2) offsets from each pixel centre to where its surface point was in ``prev``."""
+def motion_vectors(tracer, cam: Camera, prev: Camera, size: tuple[int, int], moved: dict | None = None
+                   ) -> np.ndarray:
+    """(H, W, 2) offsets from each pixel centre to where its surface point was in ``prev``.
+
+    ``moved``: {shape id: (centre now (3,), its move since the previous frame (3,), its
+    turn about the vertical axis through the centre since then, degrees)}; a point on such
+    a shape is first carried back to where it was on the shape in the previous frame."""
     w, h = size
     x, y = _pixel_grid(w, h)
     o, d = cam.rays(x + 0.5, y + 0.5, size)
-    t = tracer.intersect(o, d)
+    t, shape = tracer.intersect(o, d, shapes=True)
     points = np.where(np.isfinite(t)[:, None], o + np.where(np.isfinite(t), t, 0)[:, None] * d, np.nan)
+    for name, (centre, move, turn) in (moved or {}).items():
+        on = shape == tracer.shape_names.index(name) if name in tracer.shape_names else np.zeros(len(t), bool)
+        if on.any():
+            points[on] = _turn_y(points[on] - centre, -turn) + centre - move
     pos, front = prev.project(points, size, directions=d)
     # behind the previous camera: point the vector well off-screen (a disocclusion)
     pos = np.where(front[:, None], pos, -4.0 * max(w, h))
     mv = pos - np.stack([x + 0.5, y + 0.5], axis=1)
     return mv.reshape(h, w, 2).astype(np.float32)
+
+
+def _turn_y(v: np.ndarray, degrees: float) -> np.ndarray:
+    """Rows of ``v`` turned about +y as Mitsuba's ``rotate([0, 1, 0], degrees)`` turns them."""
+    a = np.radians(degrees)
+    c, s = np.cos(a), np.sin(a)
+    return np.stack([c * v[:, 0] + s * v[:, 2], v[:, 1], -s * v[:, 0] + c * v[:, 2]], axis=1)
+
+
+def _centre(shape: dict) -> np.ndarray:
+    if "center" in shape:
+        return np.asarray(shape["center"], np.float64)
+    return np.asarray(shape["to_world"].matrix, np.float64)[:3, 3]
+
+
+def moved_objects(scene_now: dict, scene_prev: dict, motion: dict) -> dict:
+    """``motion_vectors``' ``moved`` for two consecutive frames' scene dicts."""
+    out = {}
+    for name, m in motion.items():
+        c, p = _centre(scene_now[name]), _centre(scene_prev[name])
+        out[name] = (c, c - p, 0.0 if scene_now[name]["type"] == "sphere" else m.spin)
+    return out
 
 
 def _demodulate(radiance: np.ndarray, albedo: np.ndarray) -> np.ndarray:
@@ -189,7 +221,13 @@ def render_sequence(cfg: RenderConfig, out: str | Path, progress: bool = True) -
     mi, dr = load_mitsuba(cfg.variant)
     marker.write_text(json.dumps({"config": json.loads(cfg_json), "variant": mi.variant()}, indent=1))
 
-    scene_dict, materials = build_scene(mi, cfg.seed, cfg.scene)
+    motion = object_motion(cfg.seed, cfg.scene, [k for k in build_scene(mi, cfg.seed, cfg.scene)[0]
+                                                 if k.startswith(OBJECT_PREFIX)])
+
+    def scene_at(i):
+        return build_scene(mi, cfg.seed, cfg.scene, i, cfg.frames)
+
+    scene_dict, materials = scene_at(0)
     tracer = SplitPathTracer(mi, dr, scene_dict, materials, cfg.max_depth)
     cams, cuts = camera_path(cfg.camera, cfg.frames, np.random.default_rng(_seed("camera", cfg.seed)),
                              extent=EXTENT)
@@ -202,11 +240,16 @@ def render_sequence(cfg: RenderConfig, out: str | Path, progress: bool = True) -
         if _frame_done(out, i, cfg):
             continue
         t0 = time.perf_counter()
+        moved = None
+        if motion and i > 0:  # the objects moved: this frame's scene (mi.load_dict consumes a dict)
+            scene_dict, materials = scene_at(i)
+            moved = moved_objects(scene_dict, scene_at(i - 1)[0], motion)
+            tracer = SplitPathTracer(mi, dr, scene_dict, materials, cfg.max_depth)
         layers = render_inputs(tracer, cfg, cams[i], frames[i].jitter, _seed(cfg.seed, i, "inputs"))
         if i == 0 or cuts[i]:
             layers["motion"] = np.zeros((cfg.size[1], cfg.size[0], 2), np.float32)
         else:
-            layers["motion"] = motion_vectors(tracer, cams[i], cams[i - 1], cfg.size)
+            layers["motion"] = motion_vectors(tracer, cams[i], cams[i - 1], cfg.size, moved)
         t1 = time.perf_counter()
         times["inputs"].append(t1 - t0)
         if cfg.reference:
@@ -217,5 +260,6 @@ def render_sequence(cfg: RenderConfig, out: str | Path, progress: bool = True) -
 
     cameras = [{"origin": list(c.origin), "target": list(c.target), "fov_y": c.fov_y} for c in cams]
     writer.close(frames, {"renderer": {"config": json.loads(cfg_json), "variant": mi.variant(),
-                                       "cameras": cameras}})
+                                       "cameras": cameras,
+                                       "moving_objects": {k: asdict(m) for k, m in motion.items()}}})
     return {k: float(np.median(v)) if v else None for k, v in times.items()}
