@@ -148,7 +148,7 @@ def cmd_run(args) -> int:
     cfg = PipelineConfig(artifacts=args.artifacts, precision=args.precision,
                          filter_dtype=args.filter_dtype, threads=args.threads, adaptive=not args.no_adaptive,
                          native_output=args.native, keep_freed_memory=True)
-    report = run_sequence(cfg, args.input, args.output, progress=not args.quiet)
+    report = run_sequence(cfg, args.input, args.output, progress=not args.quiet, output_format=args.output_format)
     med = report["median_ms"]
     print(f"{report['frames']} frames -> {args.output}: median {med['total']:.1f} ms/frame "
           f"({report['native_size'][0]}x{report['native_size'][1]} -> "
@@ -166,7 +166,8 @@ def cmd_batch(args) -> int:
 
     cfg = BatchConfig(artifacts=args.artifacts, input=args.input, output=args.output, precision=args.precision,
                       filter_dtype=args.filter_dtype, adaptive=not args.no_adaptive, threads=args.threads,
-                      workers=args.workers, address=args.address, retries=args.retries)
+                      workers=args.workers, address=args.address, retries=args.retries,
+                      output_format=args.output_format)
     summary = batch(cfg, progress=not args.quiet)
     c = summary["counts"]
     print(f"{c['done']} sequence(s) done, {c['skipped']} already complete, {c['failed']} failed: "
@@ -350,6 +351,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--address", default=None,
                    help="a Ray cluster (ray start --head prints it; default RAY_ADDRESS, else a local Ray)")
     b.add_argument("--retries", type=int, default=2, help="further attempts of a sequence whose worker died")
+    b.add_argument("--output-format", default="float", choices=("float", "half"),
+                   help="output frames: float (32-bit, uncompressed) or half (16-bit, PIZ: a quarter of the size)")
     b.add_argument("--quiet", action="store_true")
     b.set_defaults(func=cmd_batch)
 
@@ -365,6 +368,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="denoise only: output at the input size, no upsample block (a renderer "
                          "already at display resolution); metrics against the reference area-downsampled")
     rn.add_argument("--threads", type=int, default=2)
+    rn.add_argument("--output-format", default="float", choices=("float", "half"),
+                   help="output frames: float (32-bit, uncompressed) or half (16-bit, PIZ: a quarter of the size)")
     rn.add_argument("--quiet", action="store_true")
     rn.set_defaults(func=cmd_run)
 

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Callable
 
 from .errors import ConfigError, JndsError
+from .io import OUTPUT_FORMATS
 
 SUMMARY = "batch.json"
 
@@ -59,6 +60,7 @@ class BatchConfig:
     workers: int | None = None  # default: the cluster's CPUs // threads
     address: str | None = None
     retries: int = 2  # further attempts of a sequence whose worker died
+    output_format: str = "float"  # io.OUTPUT_FORMATS
 
     def __post_init__(self):
         if self.threads < 1:
@@ -67,6 +69,8 @@ class BatchConfig:
             raise ConfigError(f"workers must be >= 1, got {self.workers}")
         if self.retries < 0:
             raise ConfigError(f"retries must be >= 0, got {self.retries}")
+        if self.output_format not in OUTPUT_FORMATS:
+            raise ConfigError(f"output format {self.output_format!r}: expected one of {', '.join(OUTPUT_FORMATS)}")
 
 
 def find_work(root: str | Path, output: str | Path) -> list[tuple[Path, Path]]:
@@ -127,6 +131,7 @@ class SequenceWorker:
                                             adaptive=cfg.adaptive, keep_freed_memory=True))
         import ray
 
+        self.output_format = cfg.output_format
         self.where = {"node": socket.gethostname(), "node_id": ray.get_runtime_context().get_node_id(),
                       "pid": os.getpid()}
 
@@ -138,7 +143,7 @@ class SequenceWorker:
 
         shutil.rmtree(out, ignore_errors=True)  # a partial output of an earlier attempt
         try:
-            for item in iter_run(self.pipe, seq, out):
+            for item in iter_run(self.pipe, seq, out, output_format=self.output_format):
                 yield {"report": item, **self.where} if isinstance(item, dict) else {"frame": item, **self.where}
         except Exception as e:  # noqa: BLE001 -- reported per sequence; the batch goes on
             msg = str(e) if isinstance(e, JndsError) else f"{type(e).__name__}: {e}"

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from .. import contact_sheet
-from ..io import OUTPUT_LAYERS, open_sequence, write_exr
+from ..io import OUTPUT_FORMATS, open_sequence, write_output
 from .pipeline import Pipeline, PipelineConfig
 
 
@@ -34,24 +34,29 @@ def stage_table(report: dict) -> str:
 
 
 def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path,
-                 progress: bool = True, metrics: bool = True) -> dict:
-    """The sequence through a new pipeline; returns the report ``OUT/run.json`` holds."""
+                 progress: bool = True, metrics: bool = True, output_format: str = "float") -> dict:
+    """The sequence through a new pipeline; returns the report ``OUT/run.json`` holds.
+    ``output_format``: one of ``io.OUTPUT_FORMATS``."""
     from tqdm import tqdm
 
     n = len(open_sequence(input_path))
     with tqdm(total=n, desc=f"run {Path(input_path).name}", unit="frame", disable=not progress) as bar:
-        for item in iter_run(Pipeline(cfg), input_path, output, metrics):
+        for item in iter_run(Pipeline(cfg), input_path, output, metrics, output_format):
             if isinstance(item, dict):
                 return item
             bar.update(1)
     raise AssertionError("iter_run ends with its report")
 
 
-def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics: bool = True):
+def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics: bool = True,
+             output_format: str = "float"):
     """``run_sequence`` on an existing pipeline (its history is reset first), one step at a
     time: yields each frame's index once the frame is written, then the report, after
-    ``OUT/run.json`` (written last, atomically: a directory with it is complete)."""
+    ``OUT/run.json`` (written last, atomically: a directory with it is complete). The
+    metrics score the frame as computed (float32), before it is stored."""
     cfg = pipe.cfg
+    if output_format not in OUTPUT_FORMATS:
+        raise ValueError(f"output format {output_format!r}: expected one of {', '.join(OUTPUT_FORMATS)}")
     seq = open_sequence(input_path)
     pipe.reset()
     out = Path(output)
@@ -62,7 +67,7 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
     for i in range(len(seq)):
         frame = pipe(seq.inputs(i), seq.frames[i].camera_cut)
         color = frame.output
-        write_exr(out / f"{i:04d}.exr", {"color": color}, OUTPUT_LAYERS)
+        write_output(out / f"{i:04d}.exr", color, output_format)
         frames.append(frame.ms)
         nonfinite.append(frame.nonfinite)
         decisions.append({k: v for k, v in frame.decisions.items() if v})
@@ -87,7 +92,7 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
         "precision": cfg.precision, "filter_dtype": cfg.filter_dtype, "threads": cfg.threads,
         "native_size": list(seq.native_size), "output_size": [seq.native_size[0] * pipe.out_scale,
                                                             seq.native_size[1] * pipe.out_scale],
-        "frames": len(seq),
+        "frames": len(seq), "output_format": output_format,
         "median_ms": {k: float(np.median([f.get(k, 0.0) for f in frames])) for k in stages},
         "frame_ms": frames,
         # NaN/Inf values replaced per frame and input layer (only layers that had any)

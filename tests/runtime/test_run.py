@@ -31,3 +31,28 @@ def test_sheet_frames():
     assert contact_sheet.sheet_frames(8) == [0, 4, 7]
     assert contact_sheet.sheet_frames(1) == [0]
     assert contact_sheet.sheet_frames(0) == []
+
+
+def test_output_formats_store_the_frames_as_computed(tiny_artifacts, tmp_path):
+    """float: the pipeline's float32 frame bit for bit, uncompressed; half: the same frame
+    rounded to half, PIZ; an unknown format is refused before anything is written."""
+    import OpenEXR
+    import pytest
+
+    from jnds_deploy.runtime.pipeline import Pipeline
+    from jnds_deploy.runtime.run import iter_run
+
+    cfg = PipelineConfig(artifacts=str(tiny_artifacts[0]))
+    frames = {}
+    for fmt in ("float", "half"):
+        report = run_sequence(cfg, SAMPLE, tmp_path / fmt, progress=False, metrics=False, output_format=fmt)
+        assert report["output_format"] == fmt
+        with OpenEXR.File(str(tmp_path / fmt / "0003.exr"), separate_channels=True) as f:  # read inside: closing clears them
+            compression = f.header()["compression"]
+            frames[fmt] = np.stack([f.channels()[f"color.{c}"].pixels for c in "RGB"], -1)
+        assert compression == {"float": OpenEXR.NO_COMPRESSION, "half": OpenEXR.PIZ_COMPRESSION}[fmt]
+    assert frames["float"].dtype == np.float32 and frames["half"].dtype == np.float16
+    np.testing.assert_array_equal(frames["half"], frames["float"].astype(np.float16))
+    with pytest.raises(ValueError, match="output format 'png'"):
+        next(iter_run(Pipeline(cfg), SAMPLE, tmp_path / "png", output_format="png"))
+    assert not (tmp_path / "png").exists()
