@@ -262,6 +262,12 @@ def test_dataset_grows_with_new_training_seeds_only():
     assert not val_seeds & {cfg.seed for _, cfg in dataset_specs("train", 1000)}
     with pytest.raises(ValueError, match="train_sequences"):
         dataset_specs("train", 0)
+    # the kinds rotate with the seed: every 8th a diffuse-only and a metal-only scene
+    assert [rel for rel, _ in base[:8]] == [
+        "train/procedural-static-1000", "train/procedural-dolly-1001", "train/procedural-orbit-1002",
+        "train/diffuse-pan-1003", "train/procedural-cut-1004", "train/procedural-static-1005",
+        "train/metal-dolly-1006", "train/procedural-orbit-1007"]
+    assert all(rel.split("/")[1].startswith(cfg.scene) for rel, cfg in base)
     moving = dataset_specs("train", 24, moving_sequences=3)
     assert moving[:24] == base and [(rel, cfg.scene) for rel, cfg in moving[24:]] == [
         ("train/moving-static-4000", "moving"), ("train/moving-dolly-4001", "moving"),
@@ -276,7 +282,7 @@ def test_dataset_jobs_render_what_one_process_renders(tmp_path, monkeypatch):
     from jnds_deploy.render import RenderConfig, dataset
     specs = [(f"train/s{i}", RenderConfig(scene="procedural", seed=30 + i, camera="orbit", frames=2,
                                           size=(32, 18), spp=4)) for i in range(2)]
-    monkeypatch.setattr(dataset, "dataset_specs", lambda split, n, engine="mitsuba", moving=0: specs)
+    monkeypatch.setattr(dataset, "dataset_specs", lambda split, n, engine="mitsuba", moving=0, mixed=0: specs)
     one = dataset.render_dataset(tmp_path / "one", jobs=1)
     two = dataset.render_dataset(tmp_path / "two", jobs=2)
     assert [p.name for p, _ in one] == [p.name for p, _ in two] == ["s0", "s1"]
