@@ -29,12 +29,16 @@ from .errors import ConfigError
 
 # the kinds the training and validation sets are made of
 CYCLES_TRAIN_KINDS = ("sunroom", "darkroom", "metals", "textures")
+# training-only kinds, added on request (``jnds dataset --mixed-sequences``): ``mixed``
+# draws each ingredient of the training kinds at random and combines them (world, room or
+# open ground, light rig, materials), for variety rather than another fixed layout
+CYCLES_EXTRA_KINDS = ("mixed",)
 # kinds only the test set is made of (render.dataset): built apart from the training kinds,
 # so that the test measures scenes the model never saw the like of. gallery: a long hall
 # under strip lights, a polished floor, finely textured panels, sculptures; night: an
 # outdoor ground under a dark sky, spot lights and small very bright neon tubes
 CYCLES_TEST_KINDS = ("gallery", "night")
-CYCLES_SCENE_KINDS = CYCLES_TRAIN_KINDS + CYCLES_TEST_KINDS
+CYCLES_SCENE_KINDS = CYCLES_TRAIN_KINDS + CYCLES_EXTRA_KINDS + CYCLES_TEST_KINDS
 TEXTURES = ("brick", "checker", "noise", "voronoi")
 
 
@@ -298,6 +302,8 @@ def build(cfg: dict):
         bpy.context.object.data.size = rng.uniform(1.0, 2.5)
         moving = _objects(rng, rng.randint(5, 9), 4.0, 0.2, 0.9, frames)
         target, radius, height = (0, 0, 0.8), rng.uniform(3.5, 5.0), rng.uniform(1.2, 2.6)
+    elif kind == "mixed":
+        moving, target, radius, height = _mixed(scene, rng, frames)
     elif kind == "gallery":
         _world(scene, rng, "dark")
         _room(rng, 6.0, 4.0, window=False, texture_walls=False)
@@ -339,6 +345,49 @@ def build(cfg: dict):
                 k.interpolation = "LINEAR"
     cuts = _camera(scene, rng, cfg["camera"], frames, target, radius, height)
     return scene, cuts
+
+
+def _mixed(scene, rng, frames):
+    """The ``mixed`` kind: a world, a room (with or without a window) or open ground, one
+    to three light sources of the training kinds' sorts (sun, an area light, point lights,
+    small emissive icospheres), props with random shares of metal and texture. Returns
+    (moving props, camera target, radius, height)."""
+    import bpy
+
+    world = rng.choice(("sky", "dark", "color"))
+    _world(scene, rng, world)
+    half = rng.uniform(4.0, 7.0)
+    if rng.random() < 0.6:
+        _room(rng, half, rng.uniform(2.6, 4.0), window=rng.random() < 0.5, texture_walls=rng.random() < 0.6)
+    else:
+        ground = _material("ground", rng, rough=rng.uniform(0.05, 0.9), texture=rng.choice(TEXTURES))
+        _box("ground", (40, 40, 0.1), (0, 0, -0.05), ground)
+    rigs = rng.sample(("sun", "area", "points", "emitters"), rng.randint(1, 3))
+    if world == "dark" and rigs == ["sun"]:
+        rigs.append("emitters")  # a sun alone in a closed dark room may light nothing seen
+    for rig in rigs:
+        if rig == "sun":
+            bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(20, 70)), 0,
+                                                           math.radians(rng.uniform(0, 360))))
+            bpy.context.object.data.energy = rng.uniform(2.0, 8.0)
+            bpy.context.object.data.angle = math.radians(rng.uniform(0.5, 5))
+        elif rig == "area":
+            bpy.ops.object.light_add(type="AREA", location=(rng.uniform(-2, 2), rng.uniform(-2, 2), 2.5))
+            bpy.context.object.data.energy = rng.uniform(100, 600)
+            bpy.context.object.data.size = rng.uniform(0.3, 2.5)
+        elif rig == "points":
+            for i in range(rng.randint(1, 3)):
+                bpy.ops.object.light_add(type="POINT", location=(rng.uniform(-3, 3), rng.uniform(-3, 3),
+                                                                 rng.uniform(0.5, 2.5)))
+                bpy.context.object.data.energy = rng.uniform(50, 400)
+                bpy.context.object.data.shadow_soft_size = rng.uniform(0.02, 0.5)
+        else:
+            for i in range(rng.randint(1, 4)):
+                em = _material(f"em{i}", rng, emission=rng.uniform(5.0, 60.0), rough=0.5)
+                _emitter(f"lamp{i}", rng.uniform(0.05, 0.4),
+                         (rng.uniform(-3.5, 3.5), rng.uniform(-3.5, 3.5), rng.uniform(0.1, 2.5)), em)
+    moving = _objects(rng, rng.randint(4, 10), 3.5, rng.uniform(0.1, 0.7), rng.uniform(0.2, 0.9), frames)
+    return moving, (0, 0, rng.uniform(0.4, 1.0)), rng.uniform(3.5, 6.0), rng.uniform(1.0, 3.0)
 
 
 def _all_fcurves(obj):
