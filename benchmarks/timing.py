@@ -44,17 +44,20 @@ def time_pipeline(pipe: Pipeline, frames, repeats: int, between=None) -> list[di
     return recorded
 
 
-def network_split(pipe: Pipeline, frames, threads: int) -> dict[str, float]:
-    """Shares of input block / feature extractor / output block in the network graph."""
+def network_split(pipe: Pipeline, frames, threads: int) -> tuple[dict[str, float], dict]:
+    """Shares of input block / feature extractor / output block in the network graph, and
+    ONNX Runtime's per-node times (``profile_stages``' ``by_node_ms``)."""
     feeds = {}
     pipe.on_feeds = lambda name, f: feeds.setdefault(name, f)
     pipe.reset()
     pipe(*frames[0])
     pipe.on_feeds = None
-    prof = profile_stages(pipe.graphs["network"].path, feeds["network"], runs=3, threads=threads)["median_ms"]
+    profile = profile_stages(pipe.graphs["network"].path, feeds["network"], runs=3, threads=threads,
+                             disabled_optimizers=pipe.disabled_optimizers("network"))
+    prof = profile["median_ms"]
     # layout changes and scheduling are spread over the three stages by their share
     inside = sum(prof[s] for s in STAGES)
-    return {s: prof[s] / inside for s in STAGES}
+    return {s: prof[s] / inside for s in STAGES}, profile["by_node_ms"]
 
 
 def summarize(recorded: list[dict], split: dict, macs: dict) -> dict:
@@ -213,14 +216,14 @@ def main() -> int:
         macs = count_macs(cfg, w, h)
         for precision in args.precisions:
             pipe = pipeline(args.artifacts, precision=precision, threads=args.threads)
-            split = network_split(pipe, frames, args.threads)
+            split, nodes = network_split(pipe, frames, args.threads)
             # copy-bandwidth samples between the frames of the large int8 run: the
             # filter stage's memory-traffic bound (below)
             probed = size == big and precision == "int8"
             rows = summarize(time_pipeline(pipe, frames, args.repeats, probe if probed else None), split, macs)
             report["results"][f"{label} {precision}"] = {"native": [w, h], "target": [w * pipe.scale, h * pipe.scale],
                                                          "precision": precision, "graphs": dict(pipe.graph_precision),
-                                                         "split": split, "stages": rows}
+                                                         "split": split, "stages": rows, "network_nodes": nodes}
             if probed:
                 bw = np.array(probe.samples)
                 report["copy_bandwidth_gb_s"] = {**spread(bw / 1e9), "samples": len(bw)}
@@ -267,6 +270,17 @@ def main() -> int:
                "The bound is a model, not a floor: the probe writes as many bytes as it reads, and a write costs "
                "more than a read (the cache line is read for ownership first), so a step that mostly reads can "
                "beat it (the composite reads 3 bytes per byte it writes).", ""]
+    if f"{big_label} int8" in report["results"]:
+        nodes = report["results"][f"{big_label} int8"]["network_nodes"]
+        total = sum(n["ms"] for n in nodes.values())
+        md += [f"## The network graph's largest nodes ({big_label}, int8)", "",
+               f"ONNX Runtime's profiler, median of 3 runs per node, in a session with the pipeline's graph "
+               f"optimizers; the medians add up to {total:.1f} ms (the table's input block to output block rows "
+               "also hold the time between nodes).", "",
+               "| node | operator | stage | ms | % of nodes |", "| --- | --- | --- | ---: | ---: |"]
+        for name, n in list(nodes.items())[:15]:
+            md.append(f"| `{name}` | {n['op']} | {n['stage']} | {n['ms']:.1f} | {100 * n['ms'] / total:.1f} |")
+        md.append("")
     md += ["The int8 pipeline keeps the upsample graph in fp32 (`PipelineConfig.fp32_graphs`): its int8 graph "
            "is slower on this CPU (see `benchmarks/results/calibration.md`).",
            "The filter stage (filter paths, composite, upsample filter) and the reformatting are numba-fused "

@@ -225,15 +225,18 @@ class Pipeline:
         with self._sessions_lock:
             sess = self._variant_sessions.get((name, best))
             if sess is None:
-                # int8 graphs: no NCHWc layout. Their only fp32 convolution (the output
-                # block's head) would run in it, and reordering its 85 output channels back
-                # costs more than the layout gains (docs/design-notes.md)
-                int8 = self.graphs[name].precision == "int8"
                 sess = ort.InferenceSession(str(self.graphs[name].variants[best]), self._opts,
                                             providers=["CPUExecutionProvider"],
-                                            disabled_optimizers=["NchwcTransformer"] if int8 else None)
+                                            disabled_optimizers=self.disabled_optimizers(name) or None)
                 self._variant_sessions[(name, best)] = sess
         return sess
+
+    def disabled_optimizers(self, name: str) -> list[str]:
+        """ONNX Runtime graph optimizers the session of graph ``name`` runs without. int8
+        graphs: no NCHWc layout. Their only fp32 convolution (the output block's head)
+        would run in it, and reordering its 85 output channels back costs more than the
+        layout gains (docs/design-notes.md)."""
+        return ["NchwcTransformer"] if self.graphs[name].precision == "int8" else []
 
     def fork(self) -> "Pipeline":
         """Another pipeline over the same ONNX Runtime sessions (their ``run`` is

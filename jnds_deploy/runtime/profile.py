@@ -27,8 +27,10 @@ def stage_of(node_name: str) -> str:
 
 
 def profile_stages(onnx_path: str | Path, feeds: dict[str, np.ndarray], runs: int = 5, threads: int = 2,
-                   optimization: str = "all") -> dict:
-    """Median over ``runs`` of the summed node time per stage (ms), and per operator type."""
+                   optimization: str = "all", disabled_optimizers: list[str] | None = None) -> dict:
+    """Median over ``runs`` of the summed node time per stage (ms), mean per operator type,
+    and median per node ({node: {"op", "stage", "ms"}}, largest first). ``disabled_optimizers``:
+    as the session to be profiled has them (``Pipeline.disabled_optimizers``)."""
     import onnxruntime as ort
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -38,13 +40,16 @@ def profile_stages(onnx_path: str | Path, feeds: dict[str, np.ndarray], runs: in
                                       "extended": ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED}[optimization]
         o.enable_profiling = True
         o.profile_file_prefix = os.path.join(tmp, "profile")
-        sess = ort.InferenceSession(str(onnx_path), o, providers=["CPUExecutionProvider"])
+        sess = ort.InferenceSession(str(onnx_path), o, providers=["CPUExecutionProvider"],
+                                    disabled_optimizers=disabled_optimizers or None)
         sess.run(None, feeds)  # warm-up, dropped below
         for _ in range(runs):
             sess.run(None, feeds)
         events = json.loads(Path(sess.end_profiling()).read_text())
     runs_ms: list[dict[str, float]] = []
     ops: dict[str, list[float]] = {}
+    nodes: dict[str, list[float]] = {}
+    node_op: dict[str, str] = {}
     for ev in events:
         if ev.get("cat") == "Session" and ev.get("name") == "model_run":
             runs_ms.append({"_start": ev["ts"], "_end": ev["ts"] + ev["dur"], "total": ev["dur"] / 1000})
@@ -58,8 +63,15 @@ def profile_stages(onnx_path: str | Path, feeds: dict[str, np.ndarray], runs: in
                 r[stage] = r.get(stage, 0.0) + ev["dur"] / 1000
                 op = ev.get("args", {}).get("op_name", "?")
                 ops.setdefault(op, []).append(ev["dur"] / 1000)
+                node = ev["name"][:-len("_kernel_time")]
+                nodes.setdefault(node, []).append(ev["dur"] / 1000)
+                node_op[node] = op
     keys = ["total", *STAGES, "reformat"]
     med = {k: float(np.median([r.get(k, 0.0) for r in runs_ms])) for k in keys}
     med["other"] = med["total"] - sum(med[k] for k in (*STAGES, "reformat"))  # scheduling between nodes
     by_op = {k: float(np.sum(v)) / len(runs_ms) for k, v in sorted(ops.items(), key=lambda kv: -sum(kv[1]))}
-    return {"median_ms": med, "by_op_ms": by_op, "runs": len(runs_ms)}
+    # median over the runs (a node runs once a run): one slow run (page faults while an
+    # arena grows) would dominate a mean
+    by_node = {k: {"op": node_op[k], "stage": stage_of(k), "ms": float(np.median(v))}
+               for k, v in sorted(nodes.items(), key=lambda kv: -float(np.median(kv[1])))}
+    return {"median_ms": med, "by_op_ms": by_op, "by_node_ms": by_node, "runs": len(runs_ms)}
