@@ -205,10 +205,12 @@ def spread(values, prefix: str = "", suffix: str = "") -> dict[str, float]:
             f"{prefix}p90{suffix}": float(np.percentile(v, 90))}
 
 
-def time_sessions(paths: dict[str, Path], feeds: dict, runs: int, threads: int, levels: dict[str, str]) -> dict:
+def time_sessions(paths: dict[str, Path], feeds: dict, runs: int, threads: int, levels: dict[str, str],
+                  disabled: dict[str, list[str]] | None = None) -> dict:
     """Median and range (ms) of each ONNX graph run on ``feeds`` with ONNX Runtime's
-    optimization ``levels[name]`` ("all" or "extended"), interleaved run by run in one
-    process after a warm-up run each."""
+    optimization ``levels[name]`` ("all" or "extended") and without the graph optimizers
+    ``disabled[name]`` (as ``Pipeline.disabled_optimizers`` gives them), interleaved run by
+    run in one process after a warm-up run each."""
     import onnxruntime as ort
 
     opt = {"all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL, "extended": ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED}
@@ -217,7 +219,8 @@ def time_sessions(paths: dict[str, Path], feeds: dict, runs: int, threads: int, 
         o = ort.SessionOptions()
         o.intra_op_num_threads, o.inter_op_num_threads = threads, 1
         o.graph_optimization_level = opt[levels[name]]
-        sessions[name] = ort.InferenceSession(str(path), o, providers=["CPUExecutionProvider"])
+        sessions[name] = ort.InferenceSession(str(path), o, providers=["CPUExecutionProvider"],
+                                              disabled_optimizers=(disabled or {}).get(name) or None)
     ms = interleaved({name: functools.partial(s.run, None, feeds) for name, s in sessions.items()}, runs)
     return {name: {"median_ms": float(np.median(v)), "min_ms": float(np.min(v)), "max_ms": float(np.max(v)),
                    "runs": v} for name, v in ms.items()}
