@@ -196,7 +196,7 @@ def cmd_serve(args) -> int:
                       max_streams=args.max_streams, idle_timeout=args.idle_timeout, max_pixels=args.max_pixels,
                       request_timeout=args.request_timeout, max_connections=args.max_connections,
                       max_memory=int(args.max_memory * 2**30) if args.max_memory else None,
-                      keep_freed_memory=True)
+                      keep_freed_memory=True, warmup=tuple(args.warmup))
     serve(cfg, ready=lambda h, p: print(f"jnds serve: listening on http://{h}:{p}", flush=True))
     return 0
 
@@ -340,6 +340,9 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--max-connections", type=int, default=256, help="connections at once; the next gets a 503")
     sv.add_argument("--max-memory", type=float, default=None,
                     help="GiB the frames in flight may take (estimated per pixel); default: half the machine's memory")
+    sv.add_argument("--warmup", type=_size, nargs="+", default=[], metavar="WxH",
+                    help="run one frame at each of these native sizes before serving, so that a stream's first "
+                         "frame at that size is not the slow one")
     sv.set_defaults(func=cmd_serve)
 
     b = sub.add_parser("batch", help="every sequence under a directory through the pipeline, on Ray "

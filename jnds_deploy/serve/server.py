@@ -28,7 +28,7 @@ from urllib.parse import parse_qs, urlsplit
 import numpy as np
 import OpenEXR
 
-from ..errors import BadRequest, JndsError
+from ..errors import BadRequest, ConfigError, JndsError
 from ..io import INPUT_LAYERS, OPTIONAL_INPUT_LAYERS, OUTPUT_LAYERS, channels_to_layers, exr_bytes, read_exr_bytes
 from ..layout import INPUT_CHANNELS
 from ..runtime.pipeline import Pipeline, PipelineConfig
@@ -100,6 +100,16 @@ class ServeConfig:
     max_connections: int = 256
     max_nonfinite: float = 0.5  # a layer with more NaN/Inf than this fraction: 400 (a NaN flood)
     keep_freed_memory: bool = False  # PipelineConfig.keep_freed_memory (process-wide; `jnds serve` sets it)
+    # native (W, H) sizes to run one frame at before serving: the first frame at a new size
+    # otherwise pays ONNX Runtime's allocations at that size (docs/performance.md)
+    warmup: tuple[tuple[int, int], ...] = ()
+
+    def __post_init__(self):
+        object.__setattr__(self, "warmup", tuple(tuple(int(v) for v in size) for size in self.warmup))
+        for w, h in self.warmup:
+            if w < 1 or h < 1 or w * h > self.max_pixels:
+                raise ConfigError(f"warm-up size {w}x{h}: must be positive and at most max_pixels "
+                                  f"({self.max_pixels}) native pixels")
 
 
 class Stream:
@@ -213,11 +223,8 @@ class FrameServer:
         self.cfg = cfg
         self.base = Pipeline(PipelineConfig(artifacts=cfg.artifacts, precision=cfg.precision, threads=cfg.threads,
                                             keep_freed_memory=cfg.keep_freed_memory))
-        # warm-up: compiles the numba loops and lets ONNX Runtime allocate, so the first
-        # client frame is not the slow one (docs/design-notes.md)
-        w = self.base.multiple
-        self.base.fork()({n: np.zeros((w, w, c), np.float32) for n, c in INPUT_CHANNELS.items()})
         self.pool = ThreadPoolExecutor(max_workers=cfg.workers, thread_name_prefix="jnds-worker")
+        self._warm_up(cfg.workers, [(self.base.multiple,) * 2, *cfg.warmup])
         self.streams: dict[str, Stream] = {}
         self.lock = threading.Lock()
         self.metrics = Metrics()
@@ -230,6 +237,27 @@ class FrameServer:
         self.idle.set()
         self._reaper = threading.Thread(target=self._reap, name="jnds-reaper", daemon=True)
         self._reaper.start()
+
+    def _warm_up(self, workers: int, sizes) -> None:
+        """One frame at each native (W, H) size in every worker thread, before serving:
+        compiles the numba loops, lets ONNX Runtime allocate, and starts each thread's
+        parallel-loop team, so the first client frame at a warmed size is not the slow one
+        (docs/performance.md; ``benchmarks/serve_warmup.py``). A tiny frame of zeros first,
+        then constant non-zero signals (zeros would run the pruned graphs)."""
+        barrier = threading.Barrier(workers)
+
+        def job():
+            barrier.wait()  # every worker thread takes one job
+            for i, (w, h) in enumerate(sizes):
+                t0 = time.perf_counter()
+                self.base.fork()({n: np.full((h, w, c), 0.0 if n == "motion" or i == 0 else 0.5, np.float32)
+                                  for n, c in INPUT_CHANNELS.items()})
+                if i:
+                    log.info("warmed up at %dx%d in %.0f ms (%s)", w, h, 1000 * (time.perf_counter() - t0),
+                             threading.current_thread().name)
+
+        for fut in [self.pool.submit(job) for _ in range(workers)]:
+            fut.result()
 
     # streams ------------------------------------------------------------------------
 

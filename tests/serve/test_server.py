@@ -10,7 +10,7 @@ import pytest
 from jnds_deploy.io import INPUT_LAYERS, exr_bytes, open_sequence, read_exr
 from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
 from jnds_deploy.runtime.run import run_sequence
-from jnds_deploy.serve import Client, ServerError
+from jnds_deploy.serve import Client, ServeConfig, ServerError
 from jnds_deploy.serve.server import BadRequest
 
 from ..conftest import SAMPLE
@@ -36,6 +36,25 @@ def test_stream_round_trip_equals_jnds_run(server, tiny_artifacts, tmp_path):
             assert stream.frame_index == i and stream.timings["total"] > 0
     m = client.metrics()
     assert m["frames_served"] == 8 and m["streams_open"] == 0 and m["latency_ms"]["total"]["p50"] > 0
+
+
+def test_warmup_sizes_leave_no_trace_in_the_streams(server, tiny_artifacts, tmp_path, caplog):
+    """--warmup runs a frame at each size before serving; a stream then computes exactly
+    what `jnds run` does. Sizes that are not positive or exceed max_pixels are refused."""
+    import logging
+
+    run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0])), SAMPLE, tmp_path / "run", progress=False,
+                 metrics=False)
+    with caplog.at_level(logging.INFO, logger="jnds.serve"):
+        url, _ = server(warmup=((160, 90), (64, 36)))
+    assert "warmed up at 160x90" in caplog.text and "warmed up at 64x36" in caplog.text
+    with Client(url).open_stream() as stream:
+        for i, (layers, cut) in enumerate(_frames()[:3]):
+            want = read_exr(tmp_path / "run" / f"{i:04d}.exr")
+            np.testing.assert_array_equal(stream.denoise(layers, cut), np.stack([want[f"color.{c}"] for c in "RGB"], -1))
+    for bad in ((0, 90), (2000, 2000)):
+        with pytest.raises(ValueError, match=f"warm-up size {bad[0]}x{bad[1]}"):
+            ServeConfig(artifacts=str(tiny_artifacts[0]), warmup=(bad,))
 
 
 def test_concurrent_streams_keep_separate_histories(server, tiny_artifacts):
