@@ -71,6 +71,7 @@ class Int8Graph:
     float_nodes: list[str]
     ranges: str  # calibration.<method>.json: scale and zero point of every quantized tensor
     variants: dict[str, Variant] = field(default_factory=dict)
+    head: str = "float"  # the output block's head: float outputs, or one u8 tensor (runtime.head)
 
 
 @dataclass

@@ -55,6 +55,23 @@ def channels(name: str, layout=CURRENT) -> slice:
     raise KeyError(f"layer {name!r} is not in {[n for n, _ in layout]}")
 
 
+# what the output block's head (model.OutputBlock) becomes after its 1x1 convolution,
+# part by part: "kernel" clamped to [-1, 1], "blend" a sigmoid, "normalized" a softmax
+# over the part's taps (albedo/normal kernels), "relu" (the upsample block's features).
+# Here so that the runtime, which has no torch, applies the same rule to an int8 head
+# (runtime.head)
+HEAD_KINDS = ("kernel", "blend", "normalized", "relu")
+
+
+def head_kind(name: str) -> str:
+    """The kind (HEAD_KINDS) of the network output ``name`` the head predicts."""
+    if name == "features":
+        return "relu"
+    if name.split(".")[-1] in ("blend", "up_blend"):
+        return "blend"
+    return "normalized" if name.startswith("aux.") else "kernel"
+
+
 # geometric history rejection (jnds_deploy.filters.disoccluded): a history normal further
 # than acos(REJECT_COS) ~ 46 deg from every current normal in the 3x3 neighbourhood is
 # another surface; a normal with |x| + |y| + |z| below BACKGROUND is background (unit: >= 1)

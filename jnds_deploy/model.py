@@ -34,7 +34,7 @@ import torch.nn.functional as F
 
 from . import filters
 from .errors import ConfigError
-from .layout import CURRENT, HISTORY, N_CURRENT, N_HISTORY, RADIANCE, UPSAMPLE_ROOTS  # noqa: F401 (re-exported)
+from .layout import CURRENT, HISTORY, N_CURRENT, N_HISTORY, RADIANCE, UPSAMPLE_ROOTS, head_kind  # noqa: F401 (re-exported)
 
 
 
@@ -340,18 +340,8 @@ class OutputBlock(nn.Module):
 
     def forward(self, decoded: torch.Tensor, native: torch.Tensor) -> dict[str, torch.Tensor]:
         x = F.relu(self.conv(torch.cat([filters.upsample(decoded), native], 1)))
-        out = {}
-        for name, t in _split(self.head(x), self.sizes).items():
-            kind = name.split(".")[-1]
-            if name == "features":
-                out[name] = F.relu(t)
-            elif kind in ("blend", "up_blend"):
-                out[name] = _blend(t)
-            elif name.startswith("aux."):
-                out[name] = _normalized_kernel(t)
-            else:
-                out[name] = _kernel(t)
-        return out
+        post = {"relu": F.relu, "blend": _blend, "normalized": _normalized_kernel, "kernel": _kernel}
+        return {name: post[head_kind(name)](t) for name, t in _split(self.head(x), self.sizes).items()}
 
 
 class JNDSNetwork(nn.Module):

@@ -34,6 +34,7 @@ from onnx import numpy_helper
 from ..artifacts import MANIFEST, Int8Graph, Manifest, file_hash, write_json
 from ..errors import CalibrationError
 from ..export.prune import INT8_VARIANT_TOL, validate_variant, write_variants
+from .head import HEAD_NODE, channel_ranges, quantize_head, raw_ranges
 from .reader import FeedReader, collect_feeds
 
 METHODS = ("qat", "minmax", "percentile", "entropy")
@@ -64,6 +65,9 @@ class CalibrateConfig:
     percentile: float = 99.999
     checkpoint: str | None = None  # PyTorch reference for validation; default: the manifest's
     threads: int = 2
+    # the output block's head in int8 with a u8 output read by the filter stage
+    # (calibration.head; u8 activations only); False: it stays float like FLOAT_NODES says
+    int8_head: bool = True
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -178,10 +182,14 @@ def validate_int8(root: Path, manifest: Manifest, method: str, feeds: dict[str, 
     model.eval()
     fns = {"network": lambda names: (lambda c, h: tuple(model.network(c, h)[k] for k in names)),
            "upsample": lambda names: (lambda c, f: to_phases(model.upsample_block(c, f), model.cfg.scale))}
+    import onnxruntime as ort
+
+    from ..runtime.head import output_names
+
     rows = []
     for name, g in manifest.graphs.items():
         path = root / g.int8[method].file
-        names = [o.name for o in onnx.load(str(path)).graph.output]
+        names = output_names(ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]))
         recorded = feeds[name]
         for i in sorted({0, len(recorded) // 2, len(recorded) - 1}):
             f = {k: torch.from_numpy(v) for k, v in recorded[i].items()}
@@ -205,7 +213,7 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
         overrides = json.loads(qpath.read_text())
 
     feeds = collect_feeds(root, list(cfg.data), cfg.frames, cfg.threads)
-    ranges, vrows = {}, []
+    ranges, vrows, head_ranges = {}, [], {}
     for name, g in manifest.graphs.items():
         if not feeds[name]:
             raise CalibrationError(f"no calibration inputs recorded for graph {name!r}")
@@ -218,18 +226,30 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
         ranges[name] = quantized_tensors(root / file)
         if cfg.method == "qat":
             _check_overrides(file, learned, ranges[name])
+        head = None
+        if cfg.int8_head and name == "network" and cfg.activation_type == "u8":
+            raw = raw_ranges(root / file, feeds[name])
+            head = channel_ranges(raw)
+            head_ranges = {n: {"min": [float(v) for v in r[:, 0]], "max": [float(v) for v in r[:, 1]],
+                               "range": head[n]} for n, r in raw.items()}
         variants = write_variants(root, file, file[:-len(".onnx")])
+        if head:  # after pruning: the variants slice the float head, then each is quantized
+            for f in [file] + [v.file for v in variants.values()]:
+                quantize_head(root / f, root / f, head)
         for v in variants.values():
             vrows += validate_variant(root / file, root / v.file, feeds[name][0], *INT8_VARIANT_TOL)
             v.sha256 = file_hash(root / v.file)
         g.int8[cfg.method] = Int8Graph(
             file=file, sha256=file_hash(root / file), activation_type=cfg.activation_type,
             weights="int8 per output channel, symmetric", op_types=list(cfg.op_types),
-            float_nodes=list(cfg.float_nodes), ranges=f"calibration.{cfg.method}.json", variants=variants)
+            float_nodes=[n for n in cfg.float_nodes if not (head and n == HEAD_NODE)],
+            ranges=f"calibration.{cfg.method}.json", variants=variants,
+            head="u8, channels last, a range per channel (calibration.head)" if head else "float")
     write_json(root / f"calibration.{cfg.method}.json",
                {"method": cfg.method, "activation_type": cfg.activation_type,
                 "data": [str(d) for d in cfg.data], "frames_per_sequence": cfg.frames,
-                "frames": {k: len(v) for k, v in feeds.items()}, "tensors": ranges})
+                "frames": {k: len(v) for k, v in feeds.items()}, "tensors": ranges,
+                "head": head_ranges})
     manifest.int8_method = cfg.method
     rows = validate_int8(root, manifest, cfg.method, feeds, cfg.checkpoint) + vrows
     manifest.int8_validation[cfg.method] = rows

@@ -55,8 +55,11 @@ def validate_graph(onnx_path: Path, torch_fn, feeds: dict[str, torch.Tensor], na
     ``atol`` (max) and ``mean_tol`` (mean, if given)."""
     import onnxruntime as ort
 
+    from ..runtime.head import run_network
+
     sess = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
-    got = sess.run(names, {k: v.numpy() for k, v in feeds.items()})
+    out = run_network(sess, {k: v.numpy() for k, v in feeds.items()})
+    got = [out[n] for n in names]
     with torch.no_grad():
         ref = torch_fn(*feeds.values())
     if isinstance(ref, torch.Tensor):

@@ -142,11 +142,14 @@ def validate_variant(full: Path, variant: Path, feeds: dict[str, np.ndarray], at
     ``calibrate`` validates them with ``INT8_VARIANT_TOL``."""
     import onnxruntime as ort
 
+    from ..runtime.head import run_network
+
     a = ort.InferenceSession(str(full), providers=["CPUExecutionProvider"])
     b = ort.InferenceSession(str(variant), providers=["CPUExecutionProvider"])
-    names = [o.name for o in b.get_outputs()]
-    ref = dict(zip([o.name for o in a.get_outputs()], a.run(None, feeds)))
-    d = [np.abs(got.astype(np.float64) - ref[name]) for name, got in zip(names, b.run(None, feeds))]
+    ref = run_network(a, feeds)
+    got = run_network(b, feeds)
+    names = list(got)
+    d = [np.abs(got[name].astype(np.float64) - ref[name]) for name in names]
     worst = max(float(x.max()) for x in d)
     mean = float(np.mean([x.mean() for x in d]))
     return [{"graph": variant.name, "output": f"{len(names)} outputs vs {full.name}", "max_abs": worst,

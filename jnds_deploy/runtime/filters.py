@@ -26,6 +26,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..layout import BACKGROUND, HDR_MAX, REJECT_COS, ROOT_FLOOR, channels
+from .head import Coded, _decode_row
 
 # channel indices of the stacked inputs (layout.CURRENT; the history shares its first 12):
 # numba compiles them as constants
@@ -89,32 +90,73 @@ def _apply(x, k, out, relu):
 
 
 @njit(inline="always")
-def _lerp_px(a, ka, b, kb, t, out, relu, plain, c, ya, y, yc, ia, i, ic):
-    va = a[c, y, i] if plain else _taps(a, ka, c, ya, y, yc, y, ia, i, ic, i)
-    vb = _taps(b, kb, c, ya, y, yc, y, ia, i, ic, i)
-    v = va + t[0, y, i] * (vb - va)
+def _lerp_px(a, ka, b, kb, t, ky, out, relu, plain, c, ya, y, yc, ia, i, ic):
+    va = a[c, y, i] if plain else _taps(a, ka, c, ya, y, yc, ky, ia, i, ic, i)
+    vb = _taps(b, kb, c, ya, y, yc, ky, ia, i, ic, i)
+    v = va + t[0, ky, i] * (vb - va)
     out[c, y, i] = max(v, np.float32(0)) if relu else v
+
+
+@njit(inline="always")
+def _lerp_row(a, ka, b, kb, t, ky, out, relu, plain, y, ya, yc):
+    """Row y of _lerp_taps, its kernels and blend weights at row ky of ka, kb, t."""
+    C, _, W = b.shape
+    for c in range(C):
+        _lerp_px(a, ka, b, kb, t, ky, out, relu, plain, c, ya, y, yc, 0, 0, min(1, W - 1))
+        if W > 1:
+            _lerp_px(a, ka, b, kb, t, ky, out, relu, plain, c, ya, y, yc, W - 2, W - 1, W - 1)
+        # one interior loop per case, so that neither carries the branch
+        if plain:
+            for i in range(1, W - 1):
+                _lerp_px(a, ka, b, kb, t, ky, out, relu, True, c, ya, y, yc, i - 1, i, i + 1)
+        else:
+            for i in range(1, W - 1):
+                _lerp_px(a, ka, b, kb, t, ky, out, relu, False, c, ya, y, yc, i - 1, i, i + 1)
 
 
 @njit(parallel=True, cache=True)
 def _lerp_taps(a, ka, b, kb, t, out, relu=True):
     """out = relu(A + t * (B - A)) (no ReLU if not ``relu``), A = a itself if ka is empty
     else the kernel ka on a, B = the kernel kb on b."""
-    C, H, W = b.shape
+    H = b.shape[1]
     plain = ka.shape[0] == 0
     for y in prange(H):
-        ya, yc = max(y - 1, 0), min(y + 1, H - 1)
-        for c in range(C):
-            _lerp_px(a, ka, b, kb, t, out, relu, plain, c, ya, y, yc, 0, 0, min(1, W - 1))
-            if W > 1:
-                _lerp_px(a, ka, b, kb, t, out, relu, plain, c, ya, y, yc, W - 2, W - 1, W - 1)
-            # one interior loop per case, so that neither carries the branch
-            if plain:
-                for i in range(1, W - 1):
-                    _lerp_px(a, ka, b, kb, t, out, relu, True, c, ya, y, yc, i - 1, i, i + 1)
-            else:
-                for i in range(1, W - 1):
-                    _lerp_px(a, ka, b, kb, t, out, relu, False, c, ya, y, yc, i - 1, i, i + 1)
+        _lerp_row(a, ka, b, kb, t, y, out, relu, plain, y, max(y - 1, 0), min(y + 1, H - 1))
+
+
+@njit(parallel=True, cache=True)
+def _lerp_coded(a, b, q, ca, cb, ct, kinds, scale, zero_point, table, out, relu):
+    """_lerp_taps with its kernels (ka: head channels ca..ca+9, none if ca < 0; kb: cb..cb+9)
+    and blend weights (channel ct) read from the u8 head q (runtime.head): each row's are
+    decoded into row buffers first (cache-resident; the same values as decoding them whole)."""
+    H, W = b.shape[1], b.shape[2]
+    plain = ca < 0
+    for y in prange(H):
+        ka = np.empty((0 if plain else 9, 1, W), np.float32)
+        kb = np.empty((9, 1, W), np.float32)
+        t = np.empty((1, 1, W), np.float32)
+        if not plain:
+            _decode_row(q, y, ca, 9, kinds, scale, zero_point, table, ka, 0)
+        _decode_row(q, y, cb, 9, kinds, scale, zero_point, table, kb, 0)
+        _decode_row(q, y, ct, 1, kinds, scale, zero_point, table, t, 0)
+        _lerp_row(a, ka, b, kb, t, 0, out, relu, plain, y, max(y - 1, 0), min(y + 1, H - 1))
+
+
+def _lerp_head(a, ka, b, kb, t, out, relu=True) -> bool:
+    """``_lerp_taps`` from the u8 head where kb and t (and ka, unless None) are ``Coded``
+    parts of one head and the signals float32; False where they are not (nothing done)."""
+    parts = [p for p in (ka, kb, t) if p is not None]
+    if not (all(isinstance(p, Coded) for p in parts) and len({id(p.q) for p in parts}) == 1 and _fast(a, b)):
+        return False
+    h = kb.head
+    _lerp_coded(a, b, kb.q, -1 if ka is None else ka.c0, kb.c0, t.c0, h.kinds, h.scale, h.layout.zero_point,
+                h.table, out, relu)
+    return True
+
+
+def _decoded(*kernels):
+    """Kernels as float arrays (``Coded`` head parts decoded)."""
+    return [k.decode() if isinstance(k, Coded) else k for k in kernels]
 
 
 @njit(parallel=True, cache=True)
@@ -464,6 +506,11 @@ def lerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
 def spatiotemporal(x, history, k_spatial, k_temporal, blend, skip=None, tile: int = 1, relu: bool = True) -> np.ndarray:
     """relu(lerp(kernel k_spatial on x, kernel k_temporal on history, blend)) (no ReLU if
     not ``relu``); in the tiles set in ``skip``: x."""
+    if _fast(x, history) and isinstance(blend, Coded):
+        out = np.empty_like(x)
+        if _lerp_head(x, k_spatial, history, k_temporal, blend, out, relu):
+            return _pass_tiles(x, out, skip, tile)
+    k_spatial, k_temporal, blend = _decoded(k_spatial, k_temporal, blend)
     if _fast(x, history, k_spatial, k_temporal, blend):
         out = np.empty_like(x)
         _lerp_taps(x, k_spatial, history, k_temporal, blend, out, relu)
@@ -488,6 +535,11 @@ def up_level(skip: np.ndarray, coarse: np.ndarray, kernel: np.ndarray, blend: np
     """One level up: relu(lerp(skip, kernel on the bilinear upsampling of coarse, blend));
     in the tiles set in ``tiles``: skip."""
     up = upsample(coarse)
+    if _fast(skip, up) and isinstance(blend, Coded):
+        out = np.empty_like(skip)
+        if _lerp_head(skip, None, up, kernel, blend, out):
+            return _pass_tiles(skip, out, tiles, tile)
+    kernel, blend = _decoded(kernel, blend)
     if _fast(skip, up, kernel, blend):
         out = np.empty_like(skip)
         _lerp_taps(skip, _NONE, up, kernel, blend, out)

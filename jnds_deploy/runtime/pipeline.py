@@ -32,6 +32,7 @@ from ..errors import ConfigError, FrameError
 from ..export.prune import variant_key
 from ..layout import CURRENT, HISTORY, INPUT_CHANNELS, RADIANCE, channels
 from . import filters as F
+from .head import Coded, run_network
 from .history import History, Warped, replace_nonfinite
 from .reformat import to_chw, to_hwc
 
@@ -210,6 +211,7 @@ class Pipeline:
         # how calibration records the inputs the network really sees, history included
         self.on_feeds = None
         self.history = History()
+        self._heads: dict = {}  # runtime.head.Head of each session whose graph ends in a u8 head
 
     # -- sessions --------------------------------------------------------------------------
 
@@ -315,8 +317,8 @@ class Pipeline:
             if variant := self._variant("network", drops):
                 decisions["network_graph"] = variant_key(variant)
         with t("network"):
-            outs = sess.run(None, feeds)
-        return {o.name: a[0] for o, a in zip(sess.get_outputs(), outs)}
+            outs = run_network(sess, feeds, self._heads, coded=True)
+        return {k: a if isinstance(a, Coded) else a[0] for k, a in outs.items()}
 
     def _radiance_scale(self, current: np.ndarray, warped: np.ndarray) -> float:
         """1, or for the float16 filter stage a power of two bringing the frame's radiance
@@ -337,7 +339,11 @@ class Pipeline:
 
         cur = {n: part(current[channels(n)], n) for n, _ in CURRENT}
         hist = {n: part(warped[channels(n, HISTORY)], n) for n, _ in HISTORY}
-        return cur, hist, {k: a.astype(self.dtype, copy=False) for k, a in net.items()}
+        # the int8 head's outputs stay coded for the float32 filter loops (runtime.head)
+        net = {k: a if isinstance(a, Coded) and self.dtype == np.float32
+               else (a.decode() if isinstance(a, Coded) else a).astype(self.dtype, copy=False)
+               for k, a in net.items()}
+        return cur, hist, net
 
     def _empty_tiles(self, current: np.ndarray, warped: np.ndarray, decisions: dict, t: Timer):
         if not (self.cfg.adaptive and self.cfg.tile_skip and self.dtype == np.float32):

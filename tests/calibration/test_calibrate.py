@@ -9,6 +9,7 @@ from onnx import numpy_helper
 
 from jnds_deploy.calibration import CalibrateConfig, calibrate
 from jnds_deploy.errors import CalibrationError
+from jnds_deploy.calibration.head import HEAD_NODE, MAX_RANGE
 from jnds_deploy.calibration.quantize import FLOAT_NODES, validate_int8
 from jnds_deploy.calibration.reader import collect_feeds
 from jnds_deploy.errors import ValidationError
@@ -16,6 +17,7 @@ from jnds_deploy.export import ExportConfig, export
 from jnds_deploy.export.convert import report_validation
 from jnds_deploy.io import open_sequence
 from jnds_deploy.metrics import psnr
+from jnds_deploy.runtime.head import HEAD, LAYOUT_KEY, HeadLayout
 from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
 
 from ..conftest import SAMPLE
@@ -48,10 +50,19 @@ def test_every_convolution_is_quantized(calibrated):
             if n.op_type in ("MaxPool", "AveragePool", "Resize", "Concat") and inside:
                 users = [u.op_type for u in model.graph.node if n.output[0] in u.input]
                 assert prod[n.input[0]].op_type == "DequantizeLinear" and users == ["QuantizeLinear"], n.name
-        convs = [n for n in model.graph.node if n.op_type == "Conv" and n.name not in FLOAT_NODES]
-        heads = [n for n in model.graph.node if n.op_type == "Conv" and n.name in FLOAT_NODES]
-        assert len(heads) == 1
-        assert heads[0].input[1] not in prod  # the kernel head keeps float weights
+        float_nodes = [n for n in FLOAT_NODES if n in g.int8["qat"].float_nodes]
+        convs = [n for n in model.graph.node if n.op_type == "Conv" and n.name not in float_nodes]
+        heads = [n for n in model.graph.node if n.op_type == "Conv" and n.name in float_nodes]
+        # the upsample block's head stays float; the output block's is quantized, its u8
+        # output the graph's (runtime.head)
+        assert len(heads) == (name == "upsample")
+        assert all(h.input[1] not in prod for h in heads)  # float weights
+        if name == "network":
+            assert HEAD_NODE not in float_nodes and g.int8["qat"].head.startswith("u8")
+            out = {o.name: o for o in model.graph.output}
+            assert out[HEAD].type.tensor_type.elem_type == onnx.TensorProto.UINT8
+            assert "diffuse.spatial" not in out and prod[HEAD].op_type == "Transpose"
+            assert HeadLayout.from_json({p.key: p.value for p in model.metadata_props}[LAYOUT_KEY]).channels % 16 == 0
         assert convs and ops["QuantizeLinear"] >= len(convs) and ops["Relu"] <= 1  # ReLUs folded
         for conv in convs:  # DQ -> Conv <- DQ(int8 weight), and Conv -> Q (what ORT fuses)
             assert prod[conv.input[0]].op_type == "DequantizeLinear", conv.name
@@ -88,13 +99,15 @@ def test_int8_pipeline_stays_close_to_fp32(calibrated):
     assert manifest.int8_method == "qat" and any(line.startswith("✓") for line in lines)
     assert not any(line.startswith("✗") for line in lines)
     seq = open_sequence(SAMPLE)
-    pipes = [Pipeline(PipelineConfig(artifacts=str(d), precision=p)) for p in ("fp32", "int8")]
+    pipes = [Pipeline(PipelineConfig(artifacts=str(d), precision=p, filter_dtype=f))
+             for p, f in (("fp32", "float32"), ("int8", "float32"), ("int8", "float16"))]
     for i in range(4):
-        a, b = (p(seq.inputs(i), seq.frames[i].camera_cut).output for p in pipes)
-        assert np.isfinite(b).all()
+        a, b, c = (p(seq.inputs(i), seq.frames[i].camera_cut).output for p in pipes)
+        assert np.isfinite(b).all() and np.isfinite(c).all()
         # measured with calibration on all 8 frames: 35.7 dB on frame 1 falling to 34.1 dB
         # on frame 4 (int8 error accumulates in the history)
         assert psnr(b, a) > 30.0
+        assert psnr(c, b) > 40.0  # the u8 head decoded for the float16 filter stage
 
 
 def test_validation_catches_a_corrupted_int8_graph(calibrated, tmp_path):
@@ -153,3 +166,20 @@ def test_end_to_end_report_scores_int8_against_fp32_and_the_reference(calibrated
     assert set(report["per_sequence"]) == {SAMPLE.name}
     assert m["int8_vs_fp32_psnr"] > 25 and abs(m["psnr_loss_db"]) < 1.0
     assert 0 < m["int8_flip"] < 1 and 0 < m["fp32_flip"] < 1
+
+
+def test_head_ranges_and_the_float_head_option(calibrated):
+    d, _, _ = calibrated
+    head = json.loads((d / "calibration.qat.json").read_text())["head"]
+    assert head["diffuse.spatial"]["range"] == [1.0] * 9  # clamped to [-1, 1] anyway
+    for name in ("diffuse.blend", "aux.spatial", "features"):
+        r = head[name]
+        assert all(0 < v for v in r["range"]) and len(r["range"]) == len(r["min"]) == len(r["max"])
+    assert all(v <= MAX_RANGE["blend"] for v in head["diffuse.blend"]["range"])
+    manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="minmax", frames=2,
+                                         int8_head=False), log=lambda s: None)
+    entry = manifest.graphs["network"].int8["minmax"]
+    outputs = [o.name for o in onnx.load(d / entry.file).graph.output]
+    assert entry.head == "float" and HEAD_NODE in entry.float_nodes
+    assert "diffuse.spatial" in outputs and HEAD not in outputs
+    assert all(r["ok"] for r in manifest.int8_validation["minmax"])

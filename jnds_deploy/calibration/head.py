@@ -1,0 +1,173 @@
+"""The output block's head in int8: graph surgery on an int8 network graph.
+
+ONNX Runtime's static quantization leaves the head float (``quantize.FLOAT_NODES``): its
+85 output channels go out of the graph as float, split, clamped, through a sigmoid or a
+softmax, all at native resolution (what that cost: docs/performance.md). ``quantize_head``
+replaces the head and everything after it with one quantized 1x1 convolution whose u8
+output is the graph output ``head``, channels last, padded to ``PAD`` channels (MLAS's
+fast int8 convolution wants multiples of 8 and at least 16; the NHWC transpose at the end
+is cancelled by ONNX Runtime's NHWC int8 layout). ``runtime.head`` does the split, clamp,
+sigmoid and softmax in the filter stage's reading pass.
+
+One QLinearConv has one output scale, and the parts of the head span different ranges
+(kernel taps are clamped to [-1, 1], blend logits and the albedo/normal kernels' logits
+reach further). Each output channel c is therefore divided by its own range R_c before
+quantization: the weights are per-channel int8, so a per-channel gain changes only their
+scales, and every channel's u8 code covers [-R_c, R_c] (``channel_ranges``). R_c comes
+from the raw head output on the calibration inputs, except for kernels, whose clamp makes
+it 1.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import onnx
+from onnx import helper, numpy_helper
+
+from ..errors import CalibrationError
+from ..layout import head_kind
+from ..runtime.head import HEAD, LAYOUT_KEY, HeadLayout
+
+HEAD_NODE = "/network/output_block/head/Conv"
+PAD = 16
+ZERO_POINT = 128  # u8 codes 0..255 are (q - 128) / 127 * R_c: [-1.008, 1] * R_c
+CODE_SCALE = 1 / 127
+# range caps: a blend logit beyond +-12 is a sigmoid within 6e-6 of 0 or 1; a normalized
+# kernel's logits (softmax) stay exp()-able in float32 for 9 taps (runtime.head)
+MAX_RANGE = {"blend": 12.0, "normalized": 80.0, "relu": float("inf")}
+MIN_RANGE = 1e-2  # a channel that is (nearly) constant on the calibration data
+
+
+def _head(graph: onnx.GraphProto):
+    """(head Conv node, its Split node, [(graph output, split index), ...] in split order)."""
+    conv = next((n for n in graph.node if n.name == HEAD_NODE), None)
+    if conv is None or conv.op_type != "Conv":
+        raise CalibrationError(f"no float head convolution {HEAD_NODE!r} in the network graph")
+    split = next((n for n in graph.node if n.op_type == "Split" and n.input[0] == conv.output[0]), None)
+    if split is None:
+        raise CalibrationError(f"{HEAD_NODE}: its output is not split into the network's outputs")
+    producers = {o: n for n in graph.node for o in n.output}
+    index = {o: i for i, o in enumerate(split.output)}
+    parts = []
+    for out in graph.output:
+        t = out.name
+        while t not in index and t in producers and producers[t].input:  # back along the first inputs: Clip, Sigmoid, Div <- Exp <- Sub
+            t = producers[t].input[0]
+        if t in index:
+            parts.append((out.name, index[t]))
+    parts.sort(key=lambda p: p[1])
+    if [i for _, i in parts] != list(range(len(split.output))):
+        raise CalibrationError(f"{HEAD_NODE}: split parts {[i for _, i in parts]} do not each reach one output")
+    return conv, split, parts
+
+
+def _split_sizes(graph: onnx.GraphProto, split) -> list[int]:
+    inits = {i.name: i for i in graph.initializer}
+    consts = {n.output[0]: next(a.t for a in n.attribute if a.name == "value")
+              for n in graph.node if n.op_type == "Constant"}
+    sizes = inits.get(split.input[1]) or consts.get(split.input[1])
+    if sizes is None:
+        raise CalibrationError(f"{HEAD_NODE}: split sizes are not a constant")
+    return [int(s) for s in numpy_helper.to_array(sizes)]
+
+
+def raw_ranges(path: Path, feeds: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """{output: (channels, 2) min and max of the head's raw output} over ``feeds``, run
+    through the graph at ``path`` (its head still float)."""
+    import onnxruntime as ort
+
+    model = onnx.load(str(path))
+    conv, split, parts = _head(model.graph)
+    sizes = _split_sizes(model.graph, split)
+    model.graph.output.append(helper.make_tensor_value_info(conv.output[0], onnx.TensorProto.FLOAT, None))
+    sess = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+    lo = hi = None
+    for f in feeds:
+        raw = sess.run([conv.output[0]], f)[0]
+        a, b = raw.min(axis=(0, 2, 3)), raw.max(axis=(0, 2, 3))
+        lo, hi = (a, b) if lo is None else (np.minimum(lo, a), np.maximum(hi, b))
+    starts = np.cumsum([0] + sizes)
+    return {name: np.stack([lo[starts[i]:starts[i + 1]], hi[starts[i]:starts[i + 1]]], 1) for name, i in parts}
+
+
+def channel_ranges(raw: dict[str, np.ndarray]) -> dict[str, list[float]]:
+    """{output: R_c per channel}: the u8 code of channel c covers [-R_c, R_c]."""
+    out = {}
+    for name, mm in raw.items():
+        kind = head_kind(name)
+        if kind == "kernel":
+            r = np.ones(len(mm))
+        else:
+            reach = mm[:, 1] if kind == "relu" else np.abs(mm).max(1)
+            r = np.clip(reach, MIN_RANGE, MAX_RANGE[kind])
+        out[name] = [float(v) for v in r]
+    return out
+
+
+def quantize_head(src: Path, dst: Path, ranges: dict[str, list[float]]) -> HeadLayout:
+    """Write ``src`` (an int8 network graph or pruned variant, head float) with its head
+    quantized and its u8 NHWC output ``head`` in place of the outputs the head fed, to
+    ``dst`` (atomically); the layout goes into the graph's metadata. ``ranges``: R_c of
+    every output the head feeds (``channel_ranges``; a variant uses those of its outputs)."""
+    model = onnx.load(str(src))
+    g = model.graph
+    conv, split, parts = _head(g)
+    sizes = _split_sizes(g, split)
+    names = [n for n, _ in parts]
+    missing = [n for n in names if n not in ranges]
+    if missing:
+        raise CalibrationError(f"{src.name}: no head range for {', '.join(missing)}")
+    r = np.concatenate([np.asarray(ranges[n], np.float64) for n in names])
+    if [len(ranges[n]) for n in names] != sizes:
+        raise CalibrationError(f"{src.name}: head ranges of {[len(ranges[n]) for n in names]} channels, "
+                               f"the split has {sizes}")
+    inits = {i.name: numpy_helper.to_array(i) for i in g.initializer}
+    producers = {o: n for n in g.node for o in n.output}
+    x_dq = producers.get(conv.input[0])
+    if x_dq is None or x_dq.op_type != "DequantizeLinear":
+        raise CalibrationError(f"{HEAD_NODE}: its input is not quantized (the int8 graph is expected)")
+    x_scale = float(inits[x_dq.input[1]])
+    w = inits[conv.input[1]].astype(np.float64) / r[:, None, None, None]
+    b = inits[conv.input[2]].astype(np.float64) / r
+    pad = max(-len(w) % PAD, PAD - len(w))
+    w = np.concatenate([w, np.zeros((pad, *w.shape[1:]))])
+    b = np.concatenate([b, np.zeros(pad)])
+    w_scale = np.maximum(np.abs(w).reshape(len(w), -1).max(1) / 127, 1e-12)
+    wq = np.clip(np.round(w / w_scale[:, None, None, None]), -127, 127).astype(np.int8)
+    bq = np.round(b / (x_scale * w_scale)).astype(np.int32)
+    c = len(w)
+    g.initializer.extend([numpy_helper.from_array(a, n) for a, n in (
+        (wq, "head_w_q"), (w_scale.astype(np.float32), "head_w_scale"), (np.zeros(c, np.int8), "head_w_zp"),
+        (bq, "head_b_q"), ((x_scale * w_scale).astype(np.float32), "head_b_scale"),
+        (np.zeros(c, np.int32), "head_b_zp"), (np.array(CODE_SCALE, np.float32), "head_y_scale"),
+        (np.array(ZERO_POINT, np.uint8), "head_y_zp"))])
+    conv.input[1], conv.input[2] = "head_w", "head_b"
+    at = list(g.node).index(conv)  # the nodes stay topologically sorted
+    prefix = HEAD_NODE.rsplit("/", 1)[0]  # named in the output block (runtime.profile's stages)
+    g.node.insert(at, helper.make_node("DequantizeLinear", ["head_b_q", "head_b_scale", "head_b_zp"], ["head_b"],
+                                       name=f"{prefix}/bias_DequantizeLinear", axis=0))
+    g.node.insert(at, helper.make_node("DequantizeLinear", ["head_w_q", "head_w_scale", "head_w_zp"], ["head_w"],
+                                       name=f"{prefix}/weight_DequantizeLinear", axis=0))
+    g.node.extend([
+        helper.make_node("QuantizeLinear", [conv.output[0], "head_y_scale", "head_y_zp"], ["head_u8"],
+                         name=f"{prefix}/QuantizeLinear"),
+        helper.make_node("Transpose", ["head_u8"], [HEAD], name=f"{prefix}/Transpose", perm=[0, 2, 3, 1])])
+    for vi in [v for v in g.value_info if v.name == conv.output[0]]:
+        g.value_info.remove(vi)  # its channel count changed
+    keep = [o.name for o in g.output if o.name not in set(names)]
+    g.output.append(helper.make_tensor_value_info(HEAD, onnx.TensorProto.UINT8, ["N", "H", "W", c]))
+    with tempfile.TemporaryDirectory(dir=dst.parent) as tmp:
+        onnx.save(model, f"{tmp}/m.onnx")
+        model = onnx.utils.Extractor(onnx.load(f"{tmp}/m.onnx")).extract_model(
+            [i.name for i in g.input], keep + [HEAD])
+    layout = HeadLayout(tuple(zip(names, sizes)), tuple(float(v) for v in r * CODE_SCALE), ZERO_POINT, c)
+    props = {p.key: p.value for p in model.metadata_props}
+    onnx.helper.set_model_props(model, {**props, LAYOUT_KEY: layout.to_json()})
+    onnx.checker.check_model(model)
+    tmp = dst.with_name(f".{dst.name}.tmp")
+    onnx.save(model, str(tmp))
+    os.replace(tmp, dst)
+    return layout

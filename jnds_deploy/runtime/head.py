@@ -1,0 +1,198 @@
+"""The output block's head in int8: one u8 tensor of every native kernel, read into the
+float planes the filter stage takes.
+
+The int8 network graph (``calibration.head``) ends in the head's quantized 1x1
+convolution: graph output ``head``, u8, (1, H, W, C) channels last, C padded to a
+multiple of 16 for ONNX Runtime's fast int8 convolution. The float graph's split, clamp,
+sigmoid and softmax nodes are not in it; ``unpack`` does them here, in one pass that
+reads a quarter of the bytes the float outputs took. The graph's metadata (``LAYOUT_KEY``)
+says which channels are which output and how each dequantizes: channel c of output
+``name`` holds ``raw = (q - zero_point) * scale[c]``, the head's float output, to which
+``layout.head_kind(name)`` applies as in ``model.OutputBlock``.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+
+from ..errors import ArtifactError
+from ..layout import HEAD_KINDS, head_kind
+
+HEAD = "head"  # the graph output
+LAYOUT_KEY = "jnds.head"  # its layout, JSON in the ONNX model's metadata_props
+# a channel's kind as _unpack reads it: kernel 0 and relu 3 are computed in the loop (an
+# affine map and a clamp vectorize), blend 1 (sigmoid) and normalized 2 (exp) looked up
+_KIND_CODE = {k: i for i, k in enumerate(HEAD_KINDS)}
+
+
+@dataclass(frozen=True)
+class HeadLayout:
+    """Where each output lies in the u8 head and how it dequantizes."""
+
+    parts: tuple[tuple[str, int], ...]  # (network output, channels), in channel order
+    scale: tuple[float, ...]  # per channel (padding excluded): raw = (q - zero_point) * scale
+    zero_point: int
+    channels: int  # of the tensor, padding included
+
+    def __post_init__(self):
+        used = sum(n for _, n in self.parts)
+        if used != len(self.scale) or used > self.channels or not 0 <= self.zero_point <= 255:
+            raise ArtifactError(f"head layout: {used} channels in parts, {len(self.scale)} scales, "
+                                f"{self.channels} in the tensor, zero point {self.zero_point}")
+        bad = [n for n, c in self.parts if head_kind(n) == "normalized" and c != 9]
+        if bad:  # _decode_row normalizes 3x3 kernels
+            raise ArtifactError(f"head layout: normalized kernel(s) {', '.join(bad)} without 9 taps")
+
+    def to_json(self) -> str:
+        return json.dumps({"parts": [list(p) for p in self.parts], "scale": list(self.scale),
+                           "zero_point": self.zero_point, "channels": self.channels})
+
+    @classmethod
+    def from_json(cls, text: str) -> HeadLayout:
+        try:
+            d = json.loads(text)
+            return cls(tuple((str(n), int(c)) for n, c in d["parts"]), tuple(float(s) for s in d["scale"]),
+                       int(d["zero_point"]), int(d["channels"]))
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ArtifactError(f"head layout metadata {LAYOUT_KEY!r} malformed ({exc!r})") from exc
+
+    @classmethod
+    def of_session(cls, sess) -> HeadLayout | None:
+        """The layout of an ONNX Runtime session whose graph ends in a u8 head, else None."""
+        text = sess.get_modelmeta().custom_metadata_map.get(LAYOUT_KEY)
+        return None if text is None else cls.from_json(text)
+
+    def tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(per channel kind code, per channel scale, (channels, 256) table of the kind's
+        function of every code: sigmoid, exp for the normalized kernels)."""
+        kinds = np.array([_KIND_CODE[head_kind(n)] for n, c in self.parts for _ in range(c)], np.int64)
+        scale = np.array(self.scale, np.float32)
+        raw = (np.arange(256, dtype=np.float32)[None] - np.float32(self.zero_point)) * scale[:, None]
+        table = np.where((kinds == _KIND_CODE["blend"])[:, None], 1 / (1 + np.exp(-raw.astype(np.float64))),
+                         np.exp(raw.astype(np.float64)))
+        return kinds, scale, table.astype(np.float32)
+
+
+@njit(inline="always")
+def _decode_row(q, y, c0, n, kinds, scale, zero_point, table, out, r):
+    """out[t, r, :] = channel c0 + t of head row y, decoded (t < n): kernel taps clamped,
+    features ReLU'd, blend weights through the sigmoid table, normalized kernels through
+    the exp table and divided by their taps' sum."""
+    w = q.shape[1]
+    zp = np.float32(zero_point)
+    one = np.float32(1)
+    for t in range(n):
+        c = c0 + t
+        k, s = kinds[c], scale[c]
+        if k == 0:  # kernel
+            for x in range(w):
+                out[t, r, x] = min(max((np.float32(q[y, x, c]) - zp) * s, -one), one)
+        elif k == 3:  # relu
+            for x in range(w):
+                out[t, r, x] = max((np.float32(q[y, x, c]) - zp) * s, np.float32(0))
+        else:
+            for x in range(w):
+                out[t, r, x] = table[c, q[y, x, c]]
+    if kinds[c0] == 2:  # normalized
+        for x in range(w):
+            total = out[0, r, x]
+            for t in range(1, n):
+                total += out[t, r, x]
+            inv = one / total
+            for t in range(n):
+                out[t, r, x] *= inv
+
+
+@njit(parallel=True, cache=True)
+def _decode(q, c0, kinds, scale, zero_point, table, out):
+    for y in prange(q.shape[0]):
+        _decode_row(q, y, c0, out.shape[0], kinds, scale, zero_point, table, out, y)
+
+
+class Head:
+    """A layout's tables, built once per graph: decodes one frame's u8 head."""
+
+    def __init__(self, layout: HeadLayout):
+        self.layout = layout
+        self.kinds, self.scale, self.table = layout.tables()
+        self.slices, c0 = {}, 0
+        for name, c in layout.parts:
+            self.slices[name] = (c0, c)
+            c0 += c
+
+    def _check(self, q: np.ndarray) -> np.ndarray:
+        q = q[0] if q.ndim == 4 else q
+        if q.dtype != np.uint8 or q.ndim != 3 or q.shape[2] != self.layout.channels:
+            raise ArtifactError(f"head: expected u8 (H, W, {self.layout.channels}), got {q.dtype} {q.shape}")
+        return np.ascontiguousarray(q)
+
+    def decode(self, q: np.ndarray, name: str) -> np.ndarray:
+        """Output ``name`` of the u8 head ``q`` ((1, H, W, C) as the graph returns it, or
+        (H, W, C)): (channels, H, W) float32, the values the float graph's nodes compute
+        (within the head's quantization)."""
+        q = self._check(q)
+        c0, c = self.slices[name]
+        out = np.empty((c, q.shape[0], q.shape[1]), np.float32)
+        _decode(q, c0, self.kinds, self.scale, self.layout.zero_point, self.table, out)
+        return out
+
+    def coded(self, q: np.ndarray) -> dict[str, "Coded"]:
+        """Every output of the u8 head, still coded: the filter stage decodes each row
+        where it reads it (``runtime.filters``)."""
+        q = self._check(q)
+        return {name: Coded(q, c0, c, self) for name, (c0, c) in self.slices.items()}
+
+
+@dataclass(frozen=True)
+class Coded:
+    """Channels ``c0 .. c0 + n`` of a u8 head (H, W, C): one network output, not decoded."""
+
+    q: np.ndarray
+    c0: int
+    n: int
+    head: Head
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return (self.n, self.q.shape[0], self.q.shape[1])
+
+    def decode(self) -> np.ndarray:
+        """(n, H, W) float32."""
+        out = np.empty(self.shape, np.float32)
+        h = self.head
+        _decode(self.q, self.c0, h.kinds, h.scale, h.layout.zero_point, h.table, out)
+        return out
+
+
+def run_network(sess, feeds: dict, heads: dict | None = None, coded: bool = False) -> dict:
+    """Run a network graph's session: {output: (N, C, H, W) float32} (N = 1 where it has a
+    u8 head), the head (if the graph has one) in the outputs it holds: decoded, or with
+    ``coded`` as ``Coded`` (C, H, W) parts, except the upsample block's features, which
+    ONNX Runtime reads as float. ``heads`` caches the ``Head`` per session."""
+    names = [o.name for o in sess.get_outputs()]
+    out = dict(zip(names, sess.run(None, feeds)))
+    if HEAD not in out:
+        return out
+    heads = {} if heads is None else heads
+    head = heads.get(id(sess))
+    if head is None:
+        layout = HeadLayout.of_session(sess)
+        if layout is None:
+            raise ArtifactError(f"network graph has a {HEAD!r} output but no {LAYOUT_KEY!r} metadata")
+        head = heads[id(sess)] = Head(layout)
+    q = out.pop(HEAD)
+    for name, part in head.coded(q).items():
+        out[name] = part if coded and head_kind(name) != "relu" else part.decode()[None]
+    return out
+
+
+def output_names(sess) -> list[str]:
+    """The outputs ``run_network`` returns for ``sess``, in order."""
+    names = [o.name for o in sess.get_outputs()]
+    if HEAD not in names:
+        return names
+    layout = HeadLayout.of_session(sess)
+    return [n for n in names if n != HEAD] + [n for n, _ in layout.parts]

@@ -1,0 +1,81 @@
+"""runtime.head: the int8 head's u8 output decoded as the float graph's nodes would, and
+read by the filter loops as its decoded values."""
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as TF
+
+from jnds_deploy import model as M
+from jnds_deploy.errors import ArtifactError
+from jnds_deploy.runtime import filters as F
+from jnds_deploy.runtime.head import Coded, Head, HeadLayout
+
+PARTS = (("diffuse.spatial", 9), ("diffuse.temporal", 9), ("diffuse.blend", 1), ("diffuse.up", 9),
+         ("diffuse.up_blend", 1), ("aux.spatial", 9), ("aux.temporal", 9), ("aux.blend", 1), ("features", 3))
+H, W = 7, 11
+
+
+@pytest.fixture
+def head():
+    rng = np.random.default_rng(0)
+    n = sum(c for _, c in PARTS)
+    # kernels: 1/127 (range 1); others up to a range of 20 (aux logits: exp() of +-20)
+    scale = np.where(np.arange(n) < 29, 1 / 127, rng.uniform(0.01, 20, n) / 127)
+    layout = HeadLayout(PARTS, tuple(float(s) for s in scale), 128, 64)
+    q = rng.integers(0, 256, (1, H, W, 64), dtype=np.uint8)
+    return Head(layout), q
+
+
+def _raw(head, q, name):
+    c0, c = head.slices[name]
+    return torch.from_numpy(((q[0, :, :, c0:c0 + c].astype(np.float64) - 128)
+                             * np.array(head.layout.scale[c0:c0 + c])).transpose(2, 0, 1).copy())[None]
+
+
+def test_decode_is_the_output_blocks_post_processing(head):
+    """Each part decoded equals model.OutputBlock's function of the dequantized head."""
+    h, q = head
+    post = {"relu": TF.relu, "blend": M._blend, "normalized": M._normalized_kernel, "kernel": M._kernel}
+    for name, _ in PARTS:
+        want = post[M.head_kind(name)](_raw(h, q, name))[0].numpy()
+        got = h.decode(q, name)
+        assert got.dtype == np.float32 and got.shape == want.shape
+        np.testing.assert_allclose(got, want, rtol=2e-6, atol=1e-7, err_msg=name)
+    aux = h.decode(q, "aux.spatial")
+    np.testing.assert_allclose(aux.sum(0), 1, rtol=1e-6)
+
+
+def test_filters_read_coded_parts_as_their_decoded_values(head):
+    """The filter loops that decode the head row by row give bit-equal results to the
+    float loops on the decoded kernels."""
+    h, q = head
+    rng = np.random.default_rng(1)
+    x, hist, coarse = (rng.uniform(0, 4, s).astype(np.float32) for s in ((3, H, W), (3, H, W), (3, 4, 6)))
+    coded = h.coded(q)
+    dec = {k: v.decode() for k, v in coded.items()}
+    for relu in (True, False):
+        got = F.spatiotemporal(x, hist, coded["diffuse.spatial"], coded["diffuse.temporal"], coded["diffuse.blend"],
+                               relu=relu)
+        want = F.spatiotemporal(x, hist, dec["diffuse.spatial"], dec["diffuse.temporal"], dec["diffuse.blend"],
+                                relu=relu)
+        np.testing.assert_array_equal(got, want)
+    got = F.spatiotemporal(x, hist, coded["aux.spatial"], coded["aux.temporal"], coded["aux.blend"], relu=False)
+    want = F.spatiotemporal(x, hist, dec["aux.spatial"], dec["aux.temporal"], dec["aux.blend"], relu=False)
+    np.testing.assert_array_equal(got, want)
+    skip, low = x[:, :6, :10], coarse[:, :3, :5]
+    sub = h.coded(np.ascontiguousarray(q[:, :6, :10]))
+    np.testing.assert_array_equal(F.up_level(skip, low, sub["diffuse.up"], sub["diffuse.up_blend"]),
+                                  F.up_level(skip, low, sub["diffuse.up"].decode(), sub["diffuse.up_blend"].decode()))
+
+
+def test_bad_layouts_and_heads_are_named():
+    with pytest.raises(ArtifactError, match="malformed"):
+        HeadLayout.from_json('{"parts": 3}')
+    with pytest.raises(ArtifactError, match="aux.spatial"):
+        HeadLayout((("aux.spatial", 8),), (0.1,) * 8, 128, 16)
+    with pytest.raises(ArtifactError, match="channels"):
+        HeadLayout((("diffuse.spatial", 9),), (0.1,) * 8, 128, 16)
+    h = Head(HeadLayout((("diffuse.spatial", 9),), (1 / 127,) * 9, 128, 16))
+    with pytest.raises(ArtifactError, match=r"u8 \(H, W, 16\)"):
+        h.coded(np.zeros((4, 4, 9), np.uint8))
+    assert isinstance(h.coded(np.zeros((1, 4, 4, 16), np.uint8))["diffuse.spatial"], Coded)
