@@ -9,13 +9,14 @@ fast int8 convolution wants multiples of 8 and at least 16; the NHWC transpose a
 is cancelled by ONNX Runtime's NHWC int8 layout). ``runtime.head`` does the split, clamp,
 sigmoid and softmax in the filter stage's reading pass.
 
-One QLinearConv has one output scale, and the parts of the head span different ranges
-(kernel taps are clamped to [-1, 1], blend logits and the albedo/normal kernels' logits
-reach further). Each output channel c is therefore divided by its own range R_c before
-quantization: the weights are per-channel int8, so a per-channel gain changes only their
-scales, and every channel's u8 code covers [-R_c, R_c] (``channel_ranges``). R_c comes
-from the raw head output on the calibration inputs, except for kernels, whose clamp makes
-it 1.
+One QLinearConv has one output scale and zero point, and the parts of the head span
+different ranges (kernel taps are clamped to [-1, 1], blend logits and the albedo/normal
+kernels' logits reach further). Each output channel c is therefore mapped onto [-1, 1]
+before quantization, (raw - centre_c) / R_c: the weights are per-channel int8, so the gain
+1 / R_c changes only their scales, and the centre goes into the bias. Every channel's u8
+code then covers its own [centre_c - R_c, centre_c + R_c] (``channel_ranges``): the raw
+head output's range on the calibration inputs, within what the part's function can tell
+apart (kernels are clamped to [-1, 1], a sigmoid is flat beyond +-12, a ReLU below 0).
 """
 from __future__ import annotations
 
@@ -37,7 +38,7 @@ ZERO_POINT = 128  # u8 codes 0..255 are (q - 128) / 127 * R_c: [-1.008, 1] * R_c
 CODE_SCALE = 1 / 127
 # range caps: a blend logit beyond +-12 is a sigmoid within 6e-6 of 0 or 1; a normalized
 # kernel's logits (softmax) stay exp()-able in float32 for 9 taps (runtime.head)
-MAX_RANGE = {"blend": 12.0, "normalized": 80.0, "relu": float("inf")}
+BOUNDS = {"kernel": (-1.0, 1.0), "blend": (-12.0, 12.0), "normalized": (-80.0, 80.0), "relu": (0.0, np.inf)}
 MIN_RANGE = 1e-2  # a channel that is (nearly) constant on the calibration data
 
 
@@ -93,25 +94,24 @@ def raw_ranges(path: Path, feeds: list[dict[str, np.ndarray]]) -> dict[str, np.n
     return {name: np.stack([lo[starts[i]:starts[i + 1]], hi[starts[i]:starts[i + 1]]], 1) for name, i in parts}
 
 
-def channel_ranges(raw: dict[str, np.ndarray]) -> dict[str, list[float]]:
-    """{output: R_c per channel}: the u8 code of channel c covers [-R_c, R_c]."""
+def channel_ranges(raw: dict[str, np.ndarray]) -> dict[str, dict[str, list[float]]]:
+    """{output: {"centre": [...], "range": [...]}} per channel: its u8 code covers
+    [centre - range, centre + range], the raw range within the part's ``BOUNDS``."""
     out = {}
     for name, mm in raw.items():
-        kind = head_kind(name)
-        if kind == "kernel":
-            r = np.ones(len(mm))
-        else:
-            reach = mm[:, 1] if kind == "relu" else np.abs(mm).max(1)
-            r = np.clip(reach, MIN_RANGE, MAX_RANGE[kind])
-        out[name] = [float(v) for v in r]
+        lo, hi = BOUNDS[head_kind(name)]
+        a, b = np.clip(mm[:, 0], lo, hi), np.clip(mm[:, 1], lo, hi)
+        r = np.maximum((b - a) / 2, MIN_RANGE)
+        out[name] = {"centre": [float(v) for v in (a + b) / 2], "range": [float(v) for v in r]}
     return out
 
 
-def quantize_head(src: Path, dst: Path, ranges: dict[str, list[float]]) -> HeadLayout:
+def quantize_head(src: Path, dst: Path, ranges: dict[str, dict[str, list[float]]]) -> HeadLayout:
     """Write ``src`` (an int8 network graph or pruned variant, head float) with its head
     quantized and its u8 NHWC output ``head`` in place of the outputs the head fed, to
-    ``dst`` (atomically); the layout goes into the graph's metadata. ``ranges``: R_c of
-    every output the head feeds (``channel_ranges``; a variant uses those of its outputs)."""
+    ``dst`` (atomically); the layout goes into the graph's metadata. ``ranges``: centre and
+    range of every output the head feeds (``channel_ranges``; a variant uses those of its
+    outputs)."""
     model = onnx.load(str(src))
     g = model.graph
     conv, split, parts = _head(g)
@@ -120,9 +120,10 @@ def quantize_head(src: Path, dst: Path, ranges: dict[str, list[float]]) -> HeadL
     missing = [n for n in names if n not in ranges]
     if missing:
         raise CalibrationError(f"{src.name}: no head range for {', '.join(missing)}")
-    r = np.concatenate([np.asarray(ranges[n], np.float64) for n in names])
-    if [len(ranges[n]) for n in names] != sizes:
-        raise CalibrationError(f"{src.name}: head ranges of {[len(ranges[n]) for n in names]} channels, "
+    r = np.concatenate([np.asarray(ranges[n]["range"], np.float64) for n in names])
+    m = np.concatenate([np.asarray(ranges[n]["centre"], np.float64) for n in names])
+    if [len(ranges[n]["range"]) for n in names] != sizes or len(m) != len(r):
+        raise CalibrationError(f"{src.name}: head ranges of {[len(ranges[n]['range']) for n in names]} channels, "
                                f"the split has {sizes}")
     inits = {i.name: numpy_helper.to_array(i) for i in g.initializer}
     producers = {o: n for n in g.node for o in n.output}
@@ -131,7 +132,7 @@ def quantize_head(src: Path, dst: Path, ranges: dict[str, list[float]]) -> HeadL
         raise CalibrationError(f"{HEAD_NODE}: its input is not quantized (the int8 graph is expected)")
     x_scale = float(inits[x_dq.input[1]])
     w = inits[conv.input[1]].astype(np.float64) / r[:, None, None, None]
-    b = inits[conv.input[2]].astype(np.float64) / r
+    b = (inits[conv.input[2]].astype(np.float64) - m) / r
     pad = max(-len(w) % PAD, PAD - len(w))
     w = np.concatenate([w, np.zeros((pad, *w.shape[1:]))])
     b = np.concatenate([b, np.zeros(pad)])
@@ -163,7 +164,8 @@ def quantize_head(src: Path, dst: Path, ranges: dict[str, list[float]]) -> HeadL
         onnx.save(model, f"{tmp}/m.onnx")
         model = onnx.utils.Extractor(onnx.load(f"{tmp}/m.onnx")).extract_model(
             [i.name for i in g.input], keep + [HEAD])
-    layout = HeadLayout(tuple(zip(names, sizes)), tuple(float(v) for v in r * CODE_SCALE), ZERO_POINT, c)
+    layout = HeadLayout(tuple(zip(names, sizes)), tuple(float(v) for v in r * CODE_SCALE),
+                        tuple(float(v) for v in m), ZERO_POINT, c)
     props = {p.key: p.value for p in model.metadata_props}
     onnx.helper.set_model_props(model, {**props, LAYOUT_KEY: layout.to_json()})
     onnx.checker.check_model(model)

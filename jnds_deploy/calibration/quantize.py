@@ -230,8 +230,8 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
         if cfg.int8_head and name == "network" and cfg.activation_type == "u8":
             raw = raw_ranges(root / file, feeds[name])
             head = channel_ranges(raw)
-            head_ranges = {n: {"min": [float(v) for v in r[:, 0]], "max": [float(v) for v in r[:, 1]],
-                               "range": head[n]} for n, r in raw.items()}
+            head_ranges = {n: {"min": [float(v) for v in r[:, 0]], "max": [float(v) for v in r[:, 1]], **head[n]}
+                           for n, r in raw.items()}
         variants = write_variants(root, file, file[:-len(".onnx")])
         if head:  # after pruning: the variants slice the float head, then each is quantized
             for f in [file] + [v.file for v in variants.values()]:

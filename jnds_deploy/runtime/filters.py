@@ -125,7 +125,7 @@ def _lerp_taps(a, ka, b, kb, t, out, relu=True):
 
 
 @njit(parallel=True, cache=True)
-def _lerp_coded(a, b, q, ca, cb, ct, kinds, scale, zero_point, table, out, relu):
+def _lerp_coded(a, b, q, ca, cb, ct, kinds, scale, offset, table, out, relu):
     """_lerp_taps with its kernels (ka: head channels ca..ca+9, none if ca < 0; kb: cb..cb+9)
     and blend weights (channel ct) read from the u8 head q (runtime.head): each row's are
     decoded into row buffers first (cache-resident; the same values as decoding them whole)."""
@@ -136,9 +136,9 @@ def _lerp_coded(a, b, q, ca, cb, ct, kinds, scale, zero_point, table, out, relu)
         kb = np.empty((9, 1, W), np.float32)
         t = np.empty((1, 1, W), np.float32)
         if not plain:
-            _decode_row(q, y, ca, 9, kinds, scale, zero_point, table, ka, 0)
-        _decode_row(q, y, cb, 9, kinds, scale, zero_point, table, kb, 0)
-        _decode_row(q, y, ct, 1, kinds, scale, zero_point, table, t, 0)
+            _decode_row(q, y, ca, 9, kinds, scale, offset, table, ka, 0)
+        _decode_row(q, y, cb, 9, kinds, scale, offset, table, kb, 0)
+        _decode_row(q, y, ct, 1, kinds, scale, offset, table, t, 0)
         _lerp_row(a, ka, b, kb, t, 0, out, relu, plain, y, max(y - 1, 0), min(y + 1, H - 1))
 
 
@@ -149,8 +149,8 @@ def _lerp_head(a, ka, b, kb, t, out, relu=True) -> bool:
     if not (all(isinstance(p, Coded) for p in parts) and len({id(p.q) for p in parts}) == 1 and _fast(a, b)):
         return False
     h = kb.head
-    _lerp_coded(a, b, kb.q, -1 if ka is None else ka.c0, kb.c0, t.c0, h.kinds, h.scale, h.layout.zero_point,
-                h.table, out, relu)
+    _lerp_coded(a, b, kb.q, -1 if ka is None else ka.c0, kb.c0, t.c0, h.kinds, h.scale, h.offset, h.table,
+                out, relu)
     return True
 
 

@@ -7,7 +7,7 @@ multiple of 16 for ONNX Runtime's fast int8 convolution. The float graph's split
 sigmoid and softmax nodes are not in it; ``unpack`` does them here, in one pass that
 reads a quarter of the bytes the float outputs took. The graph's metadata (``LAYOUT_KEY``)
 says which channels are which output and how each dequantizes: channel c of output
-``name`` holds ``raw = (q - zero_point) * scale[c]``, the head's float output, to which
+``name`` holds ``raw = (q - zero_point) * scale[c] + centre[c]``, the head's float output, to which
 ``layout.head_kind(name)`` applies as in ``model.OutputBlock``.
 """
 from __future__ import annotations
@@ -33,29 +33,32 @@ class HeadLayout:
     """Where each output lies in the u8 head and how it dequantizes."""
 
     parts: tuple[tuple[str, int], ...]  # (network output, channels), in channel order
-    scale: tuple[float, ...]  # per channel (padding excluded): raw = (q - zero_point) * scale
+    scale: tuple[float, ...]  # per channel (padding excluded): raw = (q - zero_point) * scale + centre
+    centre: tuple[float, ...]
     zero_point: int
     channels: int  # of the tensor, padding included
 
     def __post_init__(self):
         used = sum(n for _, n in self.parts)
-        if used != len(self.scale) or used > self.channels or not 0 <= self.zero_point <= 255:
+        if (used != len(self.scale) or used != len(self.centre) or used > self.channels
+                or not 0 <= self.zero_point <= 255):
             raise ArtifactError(f"head layout: {used} channels in parts, {len(self.scale)} scales, "
-                                f"{self.channels} in the tensor, zero point {self.zero_point}")
+                                f"{len(self.centre)} centres, {self.channels} in the tensor, "
+                                f"zero point {self.zero_point}")
         bad = [n for n, c in self.parts if head_kind(n) == "normalized" and c != 9]
         if bad:  # _decode_row normalizes 3x3 kernels
             raise ArtifactError(f"head layout: normalized kernel(s) {', '.join(bad)} without 9 taps")
 
     def to_json(self) -> str:
         return json.dumps({"parts": [list(p) for p in self.parts], "scale": list(self.scale),
-                           "zero_point": self.zero_point, "channels": self.channels})
+                           "centre": list(self.centre), "zero_point": self.zero_point, "channels": self.channels})
 
     @classmethod
     def from_json(cls, text: str) -> HeadLayout:
         try:
             d = json.loads(text)
             return cls(tuple((str(n), int(c)) for n, c in d["parts"]), tuple(float(s) for s in d["scale"]),
-                       int(d["zero_point"]), int(d["channels"]))
+                       tuple(float(s) for s in d["centre"]), int(d["zero_point"]), int(d["channels"]))
         except (ValueError, KeyError, TypeError) as exc:
             raise ArtifactError(f"head layout metadata {LAYOUT_KEY!r} malformed ({exc!r})") from exc
 
@@ -65,34 +68,35 @@ class HeadLayout:
         text = sess.get_modelmeta().custom_metadata_map.get(LAYOUT_KEY)
         return None if text is None else cls.from_json(text)
 
-    def tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(per channel kind code, per channel scale, (channels, 256) table of the kind's
-        function of every code: sigmoid, exp for the normalized kernels)."""
+    def tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Per channel: kind code, scale and offset (raw = q * scale + offset, float32), and
+        a (channels, 256) table of the kind's function of every code (sigmoid; exp for the
+        normalized kernels)."""
         kinds = np.array([_KIND_CODE[head_kind(n)] for n, c in self.parts for _ in range(c)], np.int64)
         scale = np.array(self.scale, np.float32)
-        raw = (np.arange(256, dtype=np.float32)[None] - np.float32(self.zero_point)) * scale[:, None]
+        offset = (np.array(self.centre, np.float64) - self.zero_point * scale.astype(np.float64)).astype(np.float32)
+        raw = np.arange(256, dtype=np.float32)[None] * scale[:, None] + offset[:, None]
         table = np.where((kinds == _KIND_CODE["blend"])[:, None], 1 / (1 + np.exp(-raw.astype(np.float64))),
                          np.exp(raw.astype(np.float64)))
-        return kinds, scale, table.astype(np.float32)
+        return kinds, scale, offset, table.astype(np.float32)
 
 
 @njit(inline="always")
-def _decode_row(q, y, c0, n, kinds, scale, zero_point, table, out, r):
+def _decode_row(q, y, c0, n, kinds, scale, offset, table, out, r):
     """out[t, r, :] = channel c0 + t of head row y, decoded (t < n): kernel taps clamped,
     features ReLU'd, blend weights through the sigmoid table, normalized kernels through
     the exp table and divided by their taps' sum."""
     w = q.shape[1]
-    zp = np.float32(zero_point)
     one = np.float32(1)
     for t in range(n):
         c = c0 + t
-        k, s = kinds[c], scale[c]
+        k, s, o = kinds[c], scale[c], offset[c]
         if k == 0:  # kernel
             for x in range(w):
-                out[t, r, x] = min(max((np.float32(q[y, x, c]) - zp) * s, -one), one)
+                out[t, r, x] = min(max(np.float32(q[y, x, c]) * s + o, -one), one)
         elif k == 3:  # relu
             for x in range(w):
-                out[t, r, x] = max((np.float32(q[y, x, c]) - zp) * s, np.float32(0))
+                out[t, r, x] = max(np.float32(q[y, x, c]) * s + o, np.float32(0))
         else:
             for x in range(w):
                 out[t, r, x] = table[c, q[y, x, c]]
@@ -107,9 +111,9 @@ def _decode_row(q, y, c0, n, kinds, scale, zero_point, table, out, r):
 
 
 @njit(parallel=True, cache=True)
-def _decode(q, c0, kinds, scale, zero_point, table, out):
+def _decode(q, c0, kinds, scale, offset, table, out):
     for y in prange(q.shape[0]):
-        _decode_row(q, y, c0, out.shape[0], kinds, scale, zero_point, table, out, y)
+        _decode_row(q, y, c0, out.shape[0], kinds, scale, offset, table, out, y)
 
 
 class Head:
@@ -117,7 +121,7 @@ class Head:
 
     def __init__(self, layout: HeadLayout):
         self.layout = layout
-        self.kinds, self.scale, self.table = layout.tables()
+        self.kinds, self.scale, self.offset, self.table = layout.tables()
         self.slices, c0 = {}, 0
         for name, c in layout.parts:
             self.slices[name] = (c0, c)
@@ -136,7 +140,7 @@ class Head:
         q = self._check(q)
         c0, c = self.slices[name]
         out = np.empty((c, q.shape[0], q.shape[1]), np.float32)
-        _decode(q, c0, self.kinds, self.scale, self.layout.zero_point, self.table, out)
+        _decode(q, c0, self.kinds, self.scale, self.offset, self.table, out)
         return out
 
     def coded(self, q: np.ndarray) -> dict[str, "Coded"]:
@@ -163,7 +167,7 @@ class Coded:
         """(n, H, W) float32."""
         out = np.empty(self.shape, np.float32)
         h = self.head
-        _decode(self.q, self.c0, h.kinds, h.scale, h.layout.zero_point, h.table, out)
+        _decode(self.q, self.c0, h.kinds, h.scale, h.offset, h.table, out)
         return out
 
 

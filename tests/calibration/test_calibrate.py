@@ -9,13 +9,14 @@ from onnx import numpy_helper
 
 from jnds_deploy.calibration import CalibrateConfig, calibrate
 from jnds_deploy.errors import CalibrationError
-from jnds_deploy.calibration.head import HEAD_NODE, MAX_RANGE
+from jnds_deploy.calibration.head import BOUNDS, HEAD_NODE, MIN_RANGE
 from jnds_deploy.calibration.quantize import FLOAT_NODES, validate_int8
 from jnds_deploy.calibration.reader import collect_feeds
 from jnds_deploy.errors import ValidationError
 from jnds_deploy.export import ExportConfig, export
 from jnds_deploy.export.convert import report_validation
 from jnds_deploy.io import open_sequence
+from jnds_deploy.layout import head_kind
 from jnds_deploy.metrics import psnr
 from jnds_deploy.runtime.head import HEAD, LAYOUT_KEY, HeadLayout
 from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
@@ -171,11 +172,15 @@ def test_end_to_end_report_scores_int8_against_fp32_and_the_reference(calibrated
 def test_head_ranges_and_the_float_head_option(calibrated):
     d, _, _ = calibrated
     head = json.loads((d / "calibration.qat.json").read_text())["head"]
-    assert head["diffuse.spatial"]["range"] == [1.0] * 9  # clamped to [-1, 1] anyway
-    for name in ("diffuse.blend", "aux.spatial", "features"):
+    for name in ("diffuse.spatial", "diffuse.blend", "aux.spatial", "features"):
         r = head[name]
-        assert all(0 < v for v in r["range"]) and len(r["range"]) == len(r["min"]) == len(r["max"])
-    assert all(v <= MAX_RANGE["blend"] for v in head["diffuse.blend"]["range"])
+        lo, hi = BOUNDS[head_kind(name)]
+        assert len(r["range"]) == len(r["centre"]) == len(r["min"]) == len(r["max"])
+        for c, rng, a, b in zip(r["centre"], r["range"], r["min"], r["max"]):
+            # the code covers the calibration range, within what the part's function tells apart
+            # (a channel constant on these frames gets MIN_RANGE either side)
+            assert rng > 0 and lo - MIN_RANGE <= c - rng <= max(a, lo) + 1e-6
+            assert min(b, hi) - 1e-6 <= c + rng <= hi + MIN_RANGE
     manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="minmax", frames=2,
                                          int8_head=False), log=lambda s: None)
     entry = manifest.graphs["network"].int8["minmax"]

@@ -21,15 +21,17 @@ def head():
     n = sum(c for _, c in PARTS)
     # kernels: 1/127 (range 1); others up to a range of 20 (aux logits: exp() of +-20)
     scale = np.where(np.arange(n) < 29, 1 / 127, rng.uniform(0.01, 20, n) / 127)
-    layout = HeadLayout(PARTS, tuple(float(s) for s in scale), 128, 64)
+    centre = np.where(np.arange(n) < 29, rng.uniform(-0.3, 0.3, n), rng.uniform(-5, 5, n))
+    layout = HeadLayout(PARTS, tuple(float(s) for s in scale), tuple(float(c) for c in centre), 128, 64)
     q = rng.integers(0, 256, (1, H, W, 64), dtype=np.uint8)
     return Head(layout), q
 
 
 def _raw(head, q, name):
     c0, c = head.slices[name]
-    return torch.from_numpy(((q[0, :, :, c0:c0 + c].astype(np.float64) - 128)
-                             * np.array(head.layout.scale[c0:c0 + c])).transpose(2, 0, 1).copy())[None]
+    raw = ((q[0, :, :, c0:c0 + c].astype(np.float64) - 128) * np.array(head.layout.scale[c0:c0 + c])
+           + np.array(head.layout.centre[c0:c0 + c]))
+    return torch.from_numpy(raw.transpose(2, 0, 1).copy())[None]
 
 
 def test_decode_is_the_output_blocks_post_processing(head):
@@ -40,7 +42,8 @@ def test_decode_is_the_output_blocks_post_processing(head):
         want = post[M.head_kind(name)](_raw(h, q, name))[0].numpy()
         got = h.decode(q, name)
         assert got.dtype == np.float32 and got.shape == want.shape
-        np.testing.assert_allclose(got, want, rtol=2e-6, atol=1e-7, err_msg=name)
+        # float32 against float64, raw = q * scale + offset in one rounding
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-7, err_msg=name)
     aux = h.decode(q, "aux.spatial")
     np.testing.assert_allclose(aux.sum(0), 1, rtol=1e-6)
 
@@ -72,10 +75,10 @@ def test_bad_layouts_and_heads_are_named():
     with pytest.raises(ArtifactError, match="malformed"):
         HeadLayout.from_json('{"parts": 3}')
     with pytest.raises(ArtifactError, match="aux.spatial"):
-        HeadLayout((("aux.spatial", 8),), (0.1,) * 8, 128, 16)
+        HeadLayout((("aux.spatial", 8),), (0.1,) * 8, (0.0,) * 8, 128, 16)
     with pytest.raises(ArtifactError, match="channels"):
-        HeadLayout((("diffuse.spatial", 9),), (0.1,) * 8, 128, 16)
-    h = Head(HeadLayout((("diffuse.spatial", 9),), (1 / 127,) * 9, 128, 16))
+        HeadLayout((("diffuse.spatial", 9),), (0.1,) * 8, (0.0,) * 8, 128, 16)
+    h = Head(HeadLayout((("diffuse.spatial", 9),), (1 / 127,) * 9, (0.0,) * 9, 128, 16))
     with pytest.raises(ArtifactError, match=r"u8 \(H, W, 16\)"):
         h.coded(np.zeros((4, 4, 9), np.uint8))
     assert isinstance(h.coded(np.zeros((1, 4, 4, 16), np.uint8))["diffuse.spatial"], Coded)
