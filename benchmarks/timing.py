@@ -20,7 +20,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
-from benchmarks.common import (cpu_line, RESULTS, ROOT, CpuSteal, arguments, command_line, machine_info, parse_size,  # noqa: E402
+from benchmarks.common import (cpu_line, cpu_peaks, RESULTS, ROOT, CpuSteal, arguments, command_line, machine_info, parse_size,  # noqa: E402
                                pipeline, resized_frames, run_frames, spread, timed, tune_process, write_report)
 from jnds_deploy.artifacts import Manifest  # noqa: E402
 from jnds_deploy.io import open_sequence  # noqa: E402
@@ -60,7 +60,10 @@ def network_split(pipe: Pipeline, frames, threads: int) -> tuple[dict[str, float
     return {s: prof[s] / inside for s in STAGES}, profile["by_node_ms"]
 
 
-def summarize(recorded: list[dict], split: dict, macs: dict) -> dict:
+def summarize(recorded: list[dict], split: dict, macs: dict, peaks: dict) -> dict:
+    """Per stage: spread of its time, share of the frame, and for the network stages and
+    the upsample block GMAC, GMAC/s and the share of ``peaks`` ({stage: GMAC/s of this CPU
+    at the precision the stage runs at}) reached."""
     rows = {}
     net = np.array([r["network"] for r in recorded])
     total = np.array([r["total"] for r in recorded])
@@ -76,16 +79,18 @@ def summarize(recorded: list[dict], split: dict, macs: dict) -> dict:
         if gm is not None:
             row["gmac"] = gm
             row["gmac_per_s"] = gm / (row["median_ms"] / 1000)
+            row["peak_share"] = row["gmac_per_s"] / peaks[k]
         rows[k] = row
     rows["total"] = {**spread(total, suffix="_ms"), "share": 1.0}
     return rows
 
 
 def table(rows: dict) -> str:
-    lines = ["| stage | median ms | p10–p90 ms | % of total | GMAC | GMAC/s |",
-             "| --- | ---: | ---: | ---: | ---: | ---: |"]
+    lines = ["| stage | median ms | p10–p90 ms | % of total | GMAC | GMAC/s | % of peak |",
+             "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for k, r in rows.items():
-        g = f"{r['gmac']:.2f} | {r['gmac_per_s']:.1f}" if "gmac" in r else " | "
+        g = (f"{r['gmac']:.2f} | {r['gmac_per_s']:.1f} | {100 * r['peak_share']:.0f}" if "gmac" in r
+             else " |  | ")
         name = f"**{k}**" if k == "total" else k
         lines.append(f"| {name} | {r['median_ms']:.1f} | {r['p10_ms']:.1f}–{r['p90_ms']:.1f} | "
                      f"{100 * r['share']:.1f} | {g} |")
@@ -95,10 +100,12 @@ def table(rows: dict) -> str:
 FILTER_ROWS = ("warp", "filter_diffuse", "filter_specular", "filter_auxiliary", "composite", "upsample_filter")
 
 
-def traffic_bytes(cfg: ModelConfig, w: int, h: int) -> dict[str, float]:
+def traffic_bytes(cfg: ModelConfig, w: int, h: int, u8_head: bool = False) -> dict[str, float]:
     """Bytes each filter-stage step must move at the least: its inputs read once and its
-    output written once (float32), as a fully fused loop would; intermediates (the pooled
-    levels, the upsampled composite) not counted. N native pixels, T = s^2 N target pixels.
+    output written once (float32; the native kernels and blend weights 1 byte each where
+    the output block's head is u8, ``runtime.head``), as a fully fused loop would;
+    intermediates (the pooled levels, the upsampled composite) not counted. N native
+    pixels, T = s^2 N target pixels.
     - warp: history 12N + motion 2N + the current normals 3N (geometric rejection) read,
       12N written (a rejected pixel also reads the current inputs' 12 channels: not counted);
     - filter path (diffuse or specular): current 3N + history 3N + native kernels (spatial 9,
@@ -108,12 +115,13 @@ def traffic_bytes(cfg: ModelConfig, w: int, h: int) -> dict[str, float]:
     - composite: 9N read, 3N written;
     - upsample filter: composite 3N and kernel 9T read, 3T written."""
     n, t = w * h, w * h * cfg.scale ** 2
+    k = 1.0 if u8_head else 4.0  # bytes per native kernel tap
     native = 19 + (10 if cfg.filter_levels > 0 else 0)
-    levels = sum((9 if k == cfg.filter_levels else 19) * n / 4 ** k for k in range(1, cfg.filter_levels + 1))
-    path = (6 + native + 3) * n + levels
-    b = {"warp": 29 * n, "filter_diffuse": path, "filter_specular": path, "filter_auxiliary": 37 * n,
-         "composite": 12 * n, "upsample_filter": 3 * n + 12 * t if cfg.scale > 1 else 0}
-    return {k: 4.0 * v for k, v in b.items()}
+    levels = sum((9 if lv == cfg.filter_levels else 19) * n / 4 ** lv for lv in range(1, cfg.filter_levels + 1))
+    path = 4 * (6 + 3) * n + k * native * n + 4 * levels
+    return {"warp": 4.0 * 29 * n, "filter_diffuse": path, "filter_specular": path,
+            "filter_auxiliary": 4 * 18 * n + k * 19 * n, "composite": 4.0 * 12 * n,
+            "upsample_filter": 4.0 * (3 * n + 12 * t) if cfg.scale > 1 else 0.0}
 
 
 class CopyProbe:
@@ -210,6 +218,9 @@ def main() -> int:
               "results": {}}
     steal = CpuSteal()
     probe = CopyProbe(args.threads)
+    cpu = report["cpu_peaks"] = cpu_peaks()
+    int8 = manifest.graphs["network"].int8.get(manifest.int8_method or "")
+    u8_head = bool(int8 and int8.head.startswith("u8"))  # the int8 pipeline's kernels come as bytes
     for label, size in ((big_label, big), (f"{seq.native_size[0]}x{seq.native_size[1]}", None)):
         frames = resized_frames(seq, size)
         w, h = size or seq.native_size
@@ -220,7 +231,11 @@ def main() -> int:
             # copy-bandwidth samples between the frames of the large int8 run: the
             # filter stage's memory-traffic bound (below)
             probed = size == big and precision == "int8"
-            rows = summarize(time_pipeline(pipe, frames, args.repeats, probe if probed else None), split, macs)
+            peak = {"int8": cpu["int8_gmacs"], "fp32": cpu["fp32_fma_gmacs"]}
+            peaks = {**{s: peak[pipe.graph_precision["network"]] for s in STAGES},
+                     "upsample_kernel": peak[pipe.graph_precision.get("upsample", "fp32")]}
+            rows = summarize(time_pipeline(pipe, frames, args.repeats, probe if probed else None), split, macs,
+                             peaks)
             report["results"][f"{label} {precision}"] = {"native": [w, h], "target": [w * pipe.scale, h * pipe.scale],
                                                          "precision": precision, "graphs": dict(pipe.graph_precision),
                                                          "split": split, "stages": rows, "network_nodes": nodes}
@@ -228,7 +243,7 @@ def main() -> int:
                 bw = np.array(probe.samples)
                 report["copy_bandwidth_gb_s"] = {**spread(bw / 1e9), "samples": len(bw)}
                 report["results"][f"{label} {precision}"]["traffic"] = traffic_table(
-                    rows, traffic_bytes(cfg, w, h), float(np.median(bw)))[1]
+                    rows, traffic_bytes(cfg, w, h, u8_head), float(np.median(bw)))[1]
             print(f"{label} {precision}: {rows['total']['median_ms']:.1f} ms/frame", flush=True)
         if size == big:
             report[f"head_to_head_{label}"] = head_to_head(pipeline(args.artifacts, precision="int8",
@@ -241,7 +256,10 @@ def main() -> int:
           f"{report['machine']['cpu_count']} cores, "
           f"{args.threads} threads; input {seq.path.name}, frames 2–{len(seq)} × {args.repeats} passes "
           f"(the first frame is a warm-up); filter stage float32; int8 graphs: {report['int8_method']}; "
-          f"CPU time stolen by the VM host during the run: {100 * report['cpu_steal_share']:.0f} %.", ""]
+          f"CPU time stolen by the VM host during the run: {100 * report['cpu_steal_share']:.0f} %.", "",
+          f"Peaks of this CPU (`common.cpu_peaks`, {cpu['derivation']}; {cpu['cores']} cores at the nominal "
+          f"{cpu['ghz']:.2f} GHz): int8 {cpu['int8_gmacs']:.0f} GMAC/s, fp32 {cpu['fp32_fma_gmacs']:.0f} GMAC/s. "
+          "\"% of peak\" sets a stage's GMAC/s against the peak of the precision its graph runs at.", ""]
     for name, r in report["results"].items():
         graphs = ", ".join(f"{g} {p}" for g, p in r["graphs"].items())
         md += [f"## {r['native'][0]}x{r['native'][1]} → {r['target'][0]}x{r['target'][1]}, {r['precision']} "
@@ -261,12 +279,13 @@ def main() -> int:
         r, bw = report["results"][f"{big_label} int8"], report["copy_bandwidth_gb_s"]
         md += ["## The filter stage against its memory-traffic bound "
                f"({big_label} → {r['target'][0]}x{r['target'][1]}, int8 pipeline)", "",
-               f"Bound = bytes a step must move (its inputs read once, its output written once, float32; "
+               f"Bound = bytes a step must move (its inputs read once, its output written once, float32, the "
+               f"native kernels as {'bytes' if u8_head else 'float32'}; "
                f"`traffic_bytes` says what is counted) ÷ the copy bandwidth measured between the frames of this "
                f"run: median {bw['median']:.1f} GB/s (p10–p90 {bw['p10']:.1f}–{bw['p90']:.1f}, "
                f"{bw['samples']} samples; read + written, a numba row loop on {args.threads} threads copying "
                "256 MB; `CopyProbe`).", "",
-               traffic_table(r["stages"], traffic_bytes(cfg, *r["native"]), bw["median"] * 1e9)[0], "",
+               traffic_table(r["stages"], traffic_bytes(cfg, *r["native"], u8_head), bw["median"] * 1e9)[0], "",
                "The bound is a model, not a floor: the probe writes as many bytes as it reads, and a write costs "
                "more than a read (the cache line is read for ownership first), so a step that mostly reads can "
                "beat it (the composite reads 3 bytes per byte it writes).", ""]
