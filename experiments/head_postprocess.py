@@ -24,6 +24,10 @@ each pixel's kernels come out contiguous with no transpose. Their values are not
 (one range for blend logits and kernel taps alike is too coarse to use as it is): they
 bound what a runtime reading 8-bit kernels would save, a quarter of the bytes.
 
+It needs the int8 graphs of `jnds calibrate --float-edges` (float head and inputs, what
+the runtime ran until stop 33; since then the head's u8 output is what `jnds calibrate`
+writes by default, `calibration.head`).
+
 Times fp32 and int8 (the manifest's int8 network graph of --method), full and cut, at
 --size, median of --runs, all in one process, interleaved (``common.time_sessions``), the
 int8 graphs without NCHWc as the pipeline runs them (``Pipeline.disabled_optimizers``).

@@ -72,6 +72,7 @@ class Int8Graph:
     ranges: str  # calibration.<method>.json: scale and zero point of every quantized tensor
     variants: dict[str, Variant] = field(default_factory=dict)
     head: str = "float"  # the output block's head: float outputs, or one u8 tensor (runtime.head)
+    inputs: str = "float"  # current and history float, or one u8 tensor preprocessed (runtime.reformat)
 
 
 @dataclass

@@ -133,7 +133,7 @@ def cmd_calibrate(args) -> int:
     tune_numba()
     cfg = CalibrateConfig(artifacts=args.artifacts, data=tuple(map(str, expand_sequences(args.data))),
                           method=args.method, activation_type=args.activation_type, frames=args.frames,
-                          checkpoint=args.checkpoint, threads=args.threads, int8_head=not args.float_head)
+                          checkpoint=args.checkpoint, threads=args.threads, u8_edges=not args.float_edges)
     manifest = calibrate(cfg)
     files = ", ".join(g.int8[args.method].file for g in manifest.graphs.values())
     print(f"wrote {files} and calibration.{args.method}.json to {args.artifacts} (int8 default: {args.method})")
@@ -321,8 +321,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--frames", type=int, default=None, help="at most this many frames per sequence")
     c.add_argument("--checkpoint", default=None, help="PyTorch reference for validation (default: the manifest's)")
     c.add_argument("--threads", type=int, default=2)
-    c.add_argument("--float-head", action="store_true",
-                   help="keep the output block's head float (default: int8, its u8 output read by the filter stage)")
+    c.add_argument("--float-edges", action="store_true",
+                   help="keep the input block's preprocessing and the output block's head float (default: the "
+                        "graph takes u8 inputs packed by the runtime and gives the head's u8 output to the filters)")
     c.set_defaults(func=cmd_calibrate)
 
     sv = sub.add_parser("serve", help="serve frame streams over HTTP (protocol: jnds_deploy/serve/server.py)")

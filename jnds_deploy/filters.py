@@ -11,9 +11,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from .layout import BACKGROUND, HDR_MAX, REJECT_COS, ROOT_FLOOR
+from .layout import BACKGROUND, HDR_MAX, REJECT_COS, ROOT_FLOOR, TONEMAP_FLOOR
 
-TONEMAP_FLOOR = 1e-10  # log(x + 1) below this is raised to it: d/dx of t^(1/2.2) is infinite at 0
 
 
 def tonemap(x: torch.Tensor) -> torch.Tensor:

@@ -9,6 +9,9 @@ from dataclasses import dataclass
 
 # radiance is clamped to [0, HDR_MAX] before tonemapping (paper, Sec. 3.2.1)
 HDR_MAX = 65535.0
+# the tonemap raises log(x + 1) below this to it: d/dx of t^(1/2.2) is infinite at 0
+# (jnds_deploy.filters.tonemap; the runtime's int8 input packing, runtime.reformat)
+TONEMAP_FLOOR = 1e-10
 
 
 @dataclass(frozen=True)

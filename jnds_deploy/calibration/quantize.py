@@ -35,6 +35,7 @@ from ..artifacts import MANIFEST, Int8Graph, Manifest, file_hash, write_json
 from ..errors import CalibrationError
 from ..export.prune import INT8_VARIANT_TOL, validate_variant, write_variants
 from .head import HEAD_NODE, channel_ranges, quantize_head, raw_ranges
+from .inputs import quantize_inputs
 from .reader import FeedReader, collect_feeds
 
 METHODS = ("qat", "minmax", "percentile", "entropy")
@@ -65,9 +66,11 @@ class CalibrateConfig:
     percentile: float = 99.999
     checkpoint: str | None = None  # PyTorch reference for validation; default: the manifest's
     threads: int = 2
-    # the output block's head in int8 with a u8 output read by the filter stage
-    # (calibration.head; u8 activations only); False: it stays float like FLOAT_NODES says
-    int8_head: bool = True
+    # the int8 network graph's edges in u8 (u8 activations only): its input the packed,
+    # quantized preprocessing of the input block (calibration.inputs), its output the
+    # output block's head, read by the filter stage (calibration.head). False: both stay
+    # float, the head as FLOAT_NODES says
+    u8_edges: bool = True
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -184,7 +187,7 @@ def validate_int8(root: Path, manifest: Manifest, method: str, feeds: dict[str, 
            "upsample": lambda names: (lambda c, f: to_phases(model.upsample_block(c, f), model.cfg.scale))}
     import onnxruntime as ort
 
-    from ..runtime.head import output_names
+    from ..runtime.network import output_names
 
     rows = []
     for name, g in manifest.graphs.items():
@@ -227,7 +230,7 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
         if cfg.method == "qat":
             _check_overrides(file, learned, ranges[name])
         head = None
-        if cfg.int8_head and name == "network" and cfg.activation_type == "u8":
+        if cfg.u8_edges and name == "network" and cfg.activation_type == "u8":
             raw = raw_ranges(root / file, feeds[name])
             head = channel_ranges(raw)
             head_ranges = {n: {"min": [float(v) for v in r[:, 0]], "max": [float(v) for v in r[:, 1]], **head[n]}
@@ -236,6 +239,7 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
         if head:  # after pruning: the variants slice the float head, then each is quantized
             for f in [file] + [v.file for v in variants.values()]:
                 quantize_head(root / f, root / f, head)
+                quantize_inputs(root / f, root / f)
         for v in variants.values():
             vrows += validate_variant(root / file, root / v.file, feeds[name][0], *INT8_VARIANT_TOL)
             v.sha256 = file_hash(root / v.file)
@@ -244,7 +248,8 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
             weights="int8 per output channel, symmetric", op_types=list(cfg.op_types),
             float_nodes=[n for n in cfg.float_nodes if not (head and n == HEAD_NODE)],
             ranges=f"calibration.{cfg.method}.json", variants=variants,
-            head="u8, channels last, a range per channel (calibration.head)" if head else "float")
+            head="u8, channels last, a range per channel (calibration.head)" if head else "float",
+            inputs="u8, channels last, preprocessed (calibration.inputs)" if head else "float")
     write_json(root / f"calibration.{cfg.method}.json",
                {"method": cfg.method, "activation_type": cfg.activation_type,
                 "data": [str(d) for d in cfg.data], "frames_per_sequence": cfg.frames,

@@ -142,7 +142,7 @@ def validate_variant(full: Path, variant: Path, feeds: dict[str, np.ndarray], at
     ``calibrate`` validates them with ``INT8_VARIANT_TOL``."""
     import onnxruntime as ort
 
-    from ..runtime.head import run_network
+    from ..runtime.network import run_network
 
     a = ort.InferenceSession(str(full), providers=["CPUExecutionProvider"])
     b = ort.InferenceSession(str(variant), providers=["CPUExecutionProvider"])

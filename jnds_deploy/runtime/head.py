@@ -169,34 +169,3 @@ class Coded:
         h = self.head
         _decode(self.q, self.c0, h.kinds, h.scale, h.offset, h.table, out)
         return out
-
-
-def run_network(sess, feeds: dict, heads: dict | None = None, coded: bool = False) -> dict:
-    """Run a network graph's session: {output: (N, C, H, W) float32} (N = 1 where it has a
-    u8 head), the head (if the graph has one) in the outputs it holds: decoded, or with
-    ``coded`` as ``Coded`` (C, H, W) parts, except the upsample block's features, which
-    ONNX Runtime reads as float. ``heads`` caches the ``Head`` per session."""
-    names = [o.name for o in sess.get_outputs()]
-    out = dict(zip(names, sess.run(None, feeds)))
-    if HEAD not in out:
-        return out
-    heads = {} if heads is None else heads
-    head = heads.get(id(sess))
-    if head is None:
-        layout = HeadLayout.of_session(sess)
-        if layout is None:
-            raise ArtifactError(f"network graph has a {HEAD!r} output but no {LAYOUT_KEY!r} metadata")
-        head = heads[id(sess)] = Head(layout)
-    q = out.pop(HEAD)
-    for name, part in head.coded(q).items():
-        out[name] = part if coded and head_kind(name) != "relu" else part.decode()[None]
-    return out
-
-
-def output_names(sess) -> list[str]:
-    """The outputs ``run_network`` returns for ``sess``, in order."""
-    names = [o.name for o in sess.get_outputs()]
-    if HEAD not in names:
-        return names
-    layout = HeadLayout.of_session(sess)
-    return [n for n in names if n != HEAD] + [n for n, _ in layout.parts]

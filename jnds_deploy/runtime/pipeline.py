@@ -32,7 +32,8 @@ from ..errors import ConfigError, FrameError
 from ..export.prune import variant_key
 from ..layout import CURRENT, HISTORY, INPUT_CHANNELS, RADIANCE, channels
 from . import filters as F
-from .head import Coded, run_network
+from .head import Coded
+from .network import run_network
 from .history import History, Warped, replace_nonfinite
 from .reformat import to_chw, to_hwc
 
@@ -211,7 +212,7 @@ class Pipeline:
         # how calibration records the inputs the network really sees, history included
         self.on_feeds = None
         self.history = History()
-        self._heads: dict = {}  # runtime.head.Head of each session whose graph ends in a u8 head
+        self._edges: dict = {}  # runtime.network.Edges of each network session (u8 inputs, u8 head)
 
     # -- sessions --------------------------------------------------------------------------
 
@@ -317,7 +318,7 @@ class Pipeline:
             if variant := self._variant("network", drops):
                 decisions["network_graph"] = variant_key(variant)
         with t("network"):
-            outs = run_network(sess, feeds, self._heads, coded=True)
+            outs = run_network(sess, feeds, self._edges, coded=True)
         return {k: a if isinstance(a, Coded) else a[0] for k, a in outs.items()}
 
     def _radiance_scale(self, current: np.ndarray, warped: np.ndarray) -> float:

@@ -4,7 +4,9 @@ sanitizing folded into the same pass.
 ``to_chw`` stacks the HWC layers of one frame (as ``jnds_deploy.io`` reads them) into
 one CHW array for the network, replacing NaN and clamping every value into its layer's
 valid range (``LIMITS``) on the way, and counts the non-finite values it met per layer;
-``to_hwc`` turns the CHW output back into HWC.
+``to_hwc`` turns the CHW output back into HWC. ``pack_inputs`` gives an int8 network
+graph (``calibration.inputs``) its input: the input block's preprocessing of current
+and history, quantized, channels last.
 
 numpy's ``concatenate(...).transpose(2, 0, 1)`` + copy is a strided gather on one
 thread; these numba loops write each element once, rows in parallel
@@ -12,10 +14,15 @@ thread; these numba loops write each element once, rows in parallel
 """
 from __future__ import annotations
 
+import functools
+import json
+from dataclasses import dataclass
+
 import numpy as np
 from numba import njit, prange
 
-from ..layout import LAYERS
+from ..errors import ArtifactError
+from ..layout import CURRENT, HDR_MAX, HISTORY, LAYERS, RADIANCE, TONEMAP_FLOOR
 
 # layer -> (low, high, renormalize), from the one table of input layers (layout.LAYERS)
 LIMITS: dict[str, tuple[float, float, bool]] = {layer.name: (layer.lo, layer.hi, layer.unit_vector)
@@ -84,3 +91,108 @@ def to_hwc(x: np.ndarray, h: int, w: int) -> np.ndarray:
     out = np.empty((h, w, x.shape[0]), np.float32)
     _chw_into_hwc(np.ascontiguousarray(x, np.float32), out)
     return out
+
+
+INPUTS = "inputs"  # an int8 network graph's input (calibration.inputs)
+INPUTS_KEY = "jnds.inputs"  # its quantization, JSON in the ONNX model's metadata_props
+# what model.tonemap_inputs does to each channel of current then history: 1 Eq. 1's tonemap
+# (radiance), 2 n * 0.5 + 0.5 (normals), 0 nothing
+_PREPROCESS = np.array([1 if n in RADIANCE else 2 if n == "normal" else 0
+                        for layout in (CURRENT, HISTORY) for n, c in layout for _ in range(c)], np.int64)
+
+
+@dataclass(frozen=True)
+class InputsLayout:
+    """The u8 ``inputs`` of an int8 network graph: value = (q - zero_point) * scale."""
+
+    scale: float
+    zero_point: int
+    channels: int  # current and history's, then padding
+
+    def to_json(self) -> str:
+        return json.dumps({"scale": self.scale, "zero_point": self.zero_point, "channels": self.channels})
+
+    @classmethod
+    def from_json(cls, text: str) -> "InputsLayout":
+        try:
+            d = json.loads(text)
+            layout = cls(float(d["scale"]), int(d["zero_point"]), int(d["channels"]))
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ArtifactError(f"inputs metadata {INPUTS_KEY!r} malformed ({exc!r})") from exc
+        if layout.channels < len(_PREPROCESS) or not layout.scale > 0 or not 0 <= layout.zero_point <= 255:
+            raise ArtifactError(f"inputs metadata {INPUTS_KEY!r}: {layout}")
+        return layout
+
+    @classmethod
+    def of_session(cls, sess) -> "InputsLayout | None":
+        """The layout of an ONNX Runtime session whose graph takes ``inputs``, else None."""
+        text = sess.get_modelmeta().custom_metadata_map.get(INPUTS_KEY)
+        return None if text is None else cls.from_json(text)
+
+
+def _tonemap_codes(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
+    """Tables giving Eq. 1's tonemap of x >= 0, quantized, without evaluating it per
+    value. ``first``: the code of the smallest float32 in each bin of floats that share
+    their top 17 bits (sign, exponent and 8 mantissa bits: ``x.view(uint32) >> 15``);
+    ``at``: the x from which each code on is reached (code k for x >= at[k]). Within a bin
+    x changes by 2^-8 of itself, the tonemap (t^(1/2.2) of log(x + 1)) by at most 0.46 of
+    that, so a bin holds at most one step of any code that is not saturated: the code of x
+    is first[bin] or one more (``_pack``). The thresholds are exact in float64: the codes
+    are those of rounding t / scale, up to ties."""
+    s, z = layout.scale, layout.zero_point
+    k = np.arange(256, dtype=np.float64)
+    t = np.maximum((k - z - 0.5) * s, 0.0)  # code k from tonemap value t on
+    at = np.where(t > TONEMAP_FLOOR ** (1 / 2.2), np.expm1(t ** 2.2), -np.inf)
+    at[: z + 1] = -np.inf  # the codes up to the zero point: every x >= 0
+    with np.errstate(invalid="ignore"):  # bins of NaN/Inf bits (x is clamped to HDR_MAX first)
+        lows = (np.arange(1 << 16, dtype=np.uint32) << 15).view(np.float32).astype(np.float64)
+    lows = np.where(np.isfinite(lows), lows, np.inf)
+    first = (np.searchsorted(at, lows, side="right") - 1).clip(0, 255).astype(np.uint8)
+    return first, at
+
+
+@njit(parallel=True, cache=True)
+def _pack(current, history, kinds, scale, zero_point, first, at, out):
+    nc = current.shape[0]
+    zp = np.float32(zero_point)
+    half, top = np.float32(0.5), np.float32(HDR_MAX)
+    lo, hi = np.float32(0), np.float32(255)
+    w = out.shape[2]
+    for y in prange(out.shape[1]):
+        for c in range(kinds.shape[0]):
+            src = current[c] if c < nc else history[c - nc]
+            k = kinds[c]
+            if k == 1:  # tonemap, through the tables
+                for i in range(w):
+                    v = min(max(src[y, i], lo), top)
+                    q = first[np.int64(np.float32(v).view(np.uint32) >> 15)]
+                    if q < 255 and v >= at[q + 1]:
+                        q += 1
+                    out[0, y, i, c] = q
+            else:
+                a = half if k == 2 else np.float32(1)
+                b = half if k == 2 else lo
+                for i in range(w):
+                    q = np.rint((src[y, i] * a + b) / scale) + zp
+                    out[0, y, i, c] = np.uint8(min(max(q, lo), hi))
+        for c in range(kinds.shape[0], out.shape[3]):
+            for i in range(w):
+                out[0, y, i, c] = np.uint8(zero_point)
+
+
+def pack_inputs(current: np.ndarray, history: np.ndarray, layout: InputsLayout) -> np.ndarray:
+    """The int8 network graph's ``inputs`` (1, H, W, channels) u8 from its float ``current``
+    (1, 13, H, W) and ``history`` (1, 12, H, W), linear as the float graph takes them:
+    ``model.tonemap_inputs`` of both, concatenated, quantized (round half to even,
+    saturated, as QuantizeLinear), the padding channels at the zero point (value 0)."""
+    _, _, h, w = current.shape
+    out = np.empty((1, h, w, layout.channels), np.uint8)
+    first, at = _tables(layout)
+    _pack(np.ascontiguousarray(current[0], np.float32), np.ascontiguousarray(history[0], np.float32), _PREPROCESS,
+          np.float32(layout.scale), layout.zero_point, first, at, out)
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def _tables(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
+    return _tonemap_codes(layout)

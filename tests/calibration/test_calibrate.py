@@ -10,6 +10,7 @@ from onnx import numpy_helper
 from jnds_deploy.calibration import CalibrateConfig, calibrate
 from jnds_deploy.errors import CalibrationError
 from jnds_deploy.calibration.head import BOUNDS, HEAD_NODE, MIN_RANGE
+from jnds_deploy.calibration.inputs import PROJECT
 from jnds_deploy.calibration.quantize import FLOAT_NODES, validate_int8
 from jnds_deploy.calibration.reader import collect_feeds
 from jnds_deploy.errors import ValidationError
@@ -19,6 +20,7 @@ from jnds_deploy.io import open_sequence
 from jnds_deploy.layout import head_kind
 from jnds_deploy.metrics import psnr
 from jnds_deploy.runtime.head import HEAD, LAYOUT_KEY, HeadLayout
+from jnds_deploy.runtime.reformat import INPUTS, INPUTS_KEY, InputsLayout
 from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
 
 from ..conftest import SAMPLE
@@ -63,7 +65,14 @@ def test_every_convolution_is_quantized(calibrated):
             out = {o.name: o for o in model.graph.output}
             assert out[HEAD].type.tensor_type.elem_type == onnx.TensorProto.UINT8
             assert "diffuse.spatial" not in out and prod[HEAD].op_type == "Transpose"
-            assert HeadLayout.from_json({p.key: p.value for p in model.metadata_props}[LAYOUT_KEY]).channels % 16 == 0
+            props = {p.key: p.value for p in model.metadata_props}
+            assert HeadLayout.from_json(props[LAYOUT_KEY]).channels % 16 == 0
+            # its input: the u8 packed preprocessing, channels last, a multiple of 8
+            assert [i.name for i in model.graph.input] == [INPUTS] and g.int8["qat"].inputs.startswith("u8")
+            assert InputsLayout.from_json(props[INPUTS_KEY]).channels % 8 == 0
+            project = next(n for n in model.graph.node if n.name == PROJECT)
+            assert not ops["Log"] and not ops["Exp"]  # no float tonemap left
+            assert prod[prod[project.input[0]].input[0]].op_type == "Transpose"
         assert convs and ops["QuantizeLinear"] >= len(convs) and ops["Relu"] <= 1  # ReLUs folded
         for conv in convs:  # DQ -> Conv <- DQ(int8 weight), and Conv -> Q (what ORT fuses)
             assert prod[conv.input[0]].op_type == "DequantizeLinear", conv.name
@@ -182,9 +191,9 @@ def test_head_ranges_and_the_float_head_option(calibrated):
             assert rng > 0 and lo - MIN_RANGE <= c - rng <= max(a, lo) + 1e-6
             assert min(b, hi) - 1e-6 <= c + rng <= hi + MIN_RANGE
     manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="minmax", frames=2,
-                                         int8_head=False), log=lambda s: None)
+                                         u8_edges=False), log=lambda s: None)
     entry = manifest.graphs["network"].int8["minmax"]
     outputs = [o.name for o in onnx.load(d / entry.file).graph.output]
-    assert entry.head == "float" and HEAD_NODE in entry.float_nodes
+    assert entry.head == entry.inputs == "float" and HEAD_NODE in entry.float_nodes
     assert "diffuse.spatial" in outputs and HEAD not in outputs
     assert all(r["ok"] for r in manifest.int8_validation["minmax"])

@@ -1,5 +1,6 @@
-"""runtime.head: the int8 head's u8 output decoded as the float graph's nodes would, and
-read by the filter loops as its decoded values."""
+"""The int8 network graph's u8 edges: runtime.head decodes the head's output as the float
+graph's nodes would, the filter loops read it as its decoded values; runtime.reformat
+packs the inputs as the input block's preprocessing and quantization would."""
 import numpy as np
 import pytest
 import torch
@@ -9,6 +10,7 @@ from jnds_deploy import model as M
 from jnds_deploy.errors import ArtifactError
 from jnds_deploy.runtime import filters as F
 from jnds_deploy.runtime.head import Coded, Head, HeadLayout
+from jnds_deploy.runtime.reformat import InputsLayout, pack_inputs
 
 PARTS = (("diffuse.spatial", 9), ("diffuse.temporal", 9), ("diffuse.blend", 1), ("diffuse.up", 9),
          ("diffuse.up_blend", 1), ("aux.spatial", 9), ("aux.temporal", 9), ("aux.blend", 1), ("features", 3))
@@ -82,3 +84,29 @@ def test_bad_layouts_and_heads_are_named():
     with pytest.raises(ArtifactError, match=r"u8 \(H, W, 16\)"):
         h.coded(np.zeros((4, 4, 9), np.uint8))
     assert isinstance(h.coded(np.zeros((1, 4, 4, 16), np.uint8))["diffuse.spatial"], Coded)
+
+
+@pytest.mark.parametrize("scale, zero_point", [(0.011, 3), (0.004, 0), (0.02, 40)])
+def test_pack_inputs_is_the_input_blocks_preprocessing_quantized(scale, zero_point):
+    """pack_inputs equals model.tonemap_inputs of current and history quantized as
+    QuantizeLinear does, but for a rare tie between neighbouring codes; the padding holds
+    the zero point."""
+    rng = np.random.default_rng(2)
+    h, w = 24, 40
+    cur = (rng.random((1, 13, h, w)) ** 6 * 400).astype(np.float32)
+    hist = (rng.random((1, 12, h, w)) ** 6 * 400).astype(np.float32)
+    for x in (cur, hist):
+        x[:, 6:9] = rng.random((1, 3, h, w))  # albedo
+        n = rng.normal(size=(1, 3, h, w))
+        x[:, 9:12] = n / np.linalg.norm(n, axis=1, keepdims=True)
+    cur[:, 12] = rng.random((1, h, w))
+    cur[0, 0, 0, :6] = [0, 1e-30, 1e-9, 65535, 1e9, 7.5]  # floor, huge (clamped), exact zero
+    layout = InputsLayout(scale, zero_point, 32)
+    got = pack_inputs(cur, hist, layout)
+    x = torch.cat([M.tonemap_inputs(torch.from_numpy(cur), M.CURRENT),
+                   M.tonemap_inputs(torch.from_numpy(hist), M.HISTORY)], 1)[0].numpy()
+    want = np.clip(np.rint(x / np.float32(scale)) + zero_point, 0, 255).transpose(1, 2, 0)
+    d = np.abs(got[0, :, :, :25].astype(np.int64) - want)
+    assert got.shape == (1, h, w, 32) and got.dtype == np.uint8
+    assert d.max() <= 1 and (d > 0).mean() < 1e-3
+    assert (got[0, :, :, 25:] == zero_point).all()
