@@ -34,7 +34,7 @@ from onnx import numpy_helper
 from ..artifacts import MANIFEST, Int8Graph, Manifest, file_hash, write_json
 from ..errors import CalibrationError
 from ..export.prune import INT8_VARIANT_TOL, validate_variant, write_variants
-from .head import HEAD_NODE, channel_ranges, quantize_head, raw_ranges
+from .head import HEAD_NODE, STOPS, channel_ranges, quantize_head, raw_ranges
 from .inputs import quantize_inputs
 from .reader import FeedReader, collect_feeds
 
@@ -254,7 +254,7 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
                {"method": cfg.method, "activation_type": cfg.activation_type,
                 "data": [str(d) for d in cfg.data], "frames_per_sequence": cfg.frames,
                 "frames": {k: len(v) for k, v in feeds.items()}, "tensors": ranges,
-                "head": head_ranges})
+                "head": head_ranges, "head_stops": list(STOPS)})
     manifest.int8_method = cfg.method
     rows = validate_int8(root, manifest, cfg.method, feeds, cfg.checkpoint) + vrows
     manifest.int8_validation[cfg.method] = rows

@@ -9,7 +9,7 @@ from onnx import numpy_helper
 
 from jnds_deploy.calibration import CalibrateConfig, calibrate
 from jnds_deploy.errors import CalibrationError
-from jnds_deploy.calibration.head import BOUNDS, HEAD_NODE, MIN_RANGE
+from jnds_deploy.calibration.head import BOUNDS, HEAD_NODE, MIN_RANGE, STOPS
 from jnds_deploy.calibration.inputs import PROJECT
 from jnds_deploy.calibration.quantize import FLOAT_NODES, validate_int8
 from jnds_deploy.calibration.reader import collect_feeds
@@ -180,7 +180,9 @@ def test_end_to_end_report_scores_int8_against_fp32_and_the_reference(calibrated
 
 def test_head_ranges_and_the_float_head_option(calibrated):
     d, _, _ = calibrated
-    head = json.loads((d / "calibration.qat.json").read_text())["head"]
+    saved = json.loads((d / "calibration.qat.json").read_text())
+    head = saved["head"]
+    assert saved["head_stops"] == list(STOPS) and min(STOPS) < 0 < max(STOPS)  # ranges for every brightness
     for name in ("diffuse.spatial", "diffuse.blend", "aux.spatial", "features"):
         r = head[name]
         lo, hi = BOUNDS[head_kind(name)]
