@@ -199,3 +199,24 @@ def test_head_ranges_and_the_float_head_option(calibrated):
     assert entry.head == entry.inputs == "float" and HEAD_NODE in entry.float_nodes
     assert "diffuse.spatial" in outputs and HEAD not in outputs
     assert all(r["ok"] for r in manifest.int8_validation["minmax"])
+
+
+def test_int8_pipeline_skips_with_the_u8_head(calibrated):
+    """Adaptive execution runs the pruned int8 variant (its own u8 head layout) and tile
+    skipping reads the coded head: both stay with the full int8 pipeline."""
+    d, _, _ = calibrated
+    seq = open_sequence(SAMPLE)
+    cfg = dict(artifacts=str(d), precision="int8", int8_method="qat")
+    full = Pipeline(PipelineConfig(**cfg, adaptive=False))
+    adaptive = Pipeline(PipelineConfig(**cfg))
+    tiles = Pipeline(PipelineConfig(**cfg, tile_skip=True))
+    for i in range(3):
+        layers = {**seq.inputs(i)}
+        layers["specular"] = np.zeros_like(layers["specular"])
+        cut = seq.frames[i].camera_cut
+        a = full(layers, cut).output
+        r = adaptive(layers, cut)
+        assert r.decisions["network_graph"] == "no-specular" and r.decisions["skip_specular"]
+        assert psnr(r.output, a) > 40.0
+        c = tiles(layers, cut).output
+        assert np.isfinite(c).all() and psnr(c, a) > 30.0
