@@ -31,29 +31,33 @@ LIMITS: dict[str, tuple[float, float, bool]] = {layer.name: (layer.lo, layer.hi,
 
 @njit(parallel=True, cache=True)
 def _hwc_into_chw(src, out, c0, h, w, lo, hi, renormalize, nonfinite):
-    lo32, hi32 = np.float32(lo), np.float32(hi)
+    # channel by channel along the row, without branches in the column loop (it
+    # vectorizes: docs/design-notes.md); padding columns and rows replicate the last ones
+    lo32, hi32, zero = np.float32(lo), np.float32(hi), np.float32(0)
     C = src.shape[2]
+    W = out.shape[2]
     for y in prange(out.shape[1]):
         sy = min(np.int64(y), h - 1)
         bad = 0
-        for i in range(out.shape[2]):
-            sx = min(np.int64(i), w - 1)
-            norm = np.float32(0)
-            for c in range(C):
-                v = src[sy, sx, c]
-                if not np.isfinite(v):
-                    if y < h and i < w:
-                        bad += 1
-                    if v != v:
-                        v = np.float32(0)
-                v = min(max(v, lo32), hi32)
-                out[c0 + c, y, i] = v
-                norm += v * v
-            if renormalize and norm > 0:
-                inv = np.float32(1) / np.sqrt(norm)
+        for c in range(C):
+            row = out[c0 + c, y]
+            for i in range(w):
+                v = src[sy, i, c]
+                bad += np.int64(not np.isfinite(v))
+                v = zero if v != v else v
+                row[i] = min(max(v, lo32), hi32)
+            for i in range(w, W):
+                row[i] = row[w - 1]
+        nonfinite[y] = bad if y < h else 0
+        if renormalize:
+            for i in range(W):
+                norm = zero
                 for c in range(C):
-                    out[c0 + c, y, i] *= inv
-        nonfinite[y] = bad
+                    norm += out[c0 + c, y, i] * out[c0 + c, y, i]
+                if norm > 0:
+                    inv = np.float32(1) / np.sqrt(norm)
+                    for c in range(C):
+                        out[c0 + c, y, i] *= inv
 
 
 @njit(parallel=True, cache=True)
