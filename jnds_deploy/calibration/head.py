@@ -170,16 +170,21 @@ def quantize_head(src: Path, dst: Path, ranges: dict[str, dict[str, list[float]]
         g.value_info.remove(vi)  # its channel count changed
     keep = [o.name for o in g.output if o.name not in set(names)]
     g.output.append(helper.make_tensor_value_info(HEAD, onnx.TensorProto.UINT8, ["N", "H", "W", c]))
-    with tempfile.TemporaryDirectory(dir=dst.parent) as tmp:
-        onnx.save(model, f"{tmp}/m.onnx")
-        model = onnx.utils.Extractor(onnx.load(f"{tmp}/m.onnx")).extract_model(
-            [i.name for i in g.input], keep + [HEAD])
     layout = HeadLayout(tuple(zip(names, sizes)), tuple(float(v) for v in r * CODE_SCALE),
                         tuple(float(v) for v in m), ZERO_POINT, c)
-    props = {p.key: p.value for p in model.metadata_props}
-    onnx.helper.set_model_props(model, {**props, LAYOUT_KEY: layout.to_json()})
+    save_extracted(model, dst, [i.name for i in g.input], keep + [HEAD], {LAYOUT_KEY: layout.to_json()})
+    return layout
+
+
+def save_extracted(model: onnx.ModelProto, dst: Path, inputs: list[str], outputs: list[str], props: dict) -> None:
+    """``model`` reduced to what ``outputs`` need from ``inputs`` (the nodes a surgery cut
+    off go), with ``props`` added to its metadata, checked and written to ``dst`` atomically."""
+    props = {**{p.key: p.value for p in model.metadata_props}, **props}
+    with tempfile.TemporaryDirectory(dir=dst.parent) as tmp:
+        onnx.save(model, f"{tmp}/m.onnx")
+        model = onnx.utils.Extractor(onnx.load(f"{tmp}/m.onnx")).extract_model(inputs, outputs)
+    onnx.helper.set_model_props(model, props)
     onnx.checker.check_model(model)
     tmp = dst.with_name(f".{dst.name}.tmp")
     onnx.save(model, str(tmp))
     os.replace(tmp, dst)
-    return layout

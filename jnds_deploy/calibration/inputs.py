@@ -13,8 +13,6 @@ convolution wants input channels in multiples of 4; the padding's weights are 0)
 """
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +22,7 @@ from onnx import helper, numpy_helper
 from ..errors import CalibrationError
 from ..layout import N_CURRENT, N_HISTORY
 from ..runtime.reformat import INPUTS, INPUTS_KEY, InputsLayout
+from .head import save_extracted
 
 PROJECT = "/network/input_block/project/Conv"
 CHANNELS = 32  # N_CURRENT + N_HISTORY = 25, padded
@@ -34,7 +33,6 @@ def quantize_inputs(src: Path, dst: Path) -> InputsLayout:
     float) with the u8 NHWC input ``inputs`` in their place, to ``dst`` (atomically); the
     input's scale and zero point go into the graph's metadata."""
     model = onnx.load(str(src))
-    props = {p.key: p.value for p in model.metadata_props}  # the head's layout, if quantized before
     g = model.graph
     conv = next((n for n in g.node if n.name == PROJECT), None)
     producers = {o: n for n in g.node for o in n.output}
@@ -62,14 +60,6 @@ def quantize_inputs(src: Path, dst: Path) -> InputsLayout:
                                        perm=[0, 3, 1, 2]))
     conv.input[0] += "_packed"
     g.input.append(helper.make_tensor_value_info(INPUTS, onnx.TensorProto.UINT8, ["N", "H", "W", CHANNELS]))
-    outputs = [o.name for o in g.output]
-    with tempfile.TemporaryDirectory(dir=dst.parent) as tmp:
-        onnx.save(model, f"{tmp}/m.onnx")
-        model = onnx.utils.Extractor(onnx.load(f"{tmp}/m.onnx")).extract_model([INPUTS], outputs)
     layout = InputsLayout(scale, int(zp), CHANNELS)
-    onnx.helper.set_model_props(model, {**props, INPUTS_KEY: layout.to_json()})
-    onnx.checker.check_model(model)
-    tmp = dst.with_name(f".{dst.name}.tmp")
-    onnx.save(model, str(tmp))
-    os.replace(tmp, dst)
+    save_extracted(model, dst, [INPUTS], [o.name for o in g.output], {INPUTS_KEY: layout.to_json()})
     return layout
