@@ -170,12 +170,14 @@ def validate_int8(root: Path, manifest: Manifest, method: str, feeds: dict[str, 
                   checkpoint: str | None) -> list[dict]:
     """Each int8 graph against PyTorch fp32 on up to three recorded inputs (first frame,
     middle, last), per output max/mean |diff| against INT8_ATOL / INT8_MEAN_TOL."""
+    import onnxruntime as ort
     import torch
 
     from ..checkpoint import load_model
     from ..export.convert import validate_graph
     from ..filters import to_phases
     from ..model import set_quantization
+    from ..runtime.network import output_names
 
     ckpt = Path(checkpoint or manifest.checkpoint["path"])
     if not ckpt.is_file():
@@ -185,10 +187,6 @@ def validate_int8(root: Path, manifest: Manifest, method: str, feeds: dict[str, 
     model.eval()
     fns = {"network": lambda names: (lambda c, h: tuple(model.network(c, h)[k] for k in names)),
            "upsample": lambda names: (lambda c, f: to_phases(model.upsample_block(c, f), model.cfg.scale))}
-    import onnxruntime as ort
-
-    from ..runtime.network import output_names
-
     rows = []
     for name, g in manifest.graphs.items():
         path = root / g.int8[method].file

@@ -142,16 +142,17 @@ def _lerp_coded(a, b, q, ca, cb, ct, kinds, scale, offset, table, out, relu):
         _lerp_row(a, ka, b, kb, t, 0, out, relu, plain, y, max(y - 1, 0), min(y + 1, H - 1))
 
 
-def _lerp_head(a, ka, b, kb, t, out, relu=True) -> bool:
+def _lerp_head(a, ka, b, kb, t, relu=True) -> np.ndarray | None:
     """``_lerp_taps`` from the u8 head where kb and t (and ka, unless None) are ``Coded``
-    parts of one head and the signals float32; False where they are not (nothing done)."""
+    parts of one head and the signals float32; None where they are not."""
     parts = [p for p in (ka, kb, t) if p is not None]
     if not (all(isinstance(p, Coded) for p in parts) and len({id(p.q) for p in parts}) == 1 and _fast(a, b)):
-        return False
+        return None
     h = kb.head
+    out = np.empty_like(a)
     _lerp_coded(a, b, kb.q, -1 if ka is None else ka.c0, kb.c0, t.c0, h.kinds, h.scale, h.offset, h.table,
                 out, relu)
-    return True
+    return out
 
 
 def _decoded(*kernels):
@@ -506,10 +507,8 @@ def lerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
 def spatiotemporal(x, history, k_spatial, k_temporal, blend, skip=None, tile: int = 1, relu: bool = True) -> np.ndarray:
     """relu(lerp(kernel k_spatial on x, kernel k_temporal on history, blend)) (no ReLU if
     not ``relu``); in the tiles set in ``skip``: x."""
-    if _fast(x, history) and isinstance(blend, Coded):
-        out = np.empty_like(x)
-        if _lerp_head(x, k_spatial, history, k_temporal, blend, out, relu):
-            return _pass_tiles(x, out, skip, tile)
+    if (out := _lerp_head(x, k_spatial, history, k_temporal, blend, relu)) is not None:
+        return _pass_tiles(x, out, skip, tile)
     k_spatial, k_temporal, blend = _decoded(k_spatial, k_temporal, blend)
     if _fast(x, history, k_spatial, k_temporal, blend):
         out = np.empty_like(x)
@@ -535,10 +534,8 @@ def up_level(skip: np.ndarray, coarse: np.ndarray, kernel: np.ndarray, blend: np
     """One level up: relu(lerp(skip, kernel on the bilinear upsampling of coarse, blend));
     in the tiles set in ``tiles``: skip."""
     up = upsample(coarse)
-    if _fast(skip, up) and isinstance(blend, Coded):
-        out = np.empty_like(skip)
-        if _lerp_head(skip, None, up, kernel, blend, out):
-            return _pass_tiles(skip, out, tiles, tile)
+    if (out := _lerp_head(skip, None, up, kernel, blend)) is not None:
+        return _pass_tiles(skip, out, tiles, tile)
     kernel, blend = _decoded(kernel, blend)
     if _fast(skip, up, kernel, blend):
         out = np.empty_like(skip)

@@ -33,8 +33,8 @@ from ..export.prune import variant_key
 from ..layout import CURRENT, HISTORY, INPUT_CHANNELS, RADIANCE, channels
 from . import filters as F
 from .head import Coded
-from .network import run_network
 from .history import History, Warped, replace_nonfinite
+from .network import run_network
 from .reformat import to_chw, to_hwc
 
 # albedo then normal: adjacent and at the same channels in the current inputs and the
