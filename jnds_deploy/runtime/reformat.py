@@ -168,8 +168,8 @@ def _pack(current, history, kinds, scale, zero_point, first, at, out):
             k = kinds[c]
             if k == 1:  # tonemap, through the tables
                 for i in range(w):
-                    v = min(max(src[y, i], lo), top)
-                    q = first[np.int64(np.float32(v).view(np.uint32) >> 15)]
+                    v = min(max(src[y, i], lo), top)  # keeps -0.0: the sign bit is masked off
+                    q = first[np.int64((np.float32(v).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 15)]
                     if q < 255 and v >= at[q + 1]:
                         q += 1
                     out[0, y, i, c] = q

@@ -100,7 +100,8 @@ def test_pack_inputs_is_the_input_blocks_preprocessing_quantized(scale, zero_poi
         n = rng.normal(size=(1, 3, h, w))
         x[:, 9:12] = n / np.linalg.norm(n, axis=1, keepdims=True)
     cur[:, 12] = rng.random((1, h, w))
-    cur[0, 0, 0, :6] = [0, 1e-30, 1e-9, 65535, 1e9, 7.5]  # floor, huge (clamped), exact zero
+    cur[0, 0, 0, :7] = [0, 1e-30, 1e-9, 65535, 1e9, 7.5, -0.0]  # floor, huge (clamped), zeros of both signs
+    hist[0, 1, 0, :2] = [-0.0, -3.0]
     layout = InputsLayout(scale, zero_point, 32)
     got = pack_inputs(cur, hist, layout)
     x = torch.cat([M.tonemap_inputs(torch.from_numpy(cur), M.CURRENT),
