@@ -12,7 +12,9 @@ Graphs (``export/__init__`` describes their inputs and outputs):
 Each has fp32 ``file``, pruned ``variants`` (``export.prune``: without a filter path's
 kernels or the upsample features) and per calibration method an ``int8`` entry with its
 own variants. ``int8_method`` is the calibration the runtime's int8 uses by default (the
-last calibrated).
+last calibrated). An int8 entry's ``inputs`` and ``head`` say whether its network graph
+takes and gives float NCHW tensors, as the fp32 graphs do, or u8 channels-last ones whose
+layout is in the graph's metadata (``runtime.network`` runs either from float feeds).
 """
 from __future__ import annotations
 
