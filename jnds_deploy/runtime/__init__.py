@@ -1,7 +1,10 @@
 """The deployed pipeline: ONNX Runtime for the network graphs, numpy/numba for the filter
 stage, no torch. ``Pipeline`` runs frames; ``jnds run`` (``run``) runs sequences.
 
-- ``reformat``: input layers into the network's layout, sanitized;
+- ``reformat``: input layers into the network's layout, sanitized (and packed as u8 for an
+  int8 network graph);
+- ``network``: a network graph run from float feeds, whatever its edges; ``head``: the int8
+  head's u8 output, decoded where the filters read it;
 - ``history``: the previous frame's signals warped, cleaned and stored;
 - ``filters``: the filter stage (the numpy/numba implementation of ``jnds_deploy.filters``);
 - ``pipeline``: ``Pipeline``, ``PipelineConfig``, ``FrameResult``;

@@ -1,13 +1,15 @@
-"""The output block's head in int8: one u8 tensor of every native kernel, read into the
-float planes the filter stage takes.
+"""The output block's head in int8: one u8 tensor of every native kernel, decoded where
+the filter stage reads it.
 
 The int8 network graph (``calibration.head``) ends in the head's quantized 1x1
 convolution: graph output ``head``, u8, (1, H, W, C) channels last, C padded to a
 multiple of 16 for ONNX Runtime's fast int8 convolution. The float graph's split, clamp,
-sigmoid and softmax nodes are not in it; ``unpack`` does them here, in one pass that
-reads a quarter of the bytes the float outputs took. The graph's metadata (``LAYOUT_KEY``)
-says which channels are which output and how each dequantizes: channel c of output
-``name`` holds ``raw = (q - zero_point) * scale[c] + centre[c]``, the head's float output, to which
+sigmoid and softmax nodes are not in it: ``Head.coded`` hands each output on as a
+``Coded`` part, which the filter loops decode row by row (``runtime.filters``), reading a
+quarter of the bytes the float outputs took; ``Coded.decode`` gives the float planes
+where a caller wants them. The graph's metadata (``LAYOUT_KEY``) says which channels are
+which output and how each dequantizes: channel c of output ``name`` holds ``raw = (q -
+zero_point) * scale[c] + centre[c]``, the head's float output, to which
 ``layout.head_kind(name)`` applies as in ``model.OutputBlock``.
 """
 from __future__ import annotations
@@ -23,7 +25,7 @@ from ..layout import HEAD_KINDS, head_kind
 
 HEAD = "head"  # the graph output
 LAYOUT_KEY = "jnds.head"  # its layout, JSON in the ONNX model's metadata_props
-# a channel's kind as _unpack reads it: kernel 0 and relu 3 are computed in the loop (an
+# a channel's kind as _decode_row reads it: kernel 0 and relu 3 are computed in the loop (an
 # affine map and a clamp vectorize), blend 1 (sigmoid) and normalized 2 (exp) looked up
 _KIND_CODE = {k: i for i, k in enumerate(HEAD_KINDS)}
 
