@@ -135,16 +135,6 @@ class Head:
             raise ArtifactError(f"head: expected u8 (H, W, {self.layout.channels}), got {q.dtype} {q.shape}")
         return np.ascontiguousarray(q)
 
-    def decode(self, q: np.ndarray, name: str) -> np.ndarray:
-        """Output ``name`` of the u8 head ``q`` ((1, H, W, C) as the graph returns it, or
-        (H, W, C)): (channels, H, W) float32, the values the float graph's nodes compute
-        (within the head's quantization)."""
-        q = self._check(q)
-        c0, c = self.slices[name]
-        out = np.empty((c, q.shape[0], q.shape[1]), np.float32)
-        _decode(q, c0, self.kinds, self.scale, self.offset, self.table, out)
-        return out
-
     def coded(self, q: np.ndarray) -> dict[str, "Coded"]:
         """Every output of the u8 head, still coded: the filter stage decodes each row
         where it reads it (``runtime.filters``)."""
@@ -166,7 +156,8 @@ class Coded:
         return (self.n, self.q.shape[0], self.q.shape[1])
 
     def decode(self) -> np.ndarray:
-        """(n, H, W) float32."""
+        """(n, H, W) float32: the values the float graph's nodes compute (within the head's
+        quantization)."""
         out = np.empty(self.shape, np.float32)
         h = self.head
         _decode(self.q, self.c0, h.kinds, h.scale, h.offset, h.table, out)

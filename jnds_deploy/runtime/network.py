@@ -13,22 +13,23 @@ from __future__ import annotations
 from ..errors import ArtifactError
 from ..layout import head_kind
 from .head import HEAD, LAYOUT_KEY, Head, HeadLayout
-from .reformat import INPUTS, InputsLayout, pack_inputs
+from .reformat import INPUTS, INPUTS_KEY, InputsLayout, pack_inputs
 
 
 class Edges:
     """What a session's graph needs at its edges, read from its metadata once."""
 
     def __init__(self, sess):
-        self.inputs = InputsLayout.of_session(sess) if any(i.name == INPUTS for i in sess.get_inputs()) else None
-        self.head = None
+        self.inputs = self.head = None
+        if any(i.name == INPUTS for i in sess.get_inputs()):
+            self.inputs = InputsLayout.of_session(sess)
+            if self.inputs is None:
+                raise ArtifactError(f"network graph has an {INPUTS!r} input but no {INPUTS_KEY!r} metadata")
         if any(o.name == HEAD for o in sess.get_outputs()):
             layout = HeadLayout.of_session(sess)
             if layout is None:
                 raise ArtifactError(f"network graph has a {HEAD!r} output but no {LAYOUT_KEY!r} metadata")
             self.head = Head(layout)
-        if any(i.name == INPUTS for i in sess.get_inputs()) and self.inputs is None:
-            raise ArtifactError(f"network graph has an {INPUTS!r} input but no quantization metadata")
 
     def feeds(self, feeds: dict) -> dict:
         """``feeds`` ({current, history}: float NCHW) as the graph takes them."""

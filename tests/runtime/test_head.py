@@ -42,11 +42,11 @@ def test_decode_is_the_output_blocks_post_processing(head):
     post = {"relu": TF.relu, "blend": M._blend, "normalized": M._normalized_kernel, "kernel": M._kernel}
     for name, _ in PARTS:
         want = post[M.head_kind(name)](_raw(h, q, name))[0].numpy()
-        got = h.decode(q, name)
+        got = h.coded(q)[name].decode()
         assert got.dtype == np.float32 and got.shape == want.shape
         # float32 against float64, raw = q * scale + offset in one rounding
         np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-7, err_msg=name)
-    aux = h.decode(q, "aux.spatial")
+    aux = h.coded(q)["aux.spatial"].decode()
     np.testing.assert_allclose(aux.sum(0), 1, rtol=1e-6)
 
 
