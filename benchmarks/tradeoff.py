@@ -41,14 +41,12 @@ class TorchPipeline:
     def __init__(self, checkpoint, threads: int):
         import torch
 
-        from jnds_deploy.checkpoint import load_model
+        from jnds_deploy.checkpoint import load_fp32_model
         from jnds_deploy.layout import CURRENT
-        from jnds_deploy.model import set_quantization
 
         torch.set_num_threads(threads)
         self.torch, self.layout = torch, CURRENT
-        self.model = load_model(checkpoint)
-        set_quantization(self.model, False)
+        self.model = load_fp32_model(checkpoint)
         self.history = None
 
     def __call__(self, layers, cut):

@@ -53,6 +53,20 @@ def load_model(path: str | Path):
     return model
 
 
+def load_fp32_model(path: str | Path):
+    """The model as the fp32 graphs run it: activations in float and, from a QAT checkpoint,
+    the weights it trained with (rounded to int8 per channel, ``model.round_weights``), so
+    that fp32 and int8 differ only in the activations (the float weights' difference:
+    benchmarks/results/int8_rounded_fp32.md)."""
+    from .model import round_weights, set_quantization
+
+    model = load_model(path)
+    if read_checkpoint(path).get("quantized"):
+        round_weights(model)
+    set_quantization(model, False)
+    return model
+
+
 def ship_checkpoint(ckpt: str | Path, out: str | Path, metrics: dict | None = None) -> Path:
     """Strip a training checkpoint down to what inference needs (weights, configs, ranges)
     and the record of how it was trained (state, training sequences, ``metrics``)."""

@@ -173,18 +173,15 @@ def validate_int8(root: Path, manifest: Manifest, method: str, feeds: dict[str, 
     import onnxruntime as ort
     import torch
 
-    from ..checkpoint import load_model
+    from ..checkpoint import load_fp32_model
     from ..export.convert import validate_graph
     from ..filters import to_phases
-    from ..model import set_quantization
     from ..runtime.network import output_names
 
     ckpt = Path(checkpoint or manifest.checkpoint["path"])
     if not ckpt.is_file():
         raise CalibrationError(f"{ckpt}: checkpoint of these artifacts not found; pass --checkpoint")
-    model = load_model(ckpt)
-    set_quantization(model, False)
-    model.eval()
+    model = load_fp32_model(ckpt)
     fns = {"network": lambda names: (lambda c, h: tuple(model.network(c, h)[k] for k in names)),
            "upsample": lambda names: (lambda c, f: to_phases(model.upsample_block(c, f), model.cfg.scale))}
     rows = []

@@ -10,10 +10,10 @@ import torch
 
 from .. import __version__
 from ..artifacts import Graph, Manifest, file_hash, write_json
-from ..checkpoint import default_checkpoint, load_model
+from ..checkpoint import default_checkpoint, load_fp32_model
 from ..errors import ValidationError
 from ..filters import to_phases
-from ..model import CURRENT, HISTORY, N_CURRENT, N_HISTORY, JNDS, quant_ranges, set_quantization
+from ..model import CURRENT, HISTORY, N_CURRENT, N_HISTORY, JNDS, quant_ranges
 from .prune import validate_variant, write_variants
 
 OPSET = 17
@@ -76,9 +76,7 @@ def validate_graph(onnx_path: Path, torch_fn, feeds: dict[str, torch.Tensor], na
 def export(cfg: ExportConfig, log=print) -> Manifest:
     """Write network.onnx, upsample.onnx (if scale > 1) and manifest.json; validate."""
     ckpt = Path(cfg.checkpoint) if cfg.checkpoint else default_checkpoint()
-    model = load_model(ckpt)
-    set_quantization(model, False)  # fp32 graphs; int8 comes from `jnds calibrate`
-    model.eval()
+    model = load_fp32_model(ckpt)  # int8 comes from `jnds calibrate`
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
 

@@ -65,6 +65,16 @@ def test_shipped_checkpoint_exports_and_validates(tmp_path):
     manifest = export(ExportConfig(out=str(tmp_path)), log=lambda s: None)
     assert manifest.model_config["scale"] == 2 and manifest.pad_multiple == 8
     assert all(r["ok"] for r in manifest.validation)
+    # the fp32 network graph runs the weights QAT trained: per output channel, int8 codes of
+    # max|w| / 127 (the upsample graph's are those with the bilinear taps folded in)
+    from onnx import numpy_helper
+    graph = onnx.load(tmp_path / "network.onnx").graph
+    inits = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
+    convs = [inits[n.input[1]] for n in graph.node if n.op_type == "Conv" and n.input[1] in inits]
+    assert len(convs) >= 14
+    for w in convs:
+        codes = w / (abs(w).reshape(len(w), -1).max(1) / 127).reshape(-1, *[1] * (w.ndim - 1))
+        assert abs(codes - codes.round()).max() < 1e-3
 
 
 def test_pruned_variants_drop_their_kernels(tiny_checkpoint, tmp_path):
