@@ -24,6 +24,7 @@ beside it with the configuration, data, steps, hours and the validation numbers 
 from __future__ import annotations
 
 import json
+import re
 import shlex
 import sys
 from pathlib import Path
@@ -54,6 +55,11 @@ def main() -> None:
                     "scripts/gpu_train.sh", help="the GPU a --device cuda run trained on")
     ap.add_argument("--limitations", default=None, help="a markdown file of known limitations to include")
     ap.add_argument("--gap", default=None, help="a markdown file: where it falls short of OIDN and why")
+    ap.add_argument("--lineage", default=None,
+                    help="a previous model card whose runs this run descends from, when their run directories "
+                         "are gone (sessions start without runs/): its run paragraphs, totals and validation "
+                         "histories are carried over")
+    ap.add_argument("--data-command", default=None, help="the jnds dataset commands that rendered the run's data/train")
     ap.add_argument("--out-dir", default=str(PKG), help="where the checkpoint and card go (default: the package)")
     args = ap.parse_args()
 
@@ -61,9 +67,11 @@ def main() -> None:
     log = _log(run)
     ckpt = read_checkpoint(run / "checkpoint.pt")
     report = json.loads(Path(args.eval).read_text())
-    training = [_training_lines(run, ckpt, log, args.cpu, args.gpu)]
-    if ckpt["train_config"].get("init") and not args.base_run:
-        raise SystemExit(f"{run} was fine-tuned from {ckpt['train_config']['init']}: pass --base-run")
+    training = [_training_lines(run, ckpt, log, args.cpu, args.gpu, args.data_command)]
+    if ckpt["train_config"].get("init") and not (args.base_run or args.lineage):
+        raise SystemExit(f"{run} was fine-tuned from {ckpt['train_config']['init']}: pass --base-run or --lineage")
+    if args.lineage:
+        training.insert(0, _lineage(Path(args.lineage)))
     for i, base in enumerate(map(Path, args.base_run)):
         # the first run of the chain trained in an earlier session, on another machine
         cpu = "AMD EPYC with AVX-512, as recorded by hand then" if i == 0 else args.cpu
@@ -99,8 +107,8 @@ def main() -> None:
     text = f"""# Model card: jnds-small
 
 The default checkpoint of `jnds export` and the runtime: the JNDS network
-(Thomas et al. 2022) in the `small` configuration, trained on this project's Mitsuba
-renders, full precision then quantization-aware (int8 fake quantization).
+(Thomas et al. 2022) in the `small` configuration, trained on this project's renders
+(docs/dataset.md), full precision then quantization-aware (int8 fake quantization).
 
 ## Configuration
 
@@ -151,7 +159,18 @@ def _log(run: Path) -> list[dict]:
     return [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines() if line.strip()]
 
 
-def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str) -> dict:
+def _lineage(card: Path) -> dict:
+    """The runs of a previous model card, as that card described them: its run paragraphs
+    (from its Training section), its step and hour totals and its validation histories."""
+    text = card.read_text()
+    body = text.split("## Training\n", 1)[1].split("\n\n", 1)[1]
+    runs = re.split(r"\nRuns compared|\n## Validation", body, maxsplit=1)[0].strip()
+    history = text.split("had no geometric history rejection):\n\n", 1)[1].split("\n\nThis card:", 1)[0].strip()
+    steps, hours = re.search(r"In all: (\d+) steps, ([\d.]+) h", text).groups()
+    return {"text": runs, "history": history, "steps": int(steps), "hours": float(hours)}
+
+
+def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str, data_command: str | None = None) -> dict:
     """One run's part of the card: what it trained, how long, with which command."""
     tcfg = ckpt["train_config"]
     # wall-clock hours from the log's timestamps, skipping gaps (pauses) longer than 10 min
@@ -174,13 +193,18 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str) 
         cmd += f" --init {init} --lr {tcfg['lr']} --qat-lr {tcfg['qat_lr']}"
     if tcfg["spatial_loss"] != "l1":
         cmd += f" --spatial-loss {tcfg['spatial_loss']} --feature-net {tcfg['feature_net']}"
+    if tcfg.get("exposure"):
+        cmd += " --exposure {:g} {:g}".format(*tcfg["exposure"])
+    for key in ("rotate_normals", "flips"):
+        if tcfg.get(key):
+            cmd += " --" + key.replace("_", "-")
     if on_gpu:
         cmd += f" --device {tcfg['device']}"
     where = f"one GPU ({gpu})" if on_gpu else f"2 CPU cores ({cpu})"
     data_line = ("\n- Data: rendered on that machine by `scripts/gpu_train.sh` (`jnds dataset --train-sequences "
                  "40 --variant cuda_ad_rgb`): the 24 training sequences and 16 more seeds (1024-1039), "
                  "same sizes and spp; validation inside the run on its own render of data/val."
-                 if on_gpu else _data_line(ckpt.get("train_sequences")))
+                 if on_gpu else _data_line(ckpt.get("train_sequences"), data_command))
     start = f"fine-tuned from `{init}` as it was then: the run above" if init else "trained from scratch"
     text = f"""`{run}`, {start}:
 - Steps: {step} ({tcfg["fp32_steps"]} fp32, then up to {tcfg["qat_steps"]} QAT; phase at save:
@@ -197,11 +221,19 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str) 
     return {"text": text, "history": history, "steps": step, "hours": hours}
 
 
-def _data_line(names: list[str] | None) -> str:
+def _data_line(names: list[str] | None, command: str | None = None) -> str:
     """The training sequences a CPU run sampled from, as its checkpoint recorded them
     (older checkpoints did not record them: they sampled the default 24)."""
     if not names:
         return ""
+    if command:  # several generators: count each (the name's prefix up to its seed says which)
+        groups: dict[str, list[int]] = {}
+        for n in names:
+            head, seed = n.rsplit("-", 1)
+            kind = "Cycles " + head.split("-")[1] if head.startswith("cycles-") else "Mitsuba " + head.split("-")[0]
+            groups.setdefault(kind, []).append(int(seed))
+        parts = ", ".join(f"{len(v)} {k} (seeds {min(v)}-{max(v)})" for k, v in sorted(groups.items()))
+        return f"\n- Data: {len(names)} sequences of data/train: {parts}; rendered by `{command}`."
     tails = [n.rsplit("-", 1)[-1] for n in names]
     seeds = sorted(int(t) for t in tails if t.isdigit())
     which = f"seeds {seeds[0]}-{seeds[-1]}" if len(seeds) == len(names) else ", ".join(names)
