@@ -53,6 +53,16 @@ def file_hash(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
+# the network outputs' groups a pruned variant can drop (export.prune); here so that the
+# runtime names variants without importing export.prune's onnx (its cold start)
+GROUPS = ("diffuse", "specular", "features")
+
+
+def variant_key(drops) -> str:
+    """'no-diffuse', 'no-diffuse-features', ...: the name of a set of dropped groups."""
+    return "no-" + "-".join(g for g in GROUPS if g in set(drops))
+
+
 @dataclass
 class Variant:
     """A pruned graph: ``drops`` are the output groups it does not compute."""

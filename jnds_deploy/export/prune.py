@@ -25,9 +25,7 @@ import numpy as np
 import onnx
 from onnx import numpy_helper
 
-from ..artifacts import Variant
-
-GROUPS = ("diffuse", "specular", "features")
+from ..artifacts import GROUPS, Variant, variant_key
 # (max, mean) |variant - full| allowed for int8 graphs (see validate_variant): 1.5x the
 # largest difference measured, 3x the largest mean (docs/design-notes.md). Kernels and
 # blend weights lie in [-1, 1]; a broken variant (wrong channels kept) is off by far more.
@@ -38,11 +36,6 @@ def group_of(output: str) -> str | None:
     """The prunable group of a network output, or None (``aux.*``: always needed)."""
     head = output.split(".")[0]
     return head if head in GROUPS else None
-
-
-def variant_key(drops) -> str:
-    """'no-diffuse', 'no-diffuse-features', ...: the name of a set of dropped groups."""
-    return "no-" + "-".join(g for g in GROUPS if g in set(drops))
 
 
 def variant_drops(outputs: list[str]) -> list[tuple[str, ...]]:

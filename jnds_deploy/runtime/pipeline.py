@@ -27,9 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..artifacts import Manifest
+from ..artifacts import Manifest, variant_key
 from ..errors import ConfigError, FrameError
-from ..export.prune import variant_key
 from ..layout import CURRENT, HISTORY, INPUT_CHANNELS, RADIANCE, channels
 from . import filters as F
 from .head import Coded
