@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository r
 from benchmarks.common import ROOT, arguments, cpu_model, write_text  # noqa: E402
 from jnds_deploy.checkpoint import read_checkpoint, ship_checkpoint  # noqa: E402
 from jnds_deploy.model import ModelConfig, count_macs  # noqa: E402
-from jnds_deploy.training.evaluate import markdown_table  # noqa: E402
+from jnds_deploy.training.evaluate import markdown_sets, markdown_table  # noqa: E402
 
 PKG = ROOT / "jnds_deploy" / "checkpoints"
 
@@ -66,7 +66,10 @@ def main() -> None:
     run = Path(args.run)
     log = _log(run)
     ckpt = read_checkpoint(run / "checkpoint.pt")
-    report = json.loads(Path(args.eval).read_text())
+    sets = json.loads(Path(args.eval).read_text())
+    if any("mean" in v for v in sets.values()):  # one set's report (jnds evaluate --data with one set)
+        sets = {"val": sets}
+    report = sets["val"] if "val" in sets else next(iter(sets.values()))  # validation: the card's verdict
     training = [_training_lines(run, ckpt, log, args.cpu, args.gpu, args.data_command)]
     if ckpt["train_config"].get("init") and not (args.base_run or args.lineage):
         raise SystemExit(f"{run} was fine-tuned from {ckpt['train_config']['init']}: pass --base-run or --lineage")
@@ -78,18 +81,17 @@ def main() -> None:
         base_ckpt = read_checkpoint(base / "checkpoint.pt")
         training.insert(i, _training_lines(base, base_ckpt, _log(base), cpu, args.gpu))
     out_dir = Path(args.out_dir)
-    out = ship_checkpoint(run / "checkpoint.pt", out_dir / "jnds-small.pt", metrics=report)
+    out = ship_checkpoint(run / "checkpoint.pt", out_dir / "jnds-small.pt", metrics=sets)
 
     cfg = ModelConfig(**ckpt["model_config"])
     macs = count_macs(cfg)
     baselines = {"bicubic", "oidn-fast", "oidn-balanced", "oidn-high"}
     model_key = args.model or next(k for k in report if k not in baselines)
-    m = report[model_key]["mean"]
     verdict = []
-    for b in ("bicubic", "oidn-balanced"):
-        if b in report:
-            o = report[b]["mean"]
-            verdict.append(f"- vs {b}: PSNR {m['psnr'] - o['psnr']:+.2f} dB, FLIP {m['flip'] - o['flip']:+.4f}, "
+    for (set_name, rep), b in ((x, b) for x in sets.items() for b in ("bicubic", "oidn-balanced")):
+        if b in rep:
+            m, o = rep[model_key]["mean"], rep[b]["mean"]
+            verdict.append(f"- {set_name}, vs {b}: PSNR {m['psnr'] - o['psnr']:+.2f} dB, FLIP {m['flip'] - o['flip']:+.4f}, "
                            f"temporal error {m['temporal'] - o['temporal']:+.5f} "
                            f"({'beats' if m['psnr'] > o['psnr'] and m['flip'] < o['flip'] else 'does not beat'} it "
                            f"in PSNR and FLIP; temporal error {'lower' if m['temporal'] < o['temporal'] else 'higher'})")
@@ -130,12 +132,12 @@ copy. In all: {steps} steps, {hours:.2f} h (machines per run below).
 
 {training_text}
 {compare}
-## Validation (data/val: {len(report[model_key]["sequences"])} sequences x 12 frames, unseen seeds, 128 spp references)
+## Validation{" and test" if len(sets) > 1 else ""} ({", ".join(f"{k}: {len(v[model_key]['sequences'])} sequences" for k, v in sets.items())}; 12 frames each, unseen seeds, 128 spp references)
 
 Against the 2x reference colour; metrics of `jnds_deploy.metrics` (LDR: Reinhard then
 gamma 2.2); temporal error is Eq. 5 against the reference. {args.command}
 
-{markdown_table(report)}
+{markdown_table(report) if len(sets) == 1 else markdown_sets(sets)}
 
 `{model_key}` is this checkpoint at int8 fake quantization.
 
