@@ -14,6 +14,9 @@ the fp32 graphs with the float weights. Since the int8 graph's head is int8 too
 writes a checkpoint whose weights are already rounded (rounding them again is the
 identity, so its int8 graphs are the shipped ones), so that its fp32 graphs run the
 trained weights: the exposure_sweep report then sets int8 against that fp32.
+
+Since this measurement ``jnds export`` does it itself (``checkpoint.load_fp32_model``):
+exporting this script's output and the checkpoint it read gives the same graphs.
 """
 from __future__ import annotations
 

@@ -61,7 +61,7 @@ def load_fp32_model(path: str | Path):
     from .model import round_weights, set_quantization
 
     model = load_model(path)
-    if read_checkpoint(path).get("quantized"):
+    if any(getattr(m, "quantize", False) for m in model.modules()):  # QAT-trained (load_model)
         round_weights(model)
     set_quantization(model, False)
     return model
