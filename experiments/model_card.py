@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import re
 import shlex
+import subprocess
 import sys
 from pathlib import Path
 
@@ -56,7 +57,7 @@ def main() -> None:
     ap.add_argument("--limitations", default=None, help="a markdown file of known limitations to include")
     ap.add_argument("--gap", default=None, help="a markdown file: where it falls short of OIDN and why")
     ap.add_argument("--lineage", default=None,
-                    help="a previous model card whose runs this run descends from, when their run directories "
+                    help="a previous model card (a file, or REV:PATH in git) whose runs this run descends from, when their run directories "
                          "are gone (sessions start without runs/): its run paragraphs, totals and validation "
                          "histories are carried over")
     ap.add_argument("--data-command", default=None, help="the jnds dataset commands that rendered the run's data/train")
@@ -164,7 +165,9 @@ def _log(run: Path) -> list[dict]:
 def _lineage(card: Path) -> dict:
     """The runs of a previous model card, as that card described them: its run paragraphs
     (from its Training section), its step and hour totals and its validation histories."""
-    text = card.read_text()
+    # a file, or a card in git (REV:PATH, e.g. the one shipped before: HEAD:jnds_deploy/checkpoints/MODEL_CARD.md)
+    text = card.read_text() if card.is_file() else subprocess.run(["git", "show", str(card)], cwd=ROOT, check=True,
+                                                                  capture_output=True, text=True).stdout
     body = text.split("## Training\n", 1)[1].split("\n\n", 1)[1]
     runs = re.split(r"\nRuns compared|\n## Validation", body, maxsplit=1)[0].strip()
     history = text.split("had no geometric history rejection):\n\n", 1)[1].split("\n\nThis card:", 1)[0].strip()
@@ -234,7 +237,8 @@ def _data_line(names: list[str] | None, command: str | None = None) -> str:
             head, seed = n.rsplit("-", 1)
             kind = "Cycles " + head.split("-")[1] if head.startswith("cycles-") else "Mitsuba " + head.split("-")[0]
             groups.setdefault(kind, []).append(int(seed))
-        parts = ", ".join(f"{len(v)} {k} (seeds {min(v)}-{max(v)})" for k, v in sorted(groups.items()))
+        parts = ", ".join(f"{len(v)} {k} (seed{'s' if len(v) > 1 else ''} {min(v)}{f'-{max(v)}' if len(v) > 1 else ''})"
+                          for k, v in sorted(groups.items()))
         return f"\n- Data: {len(names)} sequences of data/train: {parts}; rendered by `{command}`."
     tails = [n.rsplit("-", 1)[-1] for n in names]
     seeds = sorted(int(t) for t in tails if t.isdigit())
