@@ -27,8 +27,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
-from benchmarks.common import (RESULTS, arguments, command_line, pipeline, run_frames, spread,  # noqa: E402
-                               tune_process, write_report)
+from benchmarks.common import (RESULTS, arguments, command_line, cpu_line, machine_info, pipeline,  # noqa: E402
+                               run_frames, spread, tune_process, write_report)
 from jnds_deploy import baselines  # noqa: E402
 from jnds_deploy.artifacts import Manifest  # noqa: E402
 from jnds_deploy.io import expand_sequences, open_sequence  # noqa: E402
@@ -194,6 +194,7 @@ def main() -> int:
     front = pareto({k: (v["ms_per_frame"], v["mean"]["flip"]) for k, v in report["methods"].items()})
     out = Path(args.out)
     lines = ["# Run time against error (validation set)", "", f"Command: `{report['command']}`  ",
+             f"Machine: {cpu_line(machine_info())}.  ",
              f"{len(seqs)} sequences, {report['size']} → 2×, {args.threads} threads; ms per frame is the "
              "median over all frames (inputs in memory), all methods in one process, interleaved frame by "
              "frame (each with its own history).", "",
