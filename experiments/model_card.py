@@ -5,6 +5,8 @@
         --model ft-feature-long --compare runs/ft-l1 runs/ft-feature --eval benchmarks/results/model_eval.json
     python experiments/model_card.py --run runs/gpu-mixed-from-l1 --base-run runs/small \
         --compare runs/gpu-feature runs/gpu-mixed runs/gpu-mixed-from-l1 --limitations L.md --gap G.md
+    python experiments/model_card.py --run runs/gen3 --lineage HEAD:jnds_deploy/checkpoints/MODEL_CARD.md \
+        --eval benchmarks/results/model_eval.json --model gen3 --gap docs/model-gap.md
 
 The run directories (``runs/``, not tracked in git) are the ones training wrote
 (``jnds train --run DIR``): ``checkpoint.pt`` and ``log.jsonl`` in each.
@@ -57,9 +59,9 @@ def main() -> None:
     ap.add_argument("--limitations", default=None, help="a markdown file of known limitations to include")
     ap.add_argument("--gap", default=None, help="a markdown file: where it falls short of OIDN and why")
     ap.add_argument("--lineage", default=None,
-                    help="a previous model card (a file, or REV:PATH in git) whose runs this run descends from, when their run directories "
-                         "are gone (sessions start without runs/): its run paragraphs, totals and validation "
-                         "histories are carried over")
+                    help="a previous model card (a file, or REV:PATH in git) whose runs this run descends "
+                         "from, when their run directories are gone (sessions start without runs/): its run "
+                         "paragraphs, totals and validation histories are carried over")
     ap.add_argument("--data-command", default=None, help="the jnds dataset commands that rendered the run's data/train")
     ap.add_argument("--out-dir", default=str(PKG), help="where the checkpoint and card go (default: the package)")
     args = ap.parse_args()
