@@ -126,13 +126,14 @@ def test_validation_catches_a_corrupted_int8_graph(calibrated, tmp_path):
     good = path.read_bytes()
     try:
         model = onnx.load(path)
-        # per-channel weight scales 16x too large. A 4x error is not caught for every
-        # checkpoint: with the feature-loss checkpoint it moves the kernel by a mean of
-        # 0.026-0.029 on these frames, under INT8_MEAN_TOL, which has to admit the 0.021
-        # that correct int8 reaches on some validation outputs
+        # the head's bias (float in the int8 graph, FLOAT_NODES) off by 0.5. Corrupting the
+        # int8 convolution's weight scales is not caught for every checkpoint: the shipped
+        # one's kernel depends so little on that convolution that scales x16 or x-1 move it
+        # by a mean of 0.016-0.021 on these frames, under INT8_MEAN_TOL, which has to admit
+        # the 0.021 that correct int8 reaches on some validation outputs
         for init in model.graph.initializer:
-            if init.data_type == onnx.TensorProto.FLOAT and "scale" in init.name and init.dims:
-                init.CopyFrom(numpy_helper.from_array(numpy_helper.to_array(init) * 16, init.name))
+            if init.name.endswith("head.bias"):
+                init.CopyFrom(numpy_helper.from_array(numpy_helper.to_array(init) + np.float32(0.5), init.name))
         onnx.save(model, path)
         feeds = collect_feeds(d, [SAMPLE], frames=2, progress=False)
         rows = [r for r in validate_int8(d, manifest, "qat", feeds, None) if r["graph"] == path.name]
