@@ -121,6 +121,9 @@ class Manifest:
     int8_validation: dict[str, list[dict]] = field(default_factory=dict)
     format: str = FORMAT
     package_version: str = ""
+    # model_config.upsample_width 0: the one learned 3x3 kernel (9 taps, clamped) the
+    # upsample filter applies at every target pixel; there is no upsample graph
+    upsample_kernel: list[float] | None = None
 
     @property
     def scale(self) -> int:
@@ -161,6 +164,11 @@ class Manifest:
                                 f"expected one of {', '.join(map(str, UPSAMPLE_ROOTS))}")
         if "network" not in manifest.graphs:
             raise ArtifactError(f"{path}: no 'network' graph")
+        if manifest.scale > 1 and "upsample" not in manifest.graphs:
+            k = manifest.upsample_kernel
+            if not (isinstance(k, list) and len(k) == 9 and all(isinstance(v, (int, float)) and -1 <= v <= 1 for v in k)):
+                raise ArtifactError(f"{path}: no 'upsample' graph, and upsample_kernel is {k!r}, "
+                                    "expected 9 numbers in [-1, 1]")
         return manifest
 
     def save(self, root: str | Path) -> Path:
@@ -183,7 +191,8 @@ class Manifest:
                    pad_multiple=int(data["pad_multiple"]), graphs=graphs,
                    validation=data.get("validation", []), qat_ranges=data.get("qat_ranges", "qat_ranges.json"),
                    int8_method=data.get("int8_method"), int8_validation=data.get("int8_validation", {}),
-                   format=data["format"], package_version=data.get("package_version", ""))
+                   format=data["format"], package_version=data.get("package_version", ""),
+                   upsample_kernel=data.get("upsample_kernel"))
 
     def to_dict(self) -> dict:
         return {"format": self.format, "package_version": self.package_version, "checkpoint": self.checkpoint,
@@ -191,7 +200,8 @@ class Manifest:
                 **DESCRIPTION, "filter_paths": {"levels": self.filter_levels, **FILTER_PATHS},
                 "graphs": {k: asdict(g) for k, g in self.graphs.items()}, "qat_ranges": self.qat_ranges,
                 "validation": self.validation, "int8_method": self.int8_method,
-                "int8_validation": self.int8_validation}
+                "int8_validation": self.int8_validation,
+                **({"upsample_kernel": self.upsample_kernel} if self.upsample_kernel is not None else {})}
 
     # -- which file serves what ------------------------------------------------------------
 

@@ -92,7 +92,8 @@ def cmd_train(args) -> int:
                       feature_net=args.feature_net, init=args.init, val_every=args.val_every,
                       val_sequences=args.val_sequences, threads=args.threads, seed=args.seed,
                       device=args.device, exposure=args.exposure, rotate_normals=args.rotate_normals,
-                      flips=args.flips, channels_last=not args.no_channels_last)
+                      flips=args.flips, channels_last=not args.no_channels_last,
+                      fixed_upsample=args.fixed_upsample, cross_cuts=args.cross_cuts)
     ckpt = train(cfg, progress=not args.quiet)
     print(f"checkpoint: {ckpt}")
     return 0
@@ -274,6 +275,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--upsample-root", type=int, default=1, choices=(1, 2, 4, 8),
                    help="the upsample filter interpolates the composite's root of this degree (1: linear, "
                         "the paper)")
+    t.add_argument("--fixed-upsample", action="store_true",
+                   help="one learned upsample kernel for every pixel instead of the upsample block's "
+                        "per-pixel prediction (no upsample graph; --init from a predicting checkpoint "
+                        "drops its upsample block and features)")
     t.add_argument("--patch", type=int, default=64, help="native patch side")
     t.add_argument("--unroll", type=int, default=6, help="consecutive frames per sample")
     t.add_argument("--batch", type=int, default=4)
@@ -295,6 +300,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--rotate-normals", action="store_true",
                    help="augmentation: a uniformly random rotation of the normals' world frame per sample")
     t.add_argument("--flips", action="store_true", help="augmentation: random horizontal and vertical mirroring")
+    t.add_argument("--cross-cuts", action="store_true",
+                   help="training windows may span a camera cut (the history restarts there)")
     t.add_argument("--no-channels-last", action="store_true",
                    help="keep convolutions in NCHW memory (the default NHWC gives the same values, faster on a CPU)")
     t.add_argument("--quiet", action="store_true")

@@ -11,7 +11,8 @@ Stages, named as in the paper:
   filter paths, and features for the upsample block.
 - filter paths, composite (``jnds_deploy.filters``, no parameters);
 - ``UpsampleBlock`` (target resolution): a 3x3 kernel predicted from the bilinearly
-  upsampled tonemapped composite and output-block features.
+  upsampled tonemapped composite and output-block features -- or, with
+  ``upsample_width`` 0 (not in the paper), one learned 3x3 kernel for every pixel.
 
 ``JNDSNetwork`` (input block + feature extractor + output block) and ``UpsampleBlock``
 are the two graphs the export issue writes to ONNX; ``JNDS`` runs the whole frame
@@ -47,7 +48,11 @@ class ModelConfig:
     bottleneck_width: int = 48
     output_width: int = 16  # output block hidden features at native resolution
     upsample_features: int = 8  # output-block features handed to the upsample block
-    upsample_width: int = 8  # upsample block hidden features at target resolution
+    # upsample block hidden features at target resolution; 0: no per-pixel prediction, one
+    # learned kernel for every pixel (then upsample_features is 0): the kernel gen3 predicts
+    # is nearly constant, and predicting it is a sixth of the 720p frame
+    # (benchmarks/results/constant_upsample_kernel.md)
+    upsample_width: int = 8
     filter_levels: int = 3  # levels below native in the diffuse/specular filter paths
     scale: int = 2  # target = scale x native; 1 = denoise only (no upsample block)
     # the upsample block's filter interpolates the composite's root of this degree and raises
@@ -69,6 +74,14 @@ class ModelConfig:
         for name, v in asdict(self).items():
             if name != "encoder_widths" and isinstance(v, int) and v < 0:
                 raise ConfigError(f"{name} must be >= 0, got {v}")
+        if self.upsample_width == 0 and self.upsample_features:
+            raise ConfigError(f"upsample_width 0 (one fixed kernel) reads no features: upsample_features "
+                              f"must be 0, got {self.upsample_features}")
+
+    @property
+    def fixed_upsample(self) -> bool:
+        """The upsample block is one learned 3x3 kernel (no per-pixel prediction, no graph)."""
+        return self.scale > 1 and self.upsample_width == 0
 
     @property
     def depth(self) -> int:
@@ -346,7 +359,7 @@ class OutputBlock(nn.Module):
         self.sizes = ([(f"diffuse.{n}", s) for n, s in self.path_sizes]
                       + [(f"specular.{n}", s) for n, s in self.path_sizes]
                       + [("aux.spatial", 9), ("aux.temporal", 9), ("aux.blend", 1)])
-        if cfg.scale > 1:
+        if cfg.scale > 1 and cfg.upsample_features:
             self.sizes.append(("features", cfg.upsample_features))
         self.head = QConv(cfg.output_width, sum(s for _, s in self.sizes), 1)
         init_identity(self.head, self.sizes)
@@ -393,19 +406,31 @@ class UpsampleBlock(nn.Module):
     The 3x3 convolution pads by replicating the border (the paper does not say; zeros
     would make the sub-pixel form below differ on the outermost target pixels).
     ``polyphase`` computes the same values at native resolution (``SubPixelUpsampleBlock``).
+
+    With ``cfg.fixed_upsample`` the block is one learned kernel (``fixed``, 9 taps, identity
+    at first), the same at every pixel: output (N, 9, 1, 1), which broadcasts.
     """
 
     def __init__(self, cfg: ModelConfig):
         super().__init__()
         self.scale = cfg.scale
+        if cfg.fixed_upsample:
+            self.fixed = nn.Parameter(torch.zeros(9))
+            with torch.no_grad():
+                self.fixed[4] = 1.0
+            return
+        self.fixed = None
         self.conv = QConv(3 + cfg.upsample_features, cfg.upsample_width, 3, padding_mode="replicate")
         self.head = QConv(cfg.upsample_width, 9, 1)
         init_identity(self.head, [("kernel", 9)])
 
-    def forward(self, composite: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
-        x = torch.cat([filters.upsample(filters.tonemap(composite), self.scale),
-                       filters.upsample(features, self.scale)], 1)
-        return _kernel(self.head(F.relu(self.conv(x))))
+    def forward(self, composite: torch.Tensor, features: torch.Tensor | None) -> torch.Tensor:
+        if self.fixed is not None:
+            return _kernel(self.fixed).view(1, 9, 1, 1).expand(composite.shape[0], 9, 1, 1)
+        parts = [filters.upsample(filters.tonemap(composite), self.scale)]
+        if features is not None:
+            parts.append(filters.upsample(features, self.scale))
+        return _kernel(self.head(F.relu(self.conv(torch.cat(parts, 1)))))
 
     def polyphase(self) -> "SubPixelUpsampleBlock":
         return SubPixelUpsampleBlock(self)
@@ -456,8 +481,9 @@ class SubPixelUpsampleBlock(nn.Module):
             self.head.bias.copy_(block.head.bias.repeat(s * s))
         self.requires_grad_(False)
 
-    def forward(self, composite: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
-        x = F.pad(torch.cat([filters.tonemap(composite), features], 1), (1, 1, 1, 1), mode="replicate")
+    def forward(self, composite: torch.Tensor, features: torch.Tensor | None) -> torch.Tensor:
+        parts = [filters.tonemap(composite)] + ([features] if features is not None else [])
+        x = F.pad(torch.cat(parts, 1), (1, 1, 1, 1), mode="replicate")
         return _kernel(self.head(F.relu(self.conv(x))))
 
 
@@ -497,13 +523,15 @@ class JNDS(nn.Module):
         self.upsample_block = UpsampleBlock(cfg) if cfg.scale > 1 else None
 
     def forward(self, current: torch.Tensor, motion: torch.Tensor,
-                history: torch.Tensor | None) -> FrameOutput:
+                history: torch.Tensor | None, reset: torch.Tensor | None = None) -> FrameOutput:
         """One frame. ``current`` (N, 13, H, W) linear inputs; ``motion`` (N, 2, H, W);
         ``history`` the previous frame's ``FrameOutput.history()`` or None (first frame,
-        camera cut): then the current inputs stand in for the history."""
+        camera cut): then the current inputs stand in for the history. ``reset`` (N,) bool:
+        the samples whose history is dropped, as if None (a cut inside a training window)."""
         cur = _split(current, list(CURRENT))
+        cur_hist = torch.cat([cur[n] for n, _ in HISTORY], 1)
         if history is None:
-            warped = torch.cat([cur[n] for n, _ in HISTORY], 1)
+            warped = cur_hist
         else:
             warped = filters.warp(history, motion)
             # bicubic overshoot: radiance and albedo stay >= 0, normals in [-1, 1]
@@ -512,8 +540,9 @@ class JNDS(nn.Module):
                                 w["albedo"].clamp(0, 1), w["normal"].clamp(-1, 1)], 1)
             # where the history shows another surface, or the pixel sees background, the
             # current inputs stand in for it, as in the first frame
-            cur_hist = torch.cat([cur[n] for n, _ in HISTORY], 1)
             warped = torch.where(filters.disoccluded(cur["normal"], w["normal"].clamp(-1, 1)), cur_hist, warped)
+            if reset is not None:
+                warped = torch.where(reset.view(-1, 1, 1, 1), cur_hist, warped)
         net = self.network(current, warped)
         hist = split_history(warped)
         paths = {}

@@ -78,7 +78,7 @@ def _tiny_artifacts(tmp_path_factory, **config):
     torch.manual_seed(1)
     model = JNDS(ModelConfig.preset("tiny", **config))
     for name, p in model.named_parameters():
-        if "head" in name:
+        if "head" in name or name == "upsample_block.fixed":
             p.data += 0.3 * torch.randn_like(p)
     ckpt = d / "tiny.pt"
     torch.save({"model": model.state_dict(), "model_config": model.cfg.__dict__, "train_config": {},
@@ -98,3 +98,9 @@ def tiny_artifacts(tmp_path_factory):
 def tiny_artifacts_root4(tmp_path_factory):
     """The same with ``upsample_root=4``."""
     return _tiny_artifacts(tmp_path_factory, upsample_root=4)
+
+
+@pytest.fixture(scope="session")
+def tiny_artifacts_fixed(tmp_path_factory):
+    """The same with one learned upsample kernel for every pixel (no upsample graph)."""
+    return _tiny_artifacts(tmp_path_factory, upsample_root=4, upsample_width=0, upsample_features=0)

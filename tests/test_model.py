@@ -246,6 +246,25 @@ def test_training_resumes_from_an_init_checkpoint(tmp_path):
         train(TrainConfig(run=str(tmp_path / "d"), init=str(first), **{**common, "preset": "small"}),
               progress=False)
 
+    # a fixed-kernel run from a predicting checkpoint: the same network outputs but the
+    # features (dropped), the identity kernel, and a frame as the identity-kernel block gives it
+    fixed = torch.load(train(TrainConfig(run=str(tmp_path / "e"), fp32_steps=0, qat_steps=0, init=str(first),
+                                         fixed_upsample=True, **common), progress=False), weights_only=False)
+    assert fixed["model_config"]["upsample_width"] == 0 and fixed["model_config"]["upsample_features"] == 0
+    assert not any(k.startswith("upsample_block.") and k != "upsample_block.fixed" for k in fixed["model"])
+    from jnds_deploy.checkpoint import load_model
+    from jnds_deploy.model import ModelConfig
+    pred, fix = load_model(first), load_model(tmp_path / "e" / "checkpoint.pt")
+    x, h = torch.rand(1, 13, 32, 32), torch.rand(1, 12, 32, 32)
+    with torch.no_grad():
+        a_out, b_out = pred.network(x, h), fix.network(x, h)
+        assert set(a_out) - set(b_out) == {"features"}
+        assert all(torch.equal(a_out[k], b_out[k]) for k in b_out)
+        comp = torch.rand(1, 3, 32, 32)
+        k = fix.upsample_block(comp, None)
+        assert k.shape == (1, 9, 1, 1) and torch.equal(k.flatten(), torch.eye(9)[4])
+        assert torch.allclose(fix.upsample(comp, None), filters_upsampled(comp, ModelConfig(**fixed["model_config"])))
+
 
 def test_evaluate_names_training_checkpoints_by_run_and_scores_them(tmp_path):
     from jnds_deploy.training.evaluate import method_name, run_evaluation
@@ -439,3 +458,42 @@ def test_sampler_without_augmentation_draws_what_it_drew_before(tmp_path):
                      augment=Augment(exposure=(-4, 8), rotate_normals=True, flips=True)).batch(2)
     assert all(torch.isfinite(v).all() for v in c.values())
     assert not torch.equal(a["current"], c["current"])
+
+
+def filters_upsampled(comp, cfg):
+    """The upsample filter's bilinear upsampling alone (root ``cfg.upsample_root``)."""
+    from jnds_deploy import filters
+    r = cfg.upsample_root
+    return filters.upsample(comp.clamp_min(filters.ROOT_FLOOR).pow(1 / r), cfg.scale).pow(r).clamp_min(0)
+
+
+def test_windows_across_a_cut_restart_the_history_there():
+    from jnds_deploy.training.data import PatchSampler, load_sequence
+    from jnds_deploy.training.train import run_unroll
+    from .conftest import SAMPLE
+    seq = load_sequence(SAMPLE)
+    seq.cuts = [t == 4 for t in range(len(seq.cuts))]  # a camera cut at frame 4 of 8
+    kept = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0))
+    assert [t for _, t in kept.windows] == [0, 1, 4, 5]
+    assert not kept.batch(4)["cut"].any()
+    crossing = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0), cross_cuts=True)
+    assert [t for _, t in crossing.windows] == [0, 1, 2, 3, 4, 5]
+    crossing.windows = [(0, 2), (0, 3)]  # frames 2-4 and 3-5: the cut is their third, second frame
+    batch = crossing.batch(8)
+    cols = batch["cut"].T.tolist()  # samples drawn at random from the two windows
+    assert {tuple(c) for c in cols} == {(False, False, True), (False, True, False)}
+    a, b = cols.index([False, False, True]), cols.index([False, True, False])
+    torch.manual_seed(0)
+    model = JNDS(ModelConfig.preset("tiny")).eval()
+    with torch.no_grad():
+        outs = run_unroll(model, batch)
+        # the frame at the cut is a first frame: the same as with no history at all; the
+        # other sample in the batch keeps its history
+        for t, n in ((2, a), (1, b)):
+            fresh = model(batch["current"][t, n:n + 1], batch["motion"][t, n:n + 1], None)
+            assert torch.allclose(outs[t].output[n:n + 1], fresh.output, atol=1e-6)
+        carried = model(batch["current"][2, b:b + 1], batch["motion"][2, b:b + 1], outs[1].history()[b:b + 1])
+        assert torch.allclose(outs[2].output[b:b + 1], carried.output, atol=1e-6)
+        assert not torch.allclose(outs[2].output[a:a + 1],
+                                  model(batch["current"][2, a:a + 1], batch["motion"][2, a:a + 1],
+                                        outs[1].history()[a:a + 1]).output, atol=1e-6)

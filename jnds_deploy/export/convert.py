@@ -74,7 +74,8 @@ def validate_graph(onnx_path: Path, torch_fn, feeds: dict[str, torch.Tensor], na
 
 
 def export(cfg: ExportConfig, log=print) -> Manifest:
-    """Write network.onnx, upsample.onnx (if scale > 1) and manifest.json; validate."""
+    """Write network.onnx, upsample.onnx (if scale > 1 and the upsample kernel is predicted)
+    and manifest.json; validate."""
     ckpt = Path(cfg.checkpoint) if cfg.checkpoint else default_checkpoint()
     model = load_fp32_model(ckpt)  # int8 comes from `jnds calibrate`
     out = Path(cfg.out)
@@ -101,7 +102,9 @@ def export(cfg: ExportConfig, log=print) -> Manifest:
     rows = validate_graph(out / "network.onnx", lambda c, h: tuple(model.network(c, h)[k] for k in names),
                           {"current": current, "history": history}, names, cfg.atol)
 
-    if model.upsample_block is not None:
+    if model.cfg.fixed_upsample:
+        pass  # one kernel for every pixel: no graph, the manifest carries it
+    elif model.upsample_block is not None:
         comp = torch.rand(1, 3, *current.shape[-2:], generator=torch.Generator().manual_seed(cfg.seed + 1)) * 4
         feats = net_out["features"]
         s = model.cfg.scale
@@ -137,11 +140,15 @@ def export(cfg: ExportConfig, log=print) -> Manifest:
         for v in g.variants.values():
             v.sha256 = file_hash(out / v.file)
     feeds = {"network": (current, history)}
-    if model.upsample_block is not None:
+    if "upsample" in graphs:
         feeds["upsample"] = (comp, feats)
+    fixed = None
+    if model.cfg.fixed_upsample:
+        with torch.no_grad():
+            fixed = [float(v) for v in model.upsample_block(current, None).flatten()]
     manifest = Manifest(checkpoint={"path": str(ckpt), "sha256": file_hash(ckpt)}, model_config=asdict(model.cfg),
                         pad_multiple=model.cfg.pad_multiple, graphs=graphs, validation=rows,
-                        package_version=__version__)
+                        package_version=__version__, upsample_kernel=fixed)
     write_json(out / manifest.qat_ranges, qat_ranges(model, graphs, out, feeds))
     manifest.save(out)
     report_validation(rows, log)

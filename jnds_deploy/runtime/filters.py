@@ -617,18 +617,36 @@ def upsample_filter(color: np.ndarray, kernel: np.ndarray, factor: int, skip=Non
     the upsample graph's phase layout (s*s*9, H, W) at native resolution (factor > 1)."""
     if factor == 1:
         return apply_kernel(color, kernel, relu=True, skip=skip, tile=tile)
-    if root == 1:
-        up = upsample(color, factor)
-    else:  # roots and powers of two by square roots and squares: no pow() (model.UPSAMPLE_ROOTS)
-        up = upsample(_roots(np.maximum(color, ROOT_FLOOR, dtype=np.float32), root), factor)
-        for _ in range(root.bit_length() - 1):
-            np.multiply(up, up, out=up)
-        up = up.astype(color.dtype, copy=False)
+    up = _upsampled(color, factor, root)
     if _fast(up, kernel):
         out = np.empty_like(up)
         _apply_phases(up, kernel, out, factor)
         return _pass_tiles(up, out, skip, tile * factor)
     return apply_kernel(up, from_phases(kernel, factor), relu=True, skip=skip, tile=tile * factor)
+
+
+def upsample_fixed(color: np.ndarray, kernel, factor: int, root: int = 1) -> np.ndarray:
+    """``upsample_filter`` with one 3x3 kernel (9 taps) for every target pixel
+    (``model.ModelConfig.upsample_width`` 0): cv2.filter2D, a correlation with the border
+    replicated, as ``apply_kernel`` reads it. Float32 (OpenCV filters no float16)."""
+    up = _upsampled(color.astype(np.float32, copy=False), factor, root)
+    k = np.asarray(kernel, np.float32).reshape(3, 3)
+    for i in range(up.shape[0]):  # in place: filter2D buffers the rows it still reads
+        cv2.filter2D(up[i], -1, k, dst=up[i], borderType=cv2.BORDER_REPLICATE)
+    if k.min() < 0:  # non-negative taps on a non-negative image need no ReLU
+        relu(up)
+    return up.astype(color.dtype, copy=False)
+
+
+def _upsampled(color: np.ndarray, factor: int, root: int) -> np.ndarray:
+    """The bilinear upsampling of ``color`` (of its ``root``-th root, raised back)."""
+    if root == 1:
+        return upsample(color, factor)
+    # roots and powers of two by square roots and squares: no pow() (model.UPSAMPLE_ROOTS)
+    up = upsample(_roots(np.maximum(color, ROOT_FLOOR, dtype=np.float32), root), factor)
+    for _ in range(root.bit_length() - 1):
+        np.multiply(up, up, out=up)
+    return up.astype(color.dtype, copy=False)
 
 
 def _roots(x: np.ndarray, root: int) -> np.ndarray:

@@ -379,7 +379,11 @@ class Pipeline:
         return filtered
 
     def _upsample(self, comp: np.ndarray, net: dict, rs: float, tiles, t: Timer) -> np.ndarray:
-        """The upsample block (its graph) and the upsample filter: (3, sH, sW)."""
+        """The upsample block (its graph) and the upsample filter: (3, sH, sW). With one
+        fixed kernel (no upsample graph) every target pixel gets it, empty tiles too."""
+        if self.manifest.upsample_kernel is not None and "upsample" not in self.graphs:
+            with t("upsample_filter"):
+                return F.upsample_fixed(comp, self.manifest.upsample_kernel, self.scale, root=self.upsample_root)
         feeds = {"composite": (comp[None] / rs if rs != 1 else comp[None]).astype(np.float32, copy=False),
                  "features": net["features"][None].astype(np.float32, copy=False)}
         if self.on_feeds:

@@ -14,6 +14,8 @@ class TrainConfig:
     run: str = "runs/small"
     preset: str = "small"
     upsample_root: int = 1  # ModelConfig.upsample_root of the trained model
+    # one learned upsample kernel for every pixel (ModelConfig.upsample_width 0)
+    fixed_upsample: bool = False
     patch: int = 64  # native patch side, a multiple of the model's pad multiple
     unroll: int = 6  # consecutive frames per sample
     batch: int = 4
@@ -40,6 +42,15 @@ class TrainConfig:
     exposure: tuple[float, float] | None = None
     rotate_normals: bool = False
     flips: bool = False
+    # training windows may span a camera cut, the history restarting there (PatchSampler)
+    cross_cuts: bool = False
+
+    def model_config(self):
+        """The ``ModelConfig`` this run trains."""
+        from ..model import ModelConfig
+
+        fixed = dict(upsample_width=0, upsample_features=0) if self.fixed_upsample else {}
+        return ModelConfig.preset(self.preset, upsample_root=self.upsample_root, **fixed)
 
     def __post_init__(self):
         if self.spatial_loss not in SPATIAL_LOSSES:

@@ -110,11 +110,14 @@ def random_rotation(rng: np.random.Generator) -> np.ndarray:
 
 
 class PatchSampler:
-    """Random (sequence, window, crop) samples; windows never cross a camera cut;
-    ``augment`` applied to each sample."""
+    """Random (sequence, window, crop) samples; ``augment`` applied to each sample. Windows
+    never cross a camera cut, or with ``cross_cuts`` they may: the batch's ``cut`` (T, N)
+    marks the frames where a sample's history restarts (``run_unroll``). A sequence cut
+    halfway has no window of 8 frames without a cut: crossing, it trains the frame after a
+    cut, which the evaluation sets have."""
 
     def __init__(self, seqs: list[SequenceArrays], patch: int, unroll: int, rng: np.random.Generator,
-                 augment: Augment = Augment()):
+                 augment: Augment = Augment(), cross_cuts: bool = False):
         self.seqs, self.patch, self.unroll, self.rng, self.augment = seqs, patch, unroll, rng, augment
         for s in seqs:
             if missing := [c for c in REFERENCE_COMPONENTS if c not in s.ref]:
@@ -122,7 +125,7 @@ class PatchSampler:
                                  "component (the renderers write them)")
         self.windows = []
         for si, s in enumerate(seqs):
-            starts = [0] + [t for t, c in enumerate(s.cuts) if c] + [len(s.cuts)]
+            starts = [0] + ([] if cross_cuts else [t for t, c in enumerate(s.cuts) if c]) + [len(s.cuts)]
             for a, b in zip(starts[:-1], starts[1:]):
                 self.windows += [(si, t) for t in range(a, b - unroll + 1)]
         if not self.windows:
@@ -130,8 +133,10 @@ class PatchSampler:
 
     def batch(self, n: int, device: str | torch.device = "cpu") -> dict[str, torch.Tensor]:
         """Tensors (T, N, C, H, W): current, motion (native patch), reference color,
-        diffuse, specular, albedo (target patch)."""
+        diffuse, specular, albedo (target patch); ``cut`` (T, N) bool: the history restarts
+        at that frame (a camera cut inside the window)."""
         out = {k: [] for k in ("current", "motion", *REFERENCE_COMPONENTS)}
+        cuts = []
         for _ in range(n):
             si, t = self.windows[self.rng.integers(len(self.windows))]
             s = self.seqs[si]
@@ -141,6 +146,7 @@ class PatchSampler:
             x = int(self.rng.integers(0, w - p + 1))
             k = s.scale
             sl = slice(t, t + self.unroll)
+            cuts.append([False] + [bool(c) for c in s.cuts[t + 1:t + self.unroll]])
             sample = {"current": s.current[sl, :, y:y + p, x:x + p], "motion": s.motion[sl, :, y:y + p, x:x + p]}
             for c in REFERENCE_COMPONENTS:
                 sample[c] = s.ref[c][sl, :, k * y:k * (y + p), k * x:k * (x + p)]
@@ -148,4 +154,6 @@ class PatchSampler:
                 sample = self.augment(sample, self.rng)
             for key, value in sample.items():
                 out[key].append(value)
-        return {k: torch.from_numpy(np.ascontiguousarray(np.stack(v, 1))).to(device) for k, v in out.items()}
+        batch = {k: torch.from_numpy(np.ascontiguousarray(np.stack(v, 1))).to(device) for k, v in out.items()}
+        batch["cut"] = torch.tensor(cuts, dtype=torch.bool).T.contiguous().to(device)
+        return batch

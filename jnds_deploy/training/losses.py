@@ -70,7 +70,12 @@ class Loss:
                     mv = _upsampled_motion(mv, s)
                 o_prev = filters.warp(o[:-1].flatten(0, 1), mv)
                 r_prev = filters.warp(r[:-1].flatten(0, 1), mv)
-                l_t = l1(o[1:].flatten(0, 1) - o_prev, r[1:].flatten(0, 1) - r_prev)
+                d_o, d_r = o[1:].flatten(0, 1) - o_prev, r[1:].flatten(0, 1) - r_prev
+                if "cut" in batch and bool(batch["cut"][1:].any()):
+                    # no temporal term across a camera cut: the frames show different scenes
+                    keep = (~batch["cut"][1:]).flatten().view(-1, 1, 1, 1).to(d_o.dtype)
+                    d_o, d_r = d_o * keep, d_r * keep
+                l_t = l1(d_o, d_r)
             task = self.w * l_sp + (1 - self.w) * l_t
             total = total + task
             parts[name] = float(task.detach())

@@ -38,8 +38,10 @@ class TrainState:
 
 def run_unroll(model: JNDS, batch: dict) -> list:
     outs, history = [], None
+    cut = batch.get("cut")
     for t in range(batch["current"].shape[0]):
-        out = model(batch["current"][t], batch["motion"][t], history)
+        reset = cut[t] if cut is not None and t > 0 and bool(cut[t].any()) else None
+        out = model(batch["current"][t], batch["motion"][t], history, reset=reset)
         outs.append(out)
         history = out.history()
     return outs
@@ -90,7 +92,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
     run.mkdir(parents=True, exist_ok=True)
     ckpt = run / "checkpoint.pt"
 
-    model = JNDS(ModelConfig.preset(cfg.preset, upsample_root=cfg.upsample_root)).to(cfg.device)
+    model = JNDS(cfg.model_config()).to(cfg.device)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=0.0)
     rng = np.random.default_rng(cfg.seed)
     state = TrainState()
@@ -116,7 +118,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
                 val_seqs[p] = load_sequence(p)
         return list(val_seqs.values())
     sampler = PatchSampler(train_seqs, cfg.patch, cfg.unroll, rng,
-                           Augment(cfg.exposure, cfg.rotate_normals, cfg.flips))
+                           Augment(cfg.exposure, cfg.rotate_normals, cfg.flips), cross_cuts=cfg.cross_cuts)
     loss_fn = Loss(cfg, model.cfg.scale)
     if cfg.channels_last:
         model.to(memory_format=torch.channels_last)
@@ -172,14 +174,33 @@ def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
     steps it is fine-tuned in full precision first and its ranges are observed afresh."""
     data = read_checkpoint(cfg.init, map_location=cfg.device)
     # upsample_root changes no weight: a checkpoint can be fine-tuned with another
-    if replace(ModelConfig(**data["model_config"]), upsample_root=model.cfg.upsample_root) != model.cfg:
+    init_cfg = replace(ModelConfig(**data["model_config"]), upsample_root=model.cfg.upsample_root)
+    weights = data["model"]
+    if model.cfg.fixed_upsample and not init_cfg.fixed_upsample:
+        init_cfg, weights = _without_upsample_block(init_cfg, weights)
+    if init_cfg != model.cfg:
         raise ConfigError(f"--init {cfg.init}: model config {data['model_config']} is not preset "
                           f"{cfg.preset!r} ({asdict(model.cfg)})")
-    model.load_state_dict(data["model"])
+    model.load_state_dict(weights)
     if data.get("quantized") and cfg.fp32_steps == 0:
         set_quantization(model, True)
         return TrainState(step=0, phase="qat")
     return TrainState()
+
+
+def _without_upsample_block(cfg: ModelConfig, weights: dict) -> tuple[ModelConfig, dict]:
+    """A predicting checkpoint's config and weights for a fixed-kernel model: the upsample
+    block's convolutions dropped, and the output block head's feature channels (its last
+    ``upsample_features`` outputs, ``OutputBlock.sizes``); the fixed kernel starts as the
+    identity (the predicted one was nearly that: benchmarks/results/constant_upsample_kernel.md)."""
+    n = cfg.upsample_features
+    weights = {k: v for k, v in weights.items() if not k.startswith("upsample_block.")}
+    for k in ("network.output_block.head.weight", "network.output_block.head.bias"):
+        weights[k] = weights[k][:len(weights[k]) - n] if n else weights[k]
+    fixed = torch.zeros(9)
+    fixed[4] = 1.0
+    weights["upsample_block.fixed"] = fixed
+    return replace(cfg, upsample_width=0, upsample_features=0), weights
 
 
 @torch.no_grad()

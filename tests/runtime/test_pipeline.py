@@ -16,10 +16,10 @@ def artifacts(tiny_artifacts):
     return tiny_artifacts
 
 
-@pytest.mark.parametrize("root", [1, 4])
-def test_pipeline_matches_torch_over_a_sequence(artifacts, tiny_artifacts_root4, root):
-    path, model = artifacts if root == 1 else tiny_artifacts_root4
-    assert Pipeline(PipelineConfig(artifacts=str(path))).upsample_root == root
+@pytest.mark.parametrize("root", [1, 4, "fixed"])
+def test_pipeline_matches_torch_over_a_sequence(artifacts, tiny_artifacts_root4, tiny_artifacts_fixed, root):
+    path, model = {1: artifacts, 4: tiny_artifacts_root4, "fixed": tiny_artifacts_fixed}[root]
+    assert Pipeline(PipelineConfig(artifacts=str(path))).upsample_root == (4 if root == "fixed" else root)
     seq = open_sequence(SAMPLE)
     ref = infer_sequence(model, load_sequence(SAMPLE))[:4]
     pipe = Pipeline(PipelineConfig(artifacts=str(path)))
@@ -31,7 +31,11 @@ def test_pipeline_matches_torch_over_a_sequence(artifacts, tiny_artifacts_root4,
         # with its 1/32-pixel map quantization); tolerance 1e-4 of the mean
         rel = np.abs(out - ref[i]).mean() / np.abs(ref[i]).mean()
         assert rel < 1e-4, (i, rel)
-        assert {"network", "warp", "filter_diffuse", "filter_specular", "upsample_kernel", "total"} <= set(ms)
+        assert {"network", "warp", "filter_diffuse", "filter_specular", "upsample_filter", "total"} <= set(ms)
+        # one fixed kernel: no upsample graph to run
+        assert ("upsample_kernel" in ms) == (root != "fixed")
+    if root == "fixed":
+        assert not (path / "upsample.onnx").exists()
 
 
 def test_pipeline_resets_on_cut_and_resize(artifacts):
@@ -75,6 +79,12 @@ def test_pipeline_errors(tmp_path, artifacts):
     (tmp_path / "manifest.json").write_text(json.dumps(bad))
     with pytest.raises(ArtifactError, match="upsample_root is 3"):
         Pipeline(PipelineConfig(artifacts=str(tmp_path)))
+    # no upsample graph needs the fixed kernel, 9 taps in [-1, 1]
+    for kernel in (None, [0.0] * 8, [0.0] * 8 + [2.0]):
+        bad = {**manifest, "graphs": {"network": manifest["graphs"]["network"]}, "upsample_kernel": kernel}
+        (tmp_path / "manifest.json").write_text(json.dumps(bad))
+        with pytest.raises(ArtifactError, match="no 'upsample' graph, and upsample_kernel is"):
+            Pipeline(PipelineConfig(artifacts=str(tmp_path)))
 
 
 def test_jnds_run_does_not_need_torch(artifacts, tmp_path):
