@@ -113,7 +113,8 @@ def traffic_bytes(cfg: ModelConfig, w: int, h: int, u8_head: bool = False) -> di
       kernels down 9, up 9, up_blend 1 (the coarsest: down only); output 3N written;
     - auxiliary: albedo and normal, current and history 12N, shared kernels 19N read, 6N written;
     - composite: 9N read, 3N written;
-    - upsample filter: composite 3N and kernel 9T read, 3T written."""
+    - upsample filter: composite 3N and kernel 9T read, 3T written (one fixed kernel for
+      every pixel, ``ModelConfig.fixed_upsample``: nothing per pixel to read for it)."""
     n, t = w * h, w * h * cfg.scale ** 2
     k = 1.0 if u8_head else 4.0  # bytes per native kernel tap
     native = 19 + (10 if cfg.filter_levels > 0 else 0)
@@ -121,7 +122,7 @@ def traffic_bytes(cfg: ModelConfig, w: int, h: int, u8_head: bool = False) -> di
     path = 4 * (6 + 3) * n + k * native * n + 4 * levels
     return {"warp": 4.0 * 29 * n, "filter_diffuse": path, "filter_specular": path,
             "filter_auxiliary": 4 * 18 * n + k * 19 * n, "composite": 4.0 * 12 * n,
-            "upsample_filter": 4.0 * (3 * n + 12 * t) if cfg.scale > 1 else 0.0}
+            "upsample_filter": 4.0 * (3 * n + (3 if cfg.fixed_upsample else 12) * t) if cfg.scale > 1 else 0.0}
 
 
 class CopyProbe:
@@ -300,8 +301,10 @@ def main() -> int:
         for name, n in list(nodes.items())[:15]:
             md.append(f"| `{name}` | {n['op']} | {n['stage']} | {n['ms']:.1f} | {100 * n['ms'] / total:.1f} |")
         md.append("")
-    md += ["The int8 pipeline keeps the upsample graph in fp32 (`PipelineConfig.fp32_graphs`): its int8 graph "
-           "is slower on this CPU (see `benchmarks/results/calibration.md`).",
+    md += [("The model has no upsample graph: one learned 3x3 kernel for every target pixel "
+            "(`ModelConfig.upsample_width` 0), applied in the upsample filter." if cfg.fixed_upsample else
+            "The int8 pipeline keeps the upsample graph in fp32 (`PipelineConfig.fp32_graphs`): its int8 graph "
+            "is slower on this CPU (see `benchmarks/results/calibration.md`)."),
            "The filter stage (filter paths, composite, upsample filter) and the reformatting are numba-fused "
            "float32 loops; before them (commit cc5865c) the table had filter_diffuse 303.0, filter_specular "
            "291.3, filter_auxiliary 305.5, upsample_filter 344.6, reformat 201.7 ms (int8, 1280x720; total "
