@@ -638,6 +638,72 @@ def upsample_fixed(color: np.ndarray, kernel, factor: int, root: int = 1) -> np.
     return up.astype(color.dtype, copy=False)
 
 
+@njit(parallel=True, cache=True)
+def _upsample2_fixed_hwc(r, k, squarings, out):
+    """out (Ho, Wo, C) = ReLU(3x3 kernel ``k`` on the 2x bilinear upsampling of ``r`` (C, H, W),
+    each sample raised to the power 2^squarings), the top-left Ho x Wo of it; non-finite
+    results replaced by 0 (NaN, -Inf) or HDR_MAX (+Inf); returns how many. Blocks of
+    target rows per thread: each upsamples the rows it reads (its own and one on each
+    side) once into a buffer, padded by one replicated column on each side; the kernel runs
+    along a buffered row (contiguous, vectorized) and is stored interleaved."""
+    C, H, W = r.shape
+    Ho, Wo = out.shape[0], out.shape[1]
+    TH, TW = 2 * H, 2 * W
+    B = 16
+    nb = (Ho + B - 1) // B
+    bad = np.zeros(nb, np.int64)
+    for b in prange(nb):
+        y0 = b * B
+        y1 = min(y0 + B, Ho)
+        n = y1 - y0 + 2
+        up = np.empty((n, C, TW + 2), np.float32)
+        vrow = np.empty(W, np.float32)
+        acc = np.empty(Wo, np.float32)
+        for t in range(n):
+            yy = min(max(y0 - 1 + t, 0), TH - 1)
+            i = yy >> 1
+            i2 = min(i + 1, H - 1) if yy & 1 else max(i - 1, 0)
+            for c in range(C):
+                for j in range(W):
+                    vrow[j] = np.float32(0.75) * r[c, i, j] + np.float32(0.25) * r[c, i2, j]
+                row = up[t, c]
+                for j in range(W):
+                    row[2 * j + 1] = np.float32(0.75) * vrow[j] + np.float32(0.25) * vrow[max(j - 1, 0)]
+                    row[2 * j + 2] = np.float32(0.75) * vrow[j] + np.float32(0.25) * vrow[min(j + 1, W - 1)]
+                for _ in range(squarings):
+                    for x in range(1, TW + 1):
+                        row[x] = row[x] * row[x]
+                row[0] = row[1]
+                row[TW + 1] = row[TW]
+        for y in range(y0, y1):
+            t = y - y0
+            for c in range(C):
+                a, m, z = up[t, c], up[t + 1, c], up[t + 2, c]
+                for x in range(Wo):
+                    acc[x] = (k[0] * a[x] + k[1] * a[x + 1] + k[2] * a[x + 2]
+                              + k[3] * m[x] + k[4] * m[x + 1] + k[5] * m[x + 2]
+                              + k[6] * z[x] + k[7] * z[x + 1] + k[8] * z[x + 2])
+                for x in range(Wo):
+                    v = acc[x]
+                    if not np.isfinite(v):
+                        bad[b] += 1
+                        v = np.float32(HDR_MAX) if v > 0 else np.float32(0.0)
+                    out[y, x, c] = max(v, np.float32(0.0))
+    return bad.sum()
+
+
+def upsample_fixed_hwc(color: np.ndarray, kernel, root: int, h: int, w: int) -> tuple[np.ndarray, int]:
+    """``upsample_fixed`` at factor 2 and ``reformat.to_hwc`` of its top-left (2h, 2w) in one
+    pass (written here: the upsampled image is never stored whole, nor the channels-first
+    result), non-finite values replaced as ``history.replace_nonfinite`` does: (output
+    (2h, 2w, 3) float32, how many were replaced)."""
+    src = np.maximum(color, ROOT_FLOOR, dtype=np.float32) if root > 1 else color.astype(np.float32)
+    src = np.ascontiguousarray(_roots(src, root))
+    out = np.empty((2 * h, 2 * w, color.shape[0]), np.float32)
+    bad = _upsample2_fixed_hwc(src, np.asarray(kernel, np.float32).reshape(9), root.bit_length() - 1, out)
+    return out, int(bad)
+
+
 def _upsampled(color: np.ndarray, factor: int, root: int) -> np.ndarray:
     """The bilinear upsampling of ``color`` (of its ``root``-th root, raised back)."""
     if root == 1:

@@ -178,6 +178,9 @@ class Pipeline:
         self.multiple = self.manifest.pad_multiple
         self.levels = self.manifest.filter_levels
         self.upsample_root = self.manifest.upsample_root
+        # a fixed upsample kernel at 2x runs as one fused pass into the output (filters.upsample_fixed_hwc)
+        self._fused_upsample = (self.out_scale == 2 and "upsample" not in self.manifest.graphs
+                                and self.manifest.upsample_kernel is not None)
         self.dtype = np.dtype(cfg.filter_dtype)
         if cfg.keep_freed_memory:
             keep_freed_memory()
@@ -280,16 +283,26 @@ class Pipeline:
         filtered = self._filter_paths(current, warped.signals, cur, hist, net, decisions, tiles, t)
         with t("composite"):
             comp = F.composite(filtered["albedo"], filtered["diffuse"], filtered["specular"])
-        out = self._upsample(comp, net, rs, tiles, t) if self.out_scale > 1 else comp
+        if self._fused_upsample:
+            # one fixed kernel at 2x: upsampling, kernel, layout and the non-finite check in one pass
+            with t("upsample_filter"):
+                result, bad_out = F.upsample_fixed_hwc(comp, self.manifest.upsample_kernel, self.upsample_root, h, w)
+            out = None
+        else:
+            out = self._upsample(comp, net, rs, tiles, t) if self.out_scale > 1 else comp
         with t("reformat"):
             if bad := self.history.store(filtered, (w, h), rs):
                 nonfinite["history"] = bad
-            if rs != 1:
-                out = out.astype(np.float32) / rs
-            result = to_hwc(out, h * self.out_scale, w * self.out_scale)
-            # last line of defence: nothing non-finite reaches the output
-            if bad := replace_nonfinite(result):
-                nonfinite["output"] = bad
+            if out is not None:
+                if rs != 1:
+                    out = out.astype(np.float32) / rs
+                result = to_hwc(out, h * self.out_scale, w * self.out_scale)
+                # last line of defence: nothing non-finite reaches the output
+                bad_out = replace_nonfinite(result)
+            elif rs != 1:
+                result /= np.float32(rs)
+            if bad_out:
+                nonfinite["output"] = bad_out
         t.ms["total"] = sum(t.ms.values())
         return FrameResult(result, t.ms, nonfinite, decisions, warped.disoccluded, warped.rejected)
 
