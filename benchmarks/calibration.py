@@ -63,7 +63,9 @@ def main() -> int:
     work = Path(args.work)
     manifest = export(ExportConfig(out=str(work)), log=lambda *a: None)
     size = parse_size(args.size, manifest.pad_multiple)
-    network, upsample = work / manifest.graphs["network"].file, work / manifest.graphs["upsample"].file
+    network = work / manifest.graphs["network"].file
+    # a model with one fixed upsample kernel has no upsample graph
+    upsample = work / manifest.graphs["upsample"].file if "upsample" in manifest.graphs else None
     feeds = collect_feeds(work, seqs, threads=args.threads)
     overrides = json.loads((work / manifest.qat_ranges).read_text())
 
@@ -83,19 +85,8 @@ def main() -> int:
     timing = time_sessions(variants, net_feeds, args.runs, args.threads, levels)
     profiles = {k: profile_stages(variants[k], net_feeds, runs=3, threads=args.threads) for k in ("fp32", default)}
 
-    # the upsample block's graph at target resolution, default int8 options
-    up8 = work / "variants" / "upsample.default.onnx"
-    act, ops, float_nodes = VARIANTS[default[len("int8 "):]]
-    quantize_graph(upsample, up8, feeds["upsample"], "qat", act, ops,
-                   qat_overrides(follow_shared_ranges(upsample, overrides["upsample"], ops)), exclude=float_nodes)
-    import onnxruntime as ort
-    net = ort.InferenceSession(str(network), providers=["CPUExecutionProvider"])
-    features = net.run(["features"], net_feeds)[0]
-    c = net_feeds["current"]
-    up_feeds = {"composite": np.ascontiguousarray(c[:, 6:9] * c[:, 0:3] + c[:, 3:6]), "features": features}
-    del net
-    upsample_timing = time_sessions({"fp32": upsample, "int8 default": up8}, up_feeds,
-                                    args.runs, args.threads, {"fp32": "all", "int8 default": "all"})
+    upsample_timing = None if upsample is None else time_upsample(work, upsample, feeds, overrides, default, network,
+                                                                   net_feeds, args)
     cfg = ModelConfig(**manifest.model_config)
     macs = count_macs(cfg, *size)
     net_gmac = macs["input_block"] + macs["feature_extractor"] + macs["output_block"]
@@ -117,12 +108,29 @@ def main() -> int:
 
     report = {"command": command_line(), "machine": {**machine_info(), **peaks},
               "size": list(size), "threads": args.threads, "network_gmac": net_gmac, "timing": timing, "upsample_timing": upsample_timing,
-              "upsample_gmac": macs["upsample_block"], "profiles": profiles, "default_variant": default, "accuracy": accuracy,
+              "upsample_gmac": macs.get("upsample_block", 0.0), "profiles": profiles, "default_variant": default, "accuracy": accuracy,
               "calibration_frames": {k: len(v) for k, v in feeds.items()},
               "sequences": [str(s) for s in seqs], "default_op_types": list(DEFAULT_OP_TYPES)}
     write_report(Path(args.out), report, render_markdown(report))
     print(render_markdown(report))
     return 0
+
+
+def time_upsample(work, upsample, feeds, overrides, default, network, net_feeds, args) -> dict:
+    """The upsample block's graph, fp32 and int8 with the default options."""
+    up8 = work / "variants" / "upsample.default.onnx"
+    act, ops, float_nodes = VARIANTS[default[len("int8 "):]]
+    quantize_graph(upsample, up8, feeds["upsample"], "qat", act, ops,
+                   qat_overrides(follow_shared_ranges(upsample, overrides["upsample"], ops)), exclude=float_nodes)
+    import onnxruntime as ort
+    net = ort.InferenceSession(str(network), providers=["CPUExecutionProvider"])
+    features = net.run(["features"], net_feeds)[0]
+    c = net_feeds["current"]
+    up_feeds = {"composite": np.ascontiguousarray(c[:, 6:9] * c[:, 0:3] + c[:, 3:6]), "features": features}
+    del net
+    upsample_timing = time_sessions({"fp32": upsample, "int8 default": up8}, up_feeds,
+                                    args.runs, args.threads, {"fp32": "all", "int8 default": "all"})
+    return upsample_timing
 
 
 STAGE_COLS = ("input_block", "feature_extractor", "output_block", "reformat", "total")
@@ -143,7 +151,8 @@ def render_markdown(r: dict) -> str:
                      f"{t['speedup_vs_fp32']:.2f}× | {t['gmac_per_s']:.1f} | "
                      f"{100 * t['gmac_per_s'] / m['int8_gmacs']:.1f} |")
     ut = r["upsample_timing"]
-    lines += ["", f"Upsample block graph ({r['upsample_gmac']:.1f} GMAC, the kernel for {2 * w}x{2 * h} from "
+    lines += ["", "No upsample block graph: the model has one fixed upsample kernel."] if ut is None else [
+              "", f"Upsample block graph ({r['upsample_gmac']:.1f} GMAC, the kernel for {2 * w}x{2 * h} from "
                   f"convolutions at {w}x{h}, sub-pixel form): fp32 "
                   f"{ut['fp32']['median_ms']:.0f} ms, int8 {ut['int8 default']['median_ms']:.0f} ms "
                   f"({ut['fp32']['median_ms'] / ut['int8 default']['median_ms']:.2f}×)."]

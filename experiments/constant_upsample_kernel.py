@@ -36,6 +36,9 @@ def main() -> None:
     args = ap.parse_args()
     import onnxruntime as ort
 
+    if not (Path(args.artifacts) / "upsample.onnx").is_file():
+        raise SystemExit(f"{args.artifacts}: no upsample graph; the model already has one fixed upsample kernel "
+                         "(ModelConfig.upsample_width 0): export a checkpoint that predicts it")
     feeds = collect_feeds(Path(args.artifacts), [SAMPLE], frames=8, progress=False)["upsample"]
     sess = ort.InferenceSession(str(Path(args.artifacts) / "upsample.onnx"), providers=["CPUExecutionProvider"])
     kernels = [sess.run(None, f)[0][0].reshape(36, -1) for f in feeds]

@@ -69,7 +69,7 @@ def replaced_outputs(model, seq) -> dict[str, list[np.ndarray]]:
                     if r in (c, "all three"):
                         sig[c] = ref[c]
                 comp = filters.composite(sig["albedo"], sig["diffuse"], sig["specular"])
-                y = model.upsample(comp, net["features"])
+                y = model.upsample(comp, net.get("features"))
                 outs[r].append(y[0, :, :h * s, :w * s].permute(1, 2, 0).numpy())
     finally:
         hook.remove()

@@ -124,7 +124,7 @@ The default checkpoint of `jnds export` and the runtime: the JNDS network
 {sum(p.numel() for p in ckpt["model"].values() if p.dtype.is_floating_point):,} parameters (activation ranges included);
 {macs["total"]:.1f} GMAC per 1280x720 frame (input block {macs["input_block"]:.1f}, feature extractor
 {macs["feature_extractor"]:.1f}, output block {macs["output_block"]:.1f}, upsample block
-{macs.get("upsample_block", 0):.1f}), counted by `jnds_deploy.model.count_macs`.
+{macs.get("upsample_block", 0):.1f}{"; one fixed upsample kernel, no upsample graph" if ckpt["model_config"].get("upsample_width", 8) == 0 else ""}), counted by `jnds_deploy.model.count_macs`.
 
 ## Training
 
