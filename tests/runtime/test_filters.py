@@ -125,6 +125,28 @@ def test_upsample_filter_and_composite_match_torch():
             assert not np.allclose(ref, T.upsample_filter(_t(hdr), _t(k), s)[0].numpy(), rtol=1e-2)
 
 
+@pytest.mark.parametrize("root", [1, 4])
+def test_fixed_upsample_kernel_matches_torch(root):
+    """One kernel for every pixel (ModelConfig.upsample_width 0): the cv2 path at any
+    scale and the fused 2x pass into the output (cropped, channels last) against the torch
+    upsample filter with that kernel broadcast; the fused pass counts and replaces NaN/Inf."""
+    from jnds_deploy.runtime.reformat import to_hwc
+    h, w = 12, 20
+    c = RNG.random((3, h, w), dtype=np.float32) * RNG.exponential(5.0, size=(3, h, w)).astype(np.float32)
+    k = np.clip(RNG.normal(size=9).astype(np.float32) * 0.3 + np.eye(9, dtype=np.float32)[4], -1, 1)
+    for s in (2, 3):
+        ref = T.upsample_filter(_t(c), torch.from_numpy(k).view(1, 9, 1, 1), s, root)[0].numpy()
+        np.testing.assert_allclose(N.upsample_fixed(c, k, s, root), ref, rtol=1e-4, atol=1e-5)
+    ref = T.upsample_filter(_t(c), torch.from_numpy(k).view(1, 9, 1, 1), 2, root)[0].numpy()
+    out, bad = N.upsample_fixed_hwc(c, k, root, h - 3, w - 5)  # the padded frame's top-left
+    np.testing.assert_allclose(out, to_hwc(ref, 2 * (h - 3), 2 * (w - 5)), rtol=1e-4, atol=1e-5)
+    assert bad == 0 and out.flags.c_contiguous and out.min() >= 0
+    c[1, 4, 7] = np.nan
+    c[2, 0, 0] = np.inf
+    out, bad = N.upsample_fixed_hwc(c, k, root, h, w)
+    assert bad > 0 and np.isfinite(out).all()
+
+
 def test_fp16_filter_stays_close_to_fp32():
     h, w = 32, 48
     x = RNG.exponential(size=(3, h, w)).astype(np.float32)
