@@ -25,7 +25,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
-from benchmarks.common import (RESULTS, ROOT, CpuSteal, arguments, machine_info, machine_line, pipeline,  # noqa: E402
+from benchmarks.common import (RESULTS, ROOT, CpuSteal, arguments, cpu_line, machine_info, machine_line, pipeline,  # noqa: E402
                                resized_frames, run_frames, tune_process, write_report)
 from jnds_deploy.artifacts import Manifest  # noqa: E402
 from jnds_deploy.errors import ArtifactError  # noqa: E402
@@ -141,7 +141,10 @@ def main() -> int:
     seqs = scenes + [(p, "validation") for p in val]
 
     steal = CpuSteal()
-    report = {"machine": machine_line(), "machine_info": machine_info(),
+    manifest = Manifest.load(args.artifacts)
+    upsample = ("one fixed upsample kernel, no upsample graph" if "upsample" not in manifest.graphs
+                else "fp32 upsample graph")
+    report = {"machine": machine_line(), "machine_info": machine_info(), "upsample": upsample,
               "artifacts": args.artifacts, "precision": "int8", "sequences": {}}
     for path, what in seqs:
         print(f"{path.name}: error at own size", flush=True)
@@ -161,12 +164,13 @@ def main() -> int:
 def markdown(r: dict) -> str:
     lines = ["# Adaptive execution: time and error, with and without", "",
              "Made by `.venv/bin/python benchmarks/adaptive.py` on this machine "
-             f"({r['machine']}, int8 network graph, fp32 upsample graph, float32 filter stage). "
+             f"({cpu_line(r['machine_info'])}, {r['machine']}; int8 network graph, "
+             f"{r.get('upsample', 'fp32 upsample graph')}, float32 filter stage). "
              "Three pipelines run the same frames interleaved frame by frame, each with its own history: "
              "**full** (`jnds run --no-adaptive`), **exact** (the default, `jnds run`: the skips that leave the "
              "output unchanged: pruned network variant and no filter path for a signal that is zero in the frame "
              "and its history; history used without resampling when nothing moves) and **adaptive** (exact + "
-             "empty background tiles passed through the filter stage and left out of the upsample block: "
+             "empty background tiles passed through the filter stage and, with an upsample graph, left out of it: "
              "`PipelineConfig(tile_skip=True)`, off by default). "
              f"CPU time stolen by the VM host during the run: {100 * r['cpu_steal_share']:.0f} %.", "",
              "## Run time at 1280x720 -> 2560x1440 (the sequences' frames resized)", "",
