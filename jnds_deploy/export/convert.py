@@ -102,9 +102,8 @@ def export(cfg: ExportConfig, log=print) -> Manifest:
     rows = validate_graph(out / "network.onnx", lambda c, h: tuple(model.network(c, h)[k] for k in names),
                           {"current": current, "history": history}, names, cfg.atol)
 
-    if model.cfg.fixed_upsample:
-        pass  # one kernel for every pixel: no graph, the manifest carries it
-    elif model.upsample_block is not None:
+    # one fixed kernel for every pixel: no graph, the manifest carries it (below)
+    if model.upsample_block is not None and not model.cfg.fixed_upsample:
         comp = torch.rand(1, 3, *current.shape[-2:], generator=torch.Generator().manual_seed(cfg.seed + 1)) * 4
         feats = net_out["features"]
         s = model.cfg.scale

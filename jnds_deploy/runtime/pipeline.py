@@ -178,9 +178,10 @@ class Pipeline:
         self.multiple = self.manifest.pad_multiple
         self.levels = self.manifest.filter_levels
         self.upsample_root = self.manifest.upsample_root
-        # a fixed upsample kernel at 2x runs as one fused pass into the output (filters.upsample_fixed_hwc)
-        self._fused_upsample = (self.out_scale == 2 and "upsample" not in self.manifest.graphs
-                                and self.manifest.upsample_kernel is not None)
+        # a model with one fixed upsample kernel has no upsample graph (Manifest.load checks the
+        # kernel); at 2x it runs as one fused pass into the output (filters.upsample_fixed_hwc)
+        self._fixed_kernel = None if "upsample" in self.manifest.graphs else self.manifest.upsample_kernel
+        self._fused_upsample = self._fixed_kernel is not None and self.out_scale == 2
         self.dtype = np.dtype(cfg.filter_dtype)
         if cfg.keep_freed_memory:
             keep_freed_memory()
@@ -286,7 +287,7 @@ class Pipeline:
         if self._fused_upsample:
             # one fixed kernel at 2x: upsampling, kernel, layout and the non-finite check in one pass
             with t("upsample_filter"):
-                result, bad_out = F.upsample_fixed_hwc(comp, self.manifest.upsample_kernel, self.upsample_root, h, w)
+                result, bad_out = F.upsample_fixed_hwc(comp, self._fixed_kernel, self.upsample_root, h, w)
             out = None
         else:
             out = self._upsample(comp, net, rs, tiles, t) if self.out_scale > 1 else comp
@@ -394,9 +395,9 @@ class Pipeline:
     def _upsample(self, comp: np.ndarray, net: dict, rs: float, tiles, t: Timer) -> np.ndarray:
         """The upsample block (its graph) and the upsample filter: (3, sH, sW). With one
         fixed kernel (no upsample graph) every target pixel gets it, empty tiles too."""
-        if self.manifest.upsample_kernel is not None and "upsample" not in self.graphs:
+        if self._fixed_kernel is not None:
             with t("upsample_filter"):
-                return F.upsample_fixed(comp, self.manifest.upsample_kernel, self.scale, root=self.upsample_root)
+                return F.upsample_fixed(comp, self._fixed_kernel, self.scale, root=self.upsample_root)
         feeds = {"composite": (comp[None] / rs if rs != 1 else comp[None]).astype(np.float32, copy=False),
                  "features": net["features"][None].astype(np.float32, copy=False)}
         if self.on_feeds:
