@@ -97,6 +97,10 @@ class ModelConfig:
         presets = {
             # about 21 GMAC per 1280x720 frame: sized for a 2-core CPU
             "small": {},
+            # the U-Net and output block wider (about 32 GMAC at 720p): what the time
+            # allowed beside OIDN leaves room for; trained from "small" (``jnds train --init``
+            # widens a checkpoint)
+            "medium": dict(encoder_widths=(32, 48), bottleneck_width=64, output_width=24),
             # deeper and wider, closer to the paper's network (whose exact widths are in its
             # Fig. 3, not in the text we have): for GPUs and quality comparisons
             "paper": dict(input_width=32, encoder_widths=(48, 64, 80), bottleneck_width=96,

@@ -266,6 +266,32 @@ def test_training_resumes_from_an_init_checkpoint(tmp_path):
         assert torch.allclose(fix.upsample(comp, None), filters_upsampled(comp, ModelConfig(**fixed["model_config"])))
 
 
+@pytest.mark.parametrize("fixed", [True, False])
+def test_init_widens_a_checkpoint_to_a_wider_preset_computing_the_same(fixed):
+    from jnds_deploy.training.train import _widened, _widens
+    up = dict(upsample_width=0, upsample_features=0) if fixed else {}
+    small, medium = ModelConfig.preset("small", **up), ModelConfig.preset("medium", **up)
+    assert _widens(small, medium) and not _widens(medium, small)
+    assert not _widens(small, ModelConfig.preset("small", encoder_widths=(24, 32, 48), **up))  # deeper
+    assert not _widens(small, ModelConfig.preset("small", filter_levels=2, **up))
+    torch.manual_seed(0)
+    old = JNDS(small)
+    for p in old.parameters():  # away from the identity initialization
+        torch.nn.init.normal_(p, std=0.1)
+    new = JNDS(medium)
+    new.load_state_dict(_widened(small, old.state_dict(), new))
+    x, mv = _inputs(1, 32, 48)
+    h = torch.rand(1, 12, 32, 48)
+    with torch.no_grad():
+        a, b = old.network(x, h), new.network(x, h)
+        assert a.keys() == b.keys()
+        for k in a:
+            assert torch.allclose(a[k], b[k], atol=1e-5), k
+        assert torch.allclose(old(x, mv, None).output, new(x, mv, None).output, atol=1e-4)
+        # the new channels are live: they compute features the old channels may learn to read
+        assert new.network.feature_extractor.bottleneck.a.weight[48:].abs().sum() > 0
+
+
 def test_evaluate_names_training_checkpoints_by_run_and_scores_them(tmp_path):
     from jnds_deploy.training.evaluate import method_name, run_evaluation
     from .conftest import SAMPLE

@@ -178,6 +178,8 @@ def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
     weights = data["model"]
     if model.cfg.fixed_upsample and not init_cfg.fixed_upsample:
         init_cfg, weights = _without_upsample_block(init_cfg, weights)
+    if init_cfg != model.cfg and _widens(init_cfg, model.cfg):
+        init_cfg, weights = model.cfg, _widened(init_cfg, weights, model)
     if init_cfg != model.cfg:
         raise ConfigError(f"--init {cfg.init}: model config {data['model_config']} is not preset "
                           f"{cfg.preset!r} ({asdict(model.cfg)})")
@@ -201,6 +203,59 @@ def _without_upsample_block(cfg: ModelConfig, weights: dict) -> tuple[ModelConfi
     fixed[4] = 1.0
     weights["upsample_block.fixed"] = fixed
     return replace(cfg, upsample_width=0, upsample_features=0), weights
+
+
+WIDTHS = ("input_width", "encoder_widths", "bottleneck_width", "output_width")
+
+
+def _widens(old: ModelConfig, new: ModelConfig) -> bool:
+    """``new`` is ``old`` with some of its network's widths larger (the same depth)."""
+    ow, nw = ({k: getattr(c, k) for k in WIDTHS} for c in (old, new))
+    grow = [(a, b) for k in WIDTHS for a, b in zip(*((w[k] if k == "encoder_widths" else (w[k],))
+                                                      for w in (ow, nw)))]
+    return (replace(old, **{k: nw[k] for k in WIDTHS}) == new and old.depth == new.depth
+            and all(b >= a for a, b in grow))
+
+
+def _concat_first(cfg: ModelConfig) -> dict[str, int]:
+    """The convolutions whose input is a concatenation of two tensors: the width of the
+    first (``FeatureExtractor``'s decoders: upsampled deeper features, then the skip;
+    ``OutputBlock``: upsampled decoder features, then the input block's)."""
+    dec_in = [cfg.bottleneck_width, *reversed(cfg.encoder_widths[1:])]
+    first = {f"network.feature_extractor.decoders.{i}.a": w for i, w in enumerate(dec_in)}
+    first["network.output_block.conv"] = cfg.encoder_widths[0]
+    return first
+
+
+@torch.no_grad()
+def _widened(cfg: ModelConfig, weights: dict, model: JNDS) -> dict:
+    """A checkpoint's weights embedded in a wider ``model`` so that it computes the same
+    outputs: every old channel keeps its weights and reads the new channels with zero
+    weights; the new channels keep ``model``'s fresh initialization (net2net-style
+    widening with zeros, written here: a few lines over the state dict)."""
+    out = {}
+    old_first, new_first = _concat_first(cfg), _concat_first(model.cfg)
+    for key, fresh in model.state_dict().items():
+        old = weights[key]
+        if old.shape == fresh.shape:
+            out[key] = old.clone()
+            continue
+        w = fresh.clone()
+        o = old.shape[0]
+        if w.dim() == 1:  # a bias
+            w[:o] = old
+        else:
+            conv = key.rsplit(".", 1)[0]
+            i_old, i_new = old.shape[1], w.shape[1]
+            if conv in old_first:  # two concatenated inputs: the second moves up
+                a, b = old_first[conv], new_first[conv]
+                cols = list(range(a)) + list(range(b, b + i_old - a))
+            else:
+                cols = list(range(i_old))
+            w[:o] = 0.0
+            w[:o, cols] = old
+        out[key] = w
+    return out
 
 
 @torch.no_grad()
