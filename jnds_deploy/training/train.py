@@ -246,7 +246,7 @@ def _widened(cfg: ModelConfig, weights: dict, model: JNDS) -> dict:
             w[:o] = old
         else:
             conv = key.rsplit(".", 1)[0]
-            i_old, i_new = old.shape[1], w.shape[1]
+            i_old = old.shape[1]
             if conv in old_first:  # two concatenated inputs: the second moves up
                 a, b = old_first[conv], new_first[conv]
                 cols = list(range(a)) + list(range(b, b + i_old - a))
