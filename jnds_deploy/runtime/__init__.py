@@ -11,6 +11,7 @@ stage, no torch. ``Pipeline`` runs frames; ``jnds run`` (``run``) runs sequences
 - ``run``: ``jnds run``; ``profile``: ONNX Runtime's profiler per network stage.
 """
 import os
+import sys
 
 from .pipeline import FrameResult, Pipeline, PipelineConfig
 
@@ -30,9 +31,20 @@ def tune_numba() -> None:
       FMAs (docs/design-notes.md). It changes no result: without fast-math flags it
       reorders no sum. It acts on loops compiled after the call (numba's on-disk cache
       keeps what was compiled before).
+    - numba's BLAS probe answered "absent": the first loop numba compiles or loads from its
+      cache imports ``numba.np.arraymath``, which imports scipy (where installed) to look
+      for BLAS, a tenth of a second of every cold start (docs/performance.md). No runtime
+      loop calls BLAS; numba code in the same process that did (``np.dot``) would be refused
+      with numba's "scipy is required" error.
     """
     import numba
 
+    if "numba.np.arraymath" not in sys.modules and "scipy.linalg" not in sys.modules:
+        sys.modules["scipy.linalg"] = None  # ``import scipy.linalg...`` fails: the probe sees no BLAS
+        try:
+            import numba.np.arraymath  # noqa: F401
+        finally:
+            del sys.modules["scipy.linalg"]
     if "NUMBA_THREADING_LAYER" not in os.environ:
         numba.config.THREADING_LAYER = "threadsafe"
     if "NUMBA_SLP_VECTORIZE" not in os.environ:

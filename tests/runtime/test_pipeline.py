@@ -102,6 +102,23 @@ def test_jnds_run_does_not_need_torch(artifacts, tmp_path):
     assert (tmp_path / "out" / "0007.exr").is_file()
 
 
+def test_jnds_run_skips_numbas_blas_probe_and_leaves_scipy_importable(artifacts, tmp_path):
+    """``tune_numba`` keeps numba's BLAS probe from importing scipy.linalg (a tenth of a
+    second of a cold start); a run loads its numba loops without it, and scipy imports
+    as usual afterwards."""
+    import subprocess
+    import sys
+    code = ("import sys\n"
+            "from jnds_deploy.cli import main\n"
+            f"assert main(['run', '--artifacts', {str(artifacts[0])!r}, '--input', {str(SAMPLE)!r}, "
+            f"'--output', {str(tmp_path / 'out')!r}, '--quiet']) == 0\n"
+            "assert 'scipy.linalg' not in sys.modules, 'scipy.linalg was imported'\n"
+            "import numba.np.arraymath, scipy.linalg\n"
+            "assert not numba.np.arraymath._HAVE_BLAS and scipy.linalg.norm([3.0, 4.0]) == 5.0\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+
+
 def test_jnds_run_writes_frames_and_report(artifacts, tmp_path):
     import json
     import subprocess
