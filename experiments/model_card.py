@@ -202,7 +202,7 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str, 
         cmd += f" --spatial-loss {tcfg['spatial_loss']} --feature-net {tcfg['feature_net']}"
     if tcfg.get("exposure"):
         cmd += " --exposure {:g} {:g}".format(*tcfg["exposure"])
-    for key in ("rotate_normals", "flips", "fixed_upsample", "cross_cuts"):
+    for key in ("rotate_normals", "flips", "fixed_upsample", "cross_cuts", "balance_renderers"):
         if tcfg.get(key):
             cmd += " --" + key.replace("_", "-")
     if on_gpu:

@@ -93,7 +93,8 @@ def cmd_train(args) -> int:
                       val_sequences=args.val_sequences, threads=args.threads, seed=args.seed,
                       device=args.device, exposure=args.exposure, rotate_normals=args.rotate_normals,
                       flips=args.flips, channels_last=not args.no_channels_last,
-                      fixed_upsample=args.fixed_upsample, cross_cuts=args.cross_cuts)
+                      fixed_upsample=args.fixed_upsample, cross_cuts=args.cross_cuts,
+                      balance_renderers=args.balance_renderers)
     ckpt = train(cfg, progress=not args.quiet)
     print(f"checkpoint: {ckpt}")
     return 0
@@ -302,6 +303,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--flips", action="store_true", help="augmentation: random horizontal and vertical mirroring")
     t.add_argument("--cross-cuts", action="store_true",
                    help="training windows may span a camera cut (the history restarts there)")
+    t.add_argument("--balance-renderers", action="store_true",
+                   help="draw each renderer's sequences (render.json's engine: mitsuba, cycles) as often as "
+                        "another's, whatever their counts")
     t.add_argument("--no-channels-last", action="store_true",
                    help="keep convolutions in NCHW memory (the default NHWC gives the same values, faster on a CPU)")
     t.add_argument("--quiet", action="store_true")

@@ -486,6 +486,24 @@ def test_sampler_without_augmentation_draws_what_it_drew_before(tmp_path):
     assert not torch.equal(a["current"], c["current"])
 
 
+def test_balanced_renderers_are_drawn_equally_often():
+    from dataclasses import replace
+    from jnds_deploy.training.data import PatchSampler, load_sequence
+    from .conftest import SAMPLE
+    seq = load_sequence(SAMPLE)
+    assert seq.renderer == "mitsuba"  # the sample's render.json
+    seqs = [replace(seq, name=f"m{i}") for i in range(3)] + [replace(seq, name="c", renderer="cycles")]
+    drawn = []
+    for balance in (False, True):
+        s = PatchSampler(seqs, patch=16, unroll=3, rng=np.random.default_rng(0), balance_renderers=balance)
+        picks = [s.window()[0] for _ in range(4000)]
+        drawn.append(np.mean([seqs[i].renderer == "cycles" for i in picks]))
+    assert abs(drawn[0] - 0.25) < 0.03 and abs(drawn[1] - 0.5) < 0.03
+    # the batch itself draws from the same weights
+    s = PatchSampler(seqs, patch=16, unroll=3, rng=np.random.default_rng(0), balance_renderers=True)
+    assert s.batch(2)["current"].shape[:2] == (3, 2)
+
+
 def filters_upsampled(comp, cfg):
     """The upsample filter's bilinear upsampling alone (root ``cfg.upsample_root``)."""
     from jnds_deploy import filters

@@ -44,6 +44,8 @@ class TrainConfig:
     flips: bool = False
     # training windows may span a camera cut, the history restarting there (PatchSampler)
     cross_cuts: bool = False
+    # each renderer's sequences drawn as often as another's, whatever their counts (PatchSampler)
+    balance_renderers: bool = False
 
     def model_config(self):
         """The ``ModelConfig`` this run trains."""

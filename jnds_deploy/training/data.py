@@ -2,6 +2,7 @@
 consecutive frames drawn from them."""
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +27,7 @@ class SequenceArrays:
     motion: np.ndarray
     ref: dict[str, np.ndarray]
     cuts: list[bool]
+    renderer: str = "unknown"  # render.json's engine (mitsuba, cycles) where the sequence has one
 
     @property
     def scale(self) -> int:
@@ -47,7 +49,17 @@ def load_sequence(path: str | Path) -> SequenceArrays:
             refs[k].append(r[k].transpose(2, 0, 1))
     return SequenceArrays(Path(path).name, np.stack(cur), np.stack(mot),
                           {k: np.stack(v) for k, v in refs.items()},
-                          [f.camera_cut for f in seq.frames])
+                          [f.camera_cut for f in seq.frames], _renderer(Path(path)))
+
+
+def _renderer(path: Path) -> str:
+    """The engine named by the render marker ``jnds render`` / ``jnds dataset`` leave
+    beside the sequence (``render.json``; mitsuba where it predates the field), or
+    "unknown" (a sequence made elsewhere)."""
+    try:
+        return str(json.loads((path / "render.json").read_text())["config"].get("engine", "mitsuba"))
+    except (OSError, ValueError, KeyError, TypeError):
+        return "unknown"
 
 
 def load_split(root: str | Path, limit: int | None = None) -> list[SequenceArrays]:
@@ -114,10 +126,12 @@ class PatchSampler:
     never cross a camera cut, or with ``cross_cuts`` they may: the batch's ``cut`` (T, N)
     marks the frames where a sample's history restarts (``run_unroll``). A sequence cut
     halfway has no window of 8 frames without a cut: crossing, it trains the frame after a
-    cut, which the evaluation sets have."""
+    cut, which the evaluation sets have. With ``balance_renderers`` the windows of each
+    renderer (``SequenceArrays.renderer``) together are drawn as often as another's: the
+    evaluation sets are half Cycles, the training data a third."""
 
     def __init__(self, seqs: list[SequenceArrays], patch: int, unroll: int, rng: np.random.Generator,
-                 augment: Augment = Augment(), cross_cuts: bool = False):
+                 augment: Augment = Augment(), cross_cuts: bool = False, balance_renderers: bool = False):
         self.seqs, self.patch, self.unroll, self.rng, self.augment = seqs, patch, unroll, rng, augment
         for s in seqs:
             if missing := [c for c in REFERENCE_COMPONENTS if c not in s.ref]:
@@ -130,6 +144,17 @@ class PatchSampler:
                 self.windows += [(si, t) for t in range(a, b - unroll + 1)]
         if not self.windows:
             raise TrainError(f"no window of {unroll} frames without a cut in the training data")
+        self.p = None
+        if balance_renderers:
+            group = [seqs[si].renderer for si, _ in self.windows]
+            count = {g: group.count(g) for g in set(group)}
+            self.p = np.array([1.0 / (count[g] * len(count)) for g in group])
+            self.p /= self.p.sum()
+
+    def window(self) -> tuple[int, int]:
+        """A random (sequence index, first frame)."""
+        n = len(self.windows)
+        return self.windows[self.rng.integers(n) if self.p is None else self.rng.choice(n, p=self.p)]
 
     def batch(self, n: int, device: str | torch.device = "cpu") -> dict[str, torch.Tensor]:
         """Tensors (T, N, C, H, W): current, motion (native patch), reference color,
@@ -138,7 +163,7 @@ class PatchSampler:
         out = {k: [] for k in ("current", "motion", *REFERENCE_COMPONENTS)}
         cuts = []
         for _ in range(n):
-            si, t = self.windows[self.rng.integers(len(self.windows))]
+            si, t = self.window()
             s = self.seqs[si]
             h, w = s.current.shape[-2:]
             p = self.patch

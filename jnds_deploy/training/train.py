@@ -118,7 +118,8 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
                 val_seqs[p] = load_sequence(p)
         return list(val_seqs.values())
     sampler = PatchSampler(train_seqs, cfg.patch, cfg.unroll, rng,
-                           Augment(cfg.exposure, cfg.rotate_normals, cfg.flips), cross_cuts=cfg.cross_cuts)
+                           Augment(cfg.exposure, cfg.rotate_normals, cfg.flips), cross_cuts=cfg.cross_cuts,
+                           balance_renderers=cfg.balance_renderers)
     loss_fn = Loss(cfg, model.cfg.scale)
     if cfg.channels_last:
         model.to(memory_format=torch.channels_last)
