@@ -19,7 +19,7 @@ descends from (``--base-run``); ``--compare`` adds a table of runs and the train
 settings they differ in (e.g. the L1 / feature-loss comparison of Sec. 3.3).
 
 Copies ``<run>/checkpoint.pt`` (stripped of optimizer state, ``checkpoint.ship_checkpoint``)
-to ``jnds_deploy/checkpoints/jnds-small.pt`` (or --out-dir) and writes ``MODEL_CARD.md``
+to ``jnds_deploy/checkpoints/jnds.pt`` (or --out-dir) and writes ``MODEL_CARD.md``
 beside it with the configuration, data, steps, hours and the validation numbers of
 ``jnds evaluate``.
 """
@@ -84,7 +84,7 @@ def main() -> None:
         base_ckpt = read_checkpoint(base / "checkpoint.pt")
         training.insert(i, _training_lines(base, base_ckpt, _log(base), cpu, args.gpu))
     out_dir = Path(args.out_dir)
-    out = ship_checkpoint(run / "checkpoint.pt", out_dir / "jnds-small.pt", metrics=sets)
+    out = ship_checkpoint(run / "checkpoint.pt", out_dir / "jnds.pt", metrics=sets)
 
     cfg = ModelConfig(**ckpt["model_config"])
     macs = count_macs(cfg)
@@ -109,10 +109,10 @@ def main() -> None:
     gap = (Path(args.gap).read_text().strip() if args.gap else
            f"Where it falls short of OIDN, what would close the gap: this is {steps} steps ({hours:.1f} h; "
            "the paper trains 500 + 500 epochs on GPUs); longer training and the wider `paper` preset.")
-    text = f"""# Model card: jnds-small
+    text = f"""# Model card: jnds
 
 The default checkpoint of `jnds export` and the runtime: the JNDS network
-(Thomas et al. 2022) in the `small` configuration, trained on this project's renders
+(Thomas et al. 2022) in the `{ckpt["train_config"]["preset"]}` configuration, trained on this project's renders
 (docs/dataset.md), full precision then quantization-aware (int8 fake quantization).
 
 ## Configuration
@@ -212,7 +212,9 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str, 
                  "40 --variant cuda_ad_rgb`): the 24 training sequences and 16 more seeds (1024-1039), "
                  "same sizes and spp; validation inside the run on its own render of data/val."
                  if on_gpu else _data_line(ckpt.get("train_sequences"), data_command))
-    start = f"fine-tuned from `{init}` as it was then: the run above" if init else "trained from scratch"
+    # --init widens a narrower checkpoint to the run's preset (train._widened)
+    start = (f"fine-tuned from `{init}` as it was then (the run above) in the `{tcfg['preset']}` preset"
+             if init else "trained from scratch")
     text = f"""`{run}`, {start}:
 - Steps: {step} ({tcfg["fp32_steps"]} fp32, then up to {tcfg["qat_steps"]} QAT; phase at save:
   {ckpt["state"]["phase"]}); batch {tcfg["batch"]} x unroll {tcfg["unroll"]} frames x {tcfg["patch"]}^2 native patches;

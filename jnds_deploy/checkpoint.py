@@ -12,7 +12,7 @@ from pathlib import Path
 
 from .errors import CheckpointError
 
-SHIPPED = Path(__file__).parent / "checkpoints" / "jnds-small.pt"
+SHIPPED = Path(__file__).parent / "checkpoints" / "jnds.pt"
 
 
 def default_checkpoint() -> Path:

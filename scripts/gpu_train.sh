@@ -32,7 +32,7 @@ if [ "$mode" = start ]; then
           --lr 3e-4 --qat-lr 1e-4 --device cuda --val-every 200 --threads 2 --quiet --upsample-root 4"
   # the feature-loss network (Eq. 6) is re-created from the data: training runs are not kept in git
   python3 -m jnds_deploy train-feature-net --data $DATA --out "$RUNS/feature_net.pt" --quiet
-  ship=jnds_deploy/checkpoints/jnds-small.pt feat="--feature-net $RUNS/feature_net.pt"
+  ship=jnds_deploy/checkpoints/jnds.pt feat="--feature-net $RUNS/feature_net.pt"
   start_run() {  # name, then train arguments
     local name=$1; shift
     setsid nohup python3 -m jnds_deploy train $common --run "$RUNS/$name" "$@" > "$RUNS/$name.log" 2>&1 &

@@ -296,7 +296,7 @@ def test_evaluate_names_training_checkpoints_by_run_and_scores_them(tmp_path):
     from jnds_deploy.training.evaluate import method_name, run_evaluation
     from .conftest import SAMPLE
     assert method_name("runs/ft-l1/checkpoint.pt") == "ft-l1"
-    assert method_name("jnds_deploy/checkpoints/jnds-small.pt") == "jnds-small"
+    assert method_name("jnds_deploy/checkpoints/jnds.pt") == "jnds"
     torch.manual_seed(0)
     model = JNDS(ModelConfig.preset("tiny"))
     ckpt = tmp_path / "runs" / "tiny-a" / "checkpoint.pt"
