@@ -121,6 +121,42 @@ def cpu_peaks() -> dict:
                           f"MACs per cycle (two {'512' if fp32 == 32 else '256'}-bit FMAs)"}
 
 
+def gemm_throughput(threads: int, n: int = 2048, runs: int = 10) -> dict:
+    """What ONNX Runtime's own kernels (MLAS) reach here on one large matrix product, in
+    GMAC/s, median of ``runs``: int8 ``MatMulInteger`` (u8 x s8, the pair the int8 graphs'
+    convolutions use) and fp32 ``MatMul``, n x n x n. An attainable peak beside the nominal
+    one of ``cpu_peaks``, whose clock /proc/cpuinfo states without turbo."""
+    import onnx
+    import onnxruntime as ort
+    from onnx import TensorProto, helper
+
+    rng = np.random.default_rng(0)
+    out = {"n": n, "runs": runs}
+    for name, op, ta, tb in (("int8", "MatMulInteger", TensorProto.UINT8, TensorProto.INT8),
+                             ("fp32", "MatMul", TensorProto.FLOAT, TensorProto.FLOAT)):
+        b = (rng.integers(-127, 128, (n, n), dtype=np.int8) if tb == TensorProto.INT8
+             else rng.standard_normal((n, n), dtype=np.float32))
+        node = helper.make_node(op, ["a", "b"], ["y"])
+        graph = helper.make_graph([node], name, [helper.make_tensor_value_info("a", ta, [n, n])],
+                                  [helper.make_tensor_value_info("y", TensorProto.INT32 if name == "int8"
+                                                                 else TensorProto.FLOAT, [n, n])],
+                                  [onnx.numpy_helper.from_array(b, "b")])
+        model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+        so = ort.SessionOptions()
+        so.intra_op_num_threads = threads
+        sess = ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
+        a = (rng.integers(0, 256, (n, n), dtype=np.uint8) if ta == TensorProto.UINT8
+             else rng.standard_normal((n, n), dtype=np.float32))
+        sess.run(None, {"a": a})
+        ms = []
+        for _ in range(runs):
+            t0 = time.perf_counter()
+            sess.run(None, {"a": a})
+            ms.append(time.perf_counter() - t0)
+        out[f"{name}_gmacs"] = n ** 3 / float(np.median(ms)) / 1e9
+    return out
+
+
 def cpu_times() -> list[int]:
     """The aggregate CPU line of /proc/stat (user, nice, system, idle, iowait, irq, softirq, steal)."""
     with open("/proc/stat") as f:

@@ -20,7 +20,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
-from benchmarks.common import (cpu_line, cpu_peaks, RESULTS, ROOT, CpuSteal, arguments, command_line, machine_info, parse_size,  # noqa: E402
+from benchmarks.common import (cpu_line, cpu_peaks, gemm_throughput, RESULTS, ROOT, CpuSteal, arguments, command_line, machine_info, parse_size,  # noqa: E402
                                pipeline, resized_frames, run_frames, spread, timed, tune_process, write_report)
 from jnds_deploy.artifacts import Manifest  # noqa: E402
 from jnds_deploy.io import open_sequence  # noqa: E402
@@ -60,10 +60,11 @@ def network_split(pipe: Pipeline, frames, threads: int) -> tuple[dict[str, float
     return {s: prof[s] / inside for s in STAGES}, profile["by_node_ms"]
 
 
-def summarize(recorded: list[dict], split: dict, macs: dict, peaks: dict) -> dict:
+def summarize(recorded: list[dict], split: dict, macs: dict, peaks: dict, gemm: dict) -> dict:
     """Per stage: spread of its time, share of the frame, and for the network stages and
     the upsample block GMAC, GMAC/s and the share of ``peaks`` ({stage: GMAC/s of this CPU
-    at the precision the stage runs at}) reached."""
+    at the precision the stage runs at}) and of ``gemm`` (the same, by ONNX Runtime on one
+    large matrix product here, ``common.gemm_throughput``) reached."""
     rows = {}
     net = np.array([r["network"] for r in recorded])
     total = np.array([r["total"] for r in recorded])
@@ -80,17 +81,18 @@ def summarize(recorded: list[dict], split: dict, macs: dict, peaks: dict) -> dic
             row["gmac"] = gm
             row["gmac_per_s"] = gm / (row["median_ms"] / 1000)
             row["peak_share"] = row["gmac_per_s"] / peaks[k]
+            row["gemm_share"] = row["gmac_per_s"] / gemm[k]
         rows[k] = row
     rows["total"] = {**spread(total, suffix="_ms"), "share": 1.0}
     return rows
 
 
 def table(rows: dict) -> str:
-    lines = ["| stage | median ms | p10–p90 ms | % of total | GMAC | GMAC/s | % of peak |",
-             "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    lines = ["| stage | median ms | p10–p90 ms | % of total | GMAC | GMAC/s | % of peak | % of GEMM |",
+             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for k, r in rows.items():
-        g = (f"{r['gmac']:.2f} | {r['gmac_per_s']:.1f} | {100 * r['peak_share']:.0f}" if "gmac" in r
-             else " |  | ")
+        g = (f"{r['gmac']:.2f} | {r['gmac_per_s']:.1f} | {100 * r['peak_share']:.0f} | {100 * r['gemm_share']:.0f}"
+             if "gmac" in r else " |  |  | ")
         name = f"**{k}**" if k == "total" else k
         lines.append(f"| {name} | {r['median_ms']:.1f} | {r['p10_ms']:.1f}–{r['p90_ms']:.1f} | "
                      f"{100 * r['share']:.1f} | {g} |")
@@ -220,6 +222,7 @@ def main() -> int:
     steal = CpuSteal()
     probe = CopyProbe(args.threads)
     cpu = report["cpu_peaks"] = cpu_peaks()
+    gemm = report["gemm_throughput"] = gemm_throughput(args.threads)
     int8 = manifest.graphs["network"].int8.get(manifest.int8_method or "")
     u8_head = bool(int8 and int8.head.startswith("u8"))  # the int8 pipeline's kernels come as bytes
     for label, size in ((big_label, big), (f"{seq.native_size[0]}x{seq.native_size[1]}", None)):
@@ -235,8 +238,11 @@ def main() -> int:
             peak = {"int8": cpu["int8_gmacs"], "fp32": cpu["fp32_fma_gmacs"]}
             peaks = {**{s: peak[pipe.graph_precision["network"]] for s in STAGES},
                      "upsample_kernel": peak[pipe.graph_precision.get("upsample", "fp32")]}
+            at = {"int8": gemm["int8_gmacs"], "fp32": gemm["fp32_gmacs"]}
+            gemms = {**{s: at[pipe.graph_precision["network"]] for s in STAGES},
+                     "upsample_kernel": at[pipe.graph_precision.get("upsample", "fp32")]}
             rows = summarize(time_pipeline(pipe, frames, args.repeats, probe if probed else None), split, macs,
-                             peaks)
+                             peaks, gemms)
             report["results"][f"{label} {precision}"] = {"native": [w, h], "target": [w * pipe.scale, h * pipe.scale],
                                                          "precision": precision, "graphs": dict(pipe.graph_precision),
                                                          "split": split, "stages": rows, "network_nodes": nodes}
@@ -260,7 +266,11 @@ def main() -> int:
           f"CPU time stolen by the VM host during the run: {100 * report['cpu_steal_share']:.0f} %.", "",
           f"Peaks of this CPU (`common.cpu_peaks`, {cpu['derivation']}; {cpu['cores']} cores at the nominal "
           f"{cpu['ghz']:.2f} GHz): int8 {cpu['int8_gmacs']:.0f} GMAC/s, fp32 {cpu['fp32_fma_gmacs']:.0f} GMAC/s. "
-          "\"% of peak\" sets a stage's GMAC/s against the peak of the precision its graph runs at.", ""]
+          "\"% of peak\" sets a stage's GMAC/s against the peak of the precision its graph runs at. "
+          f"The same ONNX Runtime on one {gemm['n']}^3 matrix product here (`common.gemm_throughput`, median of "
+          f"{gemm['runs']}): int8 (MatMulInteger, u8 x s8) {gemm['int8_gmacs']:.0f} GMAC/s, fp32 (MatMul) "
+          f"{gemm['fp32_gmacs']:.0f} GMAC/s; \"% of GEMM\" sets a stage against that. A stage above 100 % of "
+          "peak means the cores ran above the nominal clock (turbo, which a VM's /proc/cpuinfo does not show).", ""]
     for name, r in report["results"].items():
         graphs = ", ".join(f"{g} {p}" for g, p in r["graphs"].items())
         md += [f"## {r['native'][0]}x{r['native'][1]} → {r['target'][0]}x{r['target'][1]}, {r['precision']} "
