@@ -211,11 +211,11 @@ WIDTHS = ("input_width", "encoder_widths", "bottleneck_width", "output_width")
 
 def _widens(old: ModelConfig, new: ModelConfig) -> bool:
     """``new`` is ``old`` with some of its network's widths larger (the same depth)."""
-    ow, nw = ({k: getattr(c, k) for k in WIDTHS} for c in (old, new))
-    grow = [(a, b) for k in WIDTHS for a, b in zip(*((w[k] if k == "encoder_widths" else (w[k],))
-                                                      for w in (ow, nw)))]
-    return (replace(old, **{k: nw[k] for k in WIDTHS}) == new and old.depth == new.depth
-            and all(b >= a for a, b in grow))
+    def widths(c: ModelConfig) -> tuple[int, ...]:
+        return (c.input_width, *c.encoder_widths, c.bottleneck_width, c.output_width)
+
+    return (replace(old, **{k: getattr(new, k) for k in WIDTHS}) == new and old.depth == new.depth
+            and all(b >= a for a, b in zip(widths(old), widths(new))))
 
 
 def _concat_first(cfg: ModelConfig) -> dict[str, int]:
