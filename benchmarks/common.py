@@ -132,21 +132,19 @@ def gemm_throughput(threads: int, n: int = 2048, runs: int = 10) -> dict:
 
     rng = np.random.default_rng(0)
     out = {"n": n, "runs": runs}
-    for name, op, ta, tb in (("int8", "MatMulInteger", TensorProto.UINT8, TensorProto.INT8),
-                             ("fp32", "MatMul", TensorProto.FLOAT, TensorProto.FLOAT)):
-        b = (rng.integers(-127, 128, (n, n), dtype=np.int8) if tb == TensorProto.INT8
-             else rng.standard_normal((n, n), dtype=np.float32))
-        node = helper.make_node(op, ["a", "b"], ["y"])
-        graph = helper.make_graph([node], name, [helper.make_tensor_value_info("a", ta, [n, n])],
-                                  [helper.make_tensor_value_info("y", TensorProto.INT32 if name == "int8"
-                                                                 else TensorProto.FLOAT, [n, n])],
-                                  [onnx.numpy_helper.from_array(b, "b")])
+    for name, op, a, b, result in (
+            ("int8", "MatMulInteger", rng.integers(0, 256, (n, n), dtype=np.uint8),
+             rng.integers(-127, 128, (n, n), dtype=np.int8), TensorProto.INT32),
+            ("fp32", "MatMul", rng.standard_normal((n, n), dtype=np.float32),
+             rng.standard_normal((n, n), dtype=np.float32), TensorProto.FLOAT)):
+        graph = helper.make_graph(
+            [helper.make_node(op, ["a", "b"], ["y"])], name,
+            [helper.make_tensor_value_info("a", helper.np_dtype_to_tensor_dtype(a.dtype), [n, n])],
+            [helper.make_tensor_value_info("y", result, [n, n])], [onnx.numpy_helper.from_array(b, "b")])
         model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
         so = ort.SessionOptions()
         so.intra_op_num_threads = threads
         sess = ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
-        a = (rng.integers(0, 256, (n, n), dtype=np.uint8) if ta == TensorProto.UINT8
-             else rng.standard_normal((n, n), dtype=np.float32))
         sess.run(None, {"a": a})
         ms = []
         for _ in range(runs):
