@@ -304,8 +304,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--cross-cuts", action="store_true",
                    help="training windows may span a camera cut (the history restarts there)")
     t.add_argument("--balance-renderers", action="store_true",
-                   help="draw each renderer's sequences (render.json's engine: mitsuba, cycles) as often as "
-                        "another's, whatever their counts")
+                   help="draw each renderer's sequences (mitsuba, cycles: render.json's engine, or "
+                        "sequence.json's renderer.engine; sequences with neither are a group of their own) "
+                        "as often as another's, whatever their counts")
     t.add_argument("--no-channels-last", action="store_true",
                    help="keep convolutions in NCHW memory (the default NHWC gives the same values, faster on a CPU)")
     t.add_argument("--quiet", action="store_true")

@@ -176,5 +176,6 @@ def import_cycles(raw: str | Path, out: str | Path, reference: str | Path | None
         if refs is not None:
             writer.write_reference(i, reference_layers(read_passes(refs[n]), refs[n]))
         infos.append(FrameInfo(i, jitters[n], cut))
-    writer.close(infos)
+    # the engine, where training's renderer balance reads it (training.data.SequenceArrays.renderer)
+    writer.close(infos, {"renderer": {"engine": "cycles", "imported_from": str(raw)}})
     return validate(out)

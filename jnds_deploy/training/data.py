@@ -54,10 +54,15 @@ def load_sequence(path: str | Path) -> SequenceArrays:
 
 def _renderer(path: Path) -> str:
     """The engine named by the render marker ``jnds render`` / ``jnds dataset`` leave
-    beside the sequence (``render.json``; mitsuba where it predates the field), or
-    "unknown" (a sequence made elsewhere)."""
+    beside the sequence (``render.json``; mitsuba where it predates the field), else by
+    sequence.json's ``renderer.engine`` (``jnds import cycles``), else "unknown" (a
+    sequence made elsewhere: its own group for ``balance_renderers``)."""
     try:
         return str(json.loads((path / "render.json").read_text())["config"].get("engine", "mitsuba"))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        pass
+    try:
+        return str(json.loads((path / "sequence.json").read_text())["renderer"]["engine"])
     except (OSError, ValueError, KeyError, TypeError):
         return "unknown"
 

@@ -49,6 +49,8 @@ def test_configured_render_imports_validates_and_runs(renders, tmp_path, tiny_ar
                  "--reference", str(renders["reference"]), "--quiet"]) == 0
     report = validate(tmp_path / "seq")
     assert report.clean
+    from jnds_deploy.training.data import load_sequence
+    assert load_sequence(tmp_path / "seq").renderer == "cycles"  # for --balance-renderers
     seq = open_sequence(tmp_path / "seq")
     assert len(seq) == 4 and seq.native_size == (64, 40) and seq.target_size == (128, 80)
     assert [f.jitter for f in seq.frames] != [(0.0, 0.0)] * 4  # the keyed Halton jitter
