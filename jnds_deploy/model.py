@@ -88,6 +88,12 @@ class ModelConfig:
         return len(self.encoder_widths)
 
     @property
+    def decoder_inputs(self) -> list[int]:
+        """Per U-Net decoder block, deepest first, the width of the upsampled deeper
+        features it reads ahead of its skip connection (``FeatureExtractor``)."""
+        return [self.bottleneck_width, *reversed(self.encoder_widths[1:])]
+
+    @property
     def pad_multiple(self) -> int:
         """Native sizes must be multiples of this (input pooling + U-Net max-pools)."""
         return 2 ** (self.depth + 1)
@@ -317,10 +323,9 @@ class FeatureExtractor(nn.Module):
         widths = [cfg.input_width, *cfg.encoder_widths]
         self.encoders = nn.ModuleList(DoubleConv(widths[i], widths[i + 1]) for i in range(cfg.depth))
         self.bottleneck = DoubleConv(widths[-1], cfg.bottleneck_width)
-        dec_in = [cfg.bottleneck_width, *reversed(cfg.encoder_widths[1:])]
         dec_out = list(reversed(cfg.encoder_widths))
         self.decoders = nn.ModuleList(
-            DoubleConv(dec_in[i] + dec_out[i], dec_out[i]) for i in range(cfg.depth))
+            DoubleConv(cfg.decoder_inputs[i] + dec_out[i], dec_out[i]) for i in range(cfg.depth))
         # level k (1-based, resolution native / 2^k) is predicted by the decoder block at
         # that resolution, the coarsest possible level (depth + 1) by the bottleneck
         self.heads = nn.ModuleDict()

@@ -222,8 +222,7 @@ def _concat_first(cfg: ModelConfig) -> dict[str, int]:
     """The convolutions whose input is a concatenation of two tensors: the width of the
     first (``FeatureExtractor``'s decoders: upsampled deeper features, then the skip;
     ``OutputBlock``: upsampled decoder features, then the input block's)."""
-    dec_in = [cfg.bottleneck_width, *reversed(cfg.encoder_widths[1:])]
-    first = {f"network.feature_extractor.decoders.{i}.a": w for i, w in enumerate(dec_in)}
+    first = {f"network.feature_extractor.decoders.{i}.a": w for i, w in enumerate(cfg.decoder_inputs)}
     first["network.output_block.conv"] = cfg.encoder_widths[0]
     return first
 
