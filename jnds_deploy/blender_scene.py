@@ -31,8 +31,10 @@ from .errors import ConfigError
 CYCLES_TRAIN_KINDS = ("sunroom", "darkroom", "metals", "textures")
 # training-only kinds, added on request (``jnds dataset --mixed-sequences``): ``mixed``
 # draws each ingredient of the training kinds at random and combines them (world, room or
-# open ground, light rig, materials), for variety rather than another fixed layout
-CYCLES_EXTRA_KINDS = ("mixed",)
+# open ground, light rig, materials), for variety rather than another fixed layout; ``lights``
+# (``--lights-sequences``) does the same with every sort of light Blender has: spot lights,
+# area lights of each shape and emissive meshes other than small spheres besides mixed's
+CYCLES_EXTRA_KINDS = ("mixed", "lights")
 # kinds only the test set is made of (render.dataset): built apart from the training kinds,
 # so that the test measures scenes the model never saw the like of. gallery: a long hall
 # under strip lights, a polished floor, finely textured panels, sculptures; night: an
@@ -304,6 +306,8 @@ def build(cfg: dict):
         target, radius, height = (0, 0, 0.8), rng.uniform(3.5, 5.0), rng.uniform(1.2, 2.6)
     elif kind == "mixed":
         moving, target, radius, height = _mixed(scene, rng, frames)
+    elif kind == "lights":
+        moving, target, radius, height = _mixed(scene, rng, frames, RIGS + LIGHTS_RIGS, (2, 4))
     elif kind == "gallery":
         _world(scene, rng, "dark")
         _room(rng, 6.0, 4.0, window=False, texture_walls=False)
@@ -347,11 +351,16 @@ def build(cfg: dict):
     return scene, cuts
 
 
-def _mixed(scene, rng, frames):
-    """The ``mixed`` kind: a world, a room (with or without a window) or open ground, one
-    to three light sources of the training kinds' sorts (sun, an area light, point lights,
-    small emissive icospheres), props with random shares of metal and texture. Returns
-    (moving props, camera target, radius, height)."""
+# light rigs: those of the training kinds (mixed), and the further sorts of the lights kind
+RIGS = ("sun", "area", "points", "emitters")
+LIGHTS_RIGS = ("spots", "shaped_area", "bars")
+
+
+def _mixed(scene, rng, frames, rigs=RIGS, count=(1, 3)):
+    """The ``mixed`` kind: a world, a room (with or without a window) or open ground,
+    ``count`` light rigs drawn from ``rigs`` (mixed: the training kinds' sorts, a sun, an
+    area light, point lights, small emissive icospheres), props with random shares of metal
+    and texture. Returns (moving props, camera target, radius, height)."""
     import bpy
 
     world = rng.choice(("sky", "dark", "color"))
@@ -362,7 +371,7 @@ def _mixed(scene, rng, frames):
     else:
         ground = _material("ground", rng, rough=rng.uniform(0.05, 0.9), texture=rng.choice(TEXTURES))
         _box("ground", (40, 40, 0.1), (0, 0, -0.05), ground)
-    rigs = rng.sample(("sun", "area", "points", "emitters"), rng.randint(1, 3))
+    rigs = rng.sample(rigs, rng.randint(*count))
     if world == "dark" and rigs == ["sun"]:
         rigs.append("emitters")  # a sun alone in a closed dark room may light nothing seen
     for rig in rigs:
@@ -381,13 +390,53 @@ def _mixed(scene, rng, frames):
                                                                  rng.uniform(0.5, 2.5)))
                 bpy.context.object.data.energy = rng.uniform(50, 400)
                 bpy.context.object.data.shadow_soft_size = rng.uniform(0.02, 0.5)
-        else:
+        elif rig == "emitters":
             for i in range(rng.randint(1, 4)):
                 em = _material(f"em{i}", rng, emission=rng.uniform(5.0, 60.0), rough=0.5)
                 _emitter(f"lamp{i}", rng.uniform(0.05, 0.4),
                          (rng.uniform(-3.5, 3.5), rng.uniform(-3.5, 3.5), rng.uniform(0.1, 2.5)), em)
+        else:
+            _lights_rig(rig, rng)
     moving = _objects(rng, rng.randint(4, 10), 3.5, rng.uniform(0.1, 0.7), rng.uniform(0.2, 0.9), frames)
     return moving, (0, 0, rng.uniform(0.4, 1.0)), rng.uniform(3.5, 6.0), rng.uniform(1.0, 3.0)
+
+
+def _lights_rig(rig, rng):
+    """The further light sorts of the ``lights`` kind: spot lights (cones of light with
+    sharp or soft edges), an area light of a random shape, emissive bars and tubes (long
+    thin meshes, bright against what they light)."""
+    import bpy
+
+    if rig == "spots":
+        for i in range(rng.randint(1, 3)):
+            bpy.ops.object.light_add(type="SPOT", location=(rng.uniform(-3, 3), rng.uniform(-3, 3),
+                                                            rng.uniform(2.0, 4.5)),
+                                     rotation=(rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), 0))
+            light = bpy.context.object.data
+            light.energy = rng.uniform(150, 1500)
+            light.spot_size = math.radians(rng.uniform(20, 90))
+            light.spot_blend = rng.uniform(0.0, 0.6)
+            light.shadow_soft_size = rng.uniform(0.02, 0.4)
+            light.color = [rng.uniform(0.6, 1.0) for _ in range(3)]
+    elif rig == "shaped_area":
+        bpy.ops.object.light_add(type="AREA", location=(rng.uniform(-2.5, 2.5), rng.uniform(-2.5, 2.5),
+                                                        rng.uniform(1.5, 3.0)),
+                                 rotation=(rng.uniform(-0.8, 0.8), rng.uniform(-0.8, 0.8), 0))
+        light = bpy.context.object.data
+        light.shape = rng.choice(("SQUARE", "RECTANGLE", "DISK", "ELLIPSE"))
+        light.size, light.size_y = rng.uniform(0.2, 2.0), rng.uniform(0.05, 2.0)
+        light.energy = rng.uniform(50, 500)
+    else:  # emissive bars and tubes, lying, standing or overhead
+        for i in range(rng.randint(1, 4)):
+            em = _material(f"bar{i}", rng, emission=rng.uniform(5.0, 80.0), rough=0.5)
+            length, width = rng.uniform(0.5, 3.0), rng.uniform(0.02, 0.12)
+            loc = (rng.uniform(-3.5, 3.5), rng.uniform(-3.5, 3.5), rng.uniform(0.1, 3.0))
+            rot = (rng.uniform(0, math.pi), rng.uniform(0, math.pi), rng.uniform(0, math.pi))
+            if rng.random() < 0.5:
+                _box(f"bar{i}", (width, length, width), loc, em, rot)
+            else:
+                bpy.ops.mesh.primitive_cylinder_add(radius=width / 2, depth=length, location=loc, rotation=rot)
+                bpy.context.object.data.materials.append(em)
 
 
 def _all_fcurves(obj):

@@ -67,7 +67,7 @@ def cmd_dataset(args) -> int:
 
     if args.list:
         for rel, cfg in dataset_specs(args.split, args.train_sequences, args.engine, args.moving_sequences,
-                                      args.mixed_sequences):
+                                      args.mixed_sequences, args.lights_sequences):
             print(rel, json.dumps({"scene": cfg.scene, "seed": cfg.seed, "camera": cfg.camera,
                                    "frames": cfg.frames, "size": cfg.size, "spp": cfg.spp}))
         return 0
@@ -75,7 +75,7 @@ def cmd_dataset(args) -> int:
     done = render_dataset(args.out, args.split, args.limit, variant=args.variant,
                           train_sequences=args.train_sequences, jobs=args.jobs, engine=args.engine,
                           address=args.address, progress=not args.quiet, moving_sequences=args.moving_sequences,
-                          mixed_sequences=args.mixed_sequences)
+                          mixed_sequences=args.mixed_sequences, lights_sequences=args.lights_sequences)
     for path, times in done:
         print(f"{path}: inputs {times['inputs']:.2f} s/frame, reference {times['reference']:.2f} s/frame")
     print(f"{len(done)} sequence(s) rendered in {time.perf_counter() - t0:.0f} s")
@@ -259,6 +259,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Mitsuba training sequences whose objects move (scene kind moving, seeds 4000, ...)")
     d.add_argument("--mixed-sequences", type=int, default=0,
                    help="Cycles training sequences of scene kind mixed (random combinations, seeds 9000, ...)")
+    d.add_argument("--lights-sequences", type=int, default=0,
+                   help="Cycles training sequences of scene kind lights (mixed with spot, shaped area and "
+                        "emissive bar lights; seeds 10000, ...)")
     d.add_argument("--jobs", type=int, default=1, help="sequences rendered at once, in separate processes")
     d.add_argument("--variant", default=None, help="Mitsuba variant, e.g. cuda_ad_rgb on a GPU machine")
     d.add_argument("--engine", default="mitsuba", choices=ENGINES,

@@ -131,7 +131,7 @@ def test_dataset_on_ray_renders_what_one_process_renders(local_ray, tmp_path, mo
     from jnds_deploy.render import RenderConfig, dataset
     specs = [(f"train/s{i}", RenderConfig(scene="procedural", seed=30 + i, camera="orbit", frames=2,
                                           size=(32, 18), spp=4)) for i in range(2)]
-    monkeypatch.setattr(dataset, "dataset_specs", lambda split, n, engine="mitsuba", moving=0, mixed=0: specs)
+    monkeypatch.setattr(dataset, "dataset_specs", lambda split, n, engine="mitsuba", moving=0, mixed=0, lights=0: specs)
     one = dataset.render_dataset(tmp_path / "one", jobs=1, progress=False)
     on_ray = dataset.render_dataset(tmp_path / "ray", address="local", progress=False)
     assert sorted(p.name for p, _ in on_ray) == [p.name for p, _ in one] == ["s0", "s1"]

@@ -282,7 +282,7 @@ def test_dataset_jobs_render_what_one_process_renders(tmp_path, monkeypatch):
     from jnds_deploy.render import RenderConfig, dataset
     specs = [(f"train/s{i}", RenderConfig(scene="procedural", seed=30 + i, camera="orbit", frames=2,
                                           size=(32, 18), spp=4)) for i in range(2)]
-    monkeypatch.setattr(dataset, "dataset_specs", lambda split, n, engine="mitsuba", moving=0, mixed=0: specs)
+    monkeypatch.setattr(dataset, "dataset_specs", lambda split, n, engine="mitsuba", moving=0, mixed=0, lights=0: specs)
     one = dataset.render_dataset(tmp_path / "one", jobs=1)
     two = dataset.render_dataset(tmp_path / "two", jobs=2)
     assert [p.name for p, _ in one] == [p.name for p, _ in two] == ["s0", "s1"]

@@ -48,11 +48,12 @@ TRAIN_SEQUENCES = 24  # the training set's default size; seeds 1000, 1001, ...
 SEEDS = {"mitsuba": (1000, 2000, 8000), "cycles": (5000, 6000, 7000)}
 MOVING_SEEDS = 4000  # Mitsuba training sequences of scene kind ``moving`` (objects that move)
 MIXED_SEEDS = 9000  # Cycles training sequences of scene kind ``mixed`` (blender_scene)
+LIGHTS_SEEDS = 10000  # Cycles training sequences of scene kind ``lights`` (blender_scene)
 
 
 def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
                   engine: str = "mitsuba", moving_sequences: int = 0,
-                  mixed_sequences: int = 0) -> list[tuple[str, RenderConfig]]:
+                  mixed_sequences: int = 0, lights_sequences: int = 0) -> list[tuple[str, RenderConfig]]:
     """(relative directory, config) of every sequence in a split: train, val, all (both)
     or test.
 
@@ -60,7 +61,8 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     always the same sequences); validation seeds (2000+; Cycles: 6000+) never overlap it.
     ``moving_sequences`` adds Mitsuba training sequences whose objects move (scene kind
     ``moving``, seeds 4000+, ``train/moving-*``); ``mixed_sequences`` Cycles training
-    sequences of scene kind ``mixed`` (seeds 9000+, ``train/cycles-mixed-*``).
+    sequences of scene kind ``mixed`` (seeds 9000+, ``train/cycles-mixed-*``),
+    ``lights_sequences`` of scene kind ``lights`` (seeds 10000+, ``train/cycles-lights-*``).
     The test split (8000+; Cycles: 7000+) is rendered only when asked for: it is never
     trained on, and no checkpoint or setting is chosen by it.
     """
@@ -68,8 +70,9 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
         raise ConfigError(f"train_sequences must be in 1..1000, got {train_sequences}")
     if not 0 <= moving_sequences <= 1000 or (moving_sequences and engine != "mitsuba"):
         raise ConfigError(f"moving_sequences must be in 0..1000 (Mitsuba only), got {moving_sequences}")
-    if not 0 <= mixed_sequences <= 1000 or (mixed_sequences and engine != "cycles"):
-        raise ConfigError(f"mixed_sequences must be in 0..1000 (Cycles only), got {mixed_sequences}")
+    for name, n in (("mixed_sequences", mixed_sequences), ("lights_sequences", lights_sequences)):
+        if not 0 <= n <= 1000 or (n and engine != "cycles"):
+            raise ConfigError(f"{name} must be in 0..1000 (Cycles only), got {n}")
     if engine not in ENGINES:
         raise ConfigError(f"unknown engine {engine!r}, expected one of {', '.join(ENGINES)}")
     train0, val0, test0 = SEEDS[engine]
@@ -77,7 +80,9 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
         "train": _specs("train", range(train0, train0 + train_sequences), frames=12, spp=64, engine=engine)
         + _specs("train", range(MOVING_SEEDS, MOVING_SEEDS + moving_sequences), frames=12, spp=64, kind="moving")
         + _specs("train", range(MIXED_SEEDS, MIXED_SEEDS + mixed_sequences), frames=12, spp=64, engine="cycles",
-                 kind="mixed"),
+                 kind="mixed")
+        + _specs("train", range(LIGHTS_SEEDS, LIGHTS_SEEDS + lights_sequences), frames=12, spp=64, engine="cycles",
+                 kind="lights"),
         "val": _specs("val", range(val0, val0 + 6), frames=12, spp=128, engine=engine),
         "test": _specs("test", range(test0, test0 + 6), frames=12, spp=128, engine=engine),
     }
@@ -99,14 +104,15 @@ def render_dataset(out: str | Path, split: str = "all", limit: int | None = None
                    variant: str | None = None, train_sequences: int = TRAIN_SEQUENCES,
                    jobs: int = 1, engine: str = "mitsuba", address: str | None = None,
                    progress: bool = True, moving_sequences: int = 0,
-                   mixed_sequences: int = 0) -> list[tuple[Path, dict]]:
+                   mixed_sequences: int = 0, lights_sequences: int = 0) -> list[tuple[Path, dict]]:
     """Render every missing sequence of a split; ``jobs`` > 1 renders that many sequences
     at once in separate processes (Mitsuba's Python-side tracing is single-threaded, so
     many cores or a GPU are only kept busy by several sequences at a time). ``address``
     (a Ray cluster, or ``local``; ``RAY_ADDRESS`` too) renders them as Ray tasks instead
     (``jnds_deploy.cluster.render_on_ray``)."""
     todo = []
-    for rel, cfg in dataset_specs(split, train_sequences, engine, moving_sequences, mixed_sequences)[:limit]:
+    for rel, cfg in dataset_specs(split, train_sequences, engine, moving_sequences, mixed_sequences,
+                                  lights_sequences)[:limit]:
         if variant and engine == "mitsuba":
             cfg = replace(cfg, variant=variant)
         path = Path(out) / rel

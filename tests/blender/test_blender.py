@@ -148,5 +148,6 @@ def test_the_cycles_test_split_is_made_of_kinds_training_never_has():
     from jnds_deploy.render.dataset import dataset_specs
     test = {cfg.scene for _, cfg in dataset_specs("test", engine="cycles")}
     seen = {cfg.scene for split in ("train", "val")
-            for _, cfg in dataset_specs(split, 200, engine="cycles", mixed_sequences=20)}
-    assert test == set(CYCLES_TEST_KINDS) and not test & seen and "mixed" in seen
+            for _, cfg in dataset_specs(split, 200, engine="cycles", mixed_sequences=20,
+                                        lights_sequences=20)}
+    assert test == set(CYCLES_TEST_KINDS) and not test & seen and {"mixed", "lights"} <= seen
