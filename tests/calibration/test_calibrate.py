@@ -74,6 +74,7 @@ def test_every_convolution_is_quantized(calibrated):
             assert not ops["Log"] and not ops["Exp"]  # no float tonemap left
             assert prod[prod[project.input[0]].input[0]].op_type == "Transpose"
         assert convs and ops["QuantizeLinear"] >= len(convs) and ops["Relu"] <= 1  # ReLUs folded
+        assert not ops["AveragePool"]  # a depthwise convolution (pools_as_convolutions)
         for conv in convs:  # DQ -> Conv <- DQ(int8 weight), and Conv -> Q (what ORT fuses)
             assert prod[conv.input[0]].op_type == "DequantizeLinear", conv.name
             assert prod[conv.input[1]].op_type == "DequantizeLinear", conv.name
@@ -81,6 +82,36 @@ def test_every_convolution_is_quantized(calibrated):
             assert "QuantizeLinear" in users, conv.name
         weights = [i for i in model.graph.initializer if i.data_type == onnx.TensorProto.INT8 and len(i.dims) == 4]
         assert len(weights) == len(convs)  # per-channel int8 weights, one per convolution
+
+
+def test_a_quantized_pool_rewritten_as_a_depthwise_convolution_pools_the_same(tmp_path):
+    """DQ -> AveragePool(2x2, stride 2) -> Q becomes a QLinearConv in ONNX Runtime with
+    the same output but for exact halves rounded the other way (one code)."""
+    import onnxruntime as ort
+    from onnx import TensorProto, helper
+
+    from jnds_deploy.calibration.quantize import pools_as_convolutions
+
+    scale, zp = numpy_helper.from_array(np.float32(0.02), "s"), numpy_helper.from_array(np.uint8(3), "z")
+    nodes = [helper.make_node("DequantizeLinear", ["x", "s", "z"], ["xf"]),
+             helper.make_node("AveragePool", ["xf"], ["pf"], name="pool", kernel_shape=[2, 2], strides=[2, 2]),
+             helper.make_node("QuantizeLinear", ["pf", "s", "z"], ["y"])]
+    graph = helper.make_graph(nodes, "g", [helper.make_tensor_value_info("x", TensorProto.UINT8, [1, 16, None, None])],
+                              [helper.make_tensor_value_info("y", TensorProto.UINT8, None)], [scale, zp])
+    path = tmp_path / "pool.onnx"
+    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)]), path)
+    x = np.random.default_rng(0).integers(0, 256, (1, 16, 36, 64), dtype=np.uint8)
+    before = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"x": x})[0]
+    assert pools_as_convolutions(path) == 1
+    opts = ort.SessionOptions()
+    opts.optimized_model_filepath = str(tmp_path / "optimized.onnx")
+    after = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"]).run(None, {"x": x})[0]
+    ops = [n.op_type for n in onnx.load(tmp_path / "optimized.onnx").graph.node]
+    assert "QLinearConv" in ops and not {"AveragePool", "QLinearAveragePool"} & set(ops), ops
+    mean = (x.reshape(1, 16, 18, 2, 32, 2).astype(np.float64).mean((3, 5)))  # codes share the zero point
+    np.testing.assert_allclose(after, mean, atol=0.5)  # rounded to nearest
+    diff = np.abs(after.astype(int) - before.astype(int))
+    assert diff.max() <= 1 and (diff > 0).mean() < 0.3  # ties only (a quarter of the means end in .5)
 
 
 def test_int8_graph_has_pruned_variants(calibrated):
