@@ -37,6 +37,7 @@ from ..export.prune import INT8_VARIANT_TOL, validate_variant, write_variants
 from .head import HEAD_NODE, STOPS, channel_ranges, quantize_head, raw_ranges
 from .inputs import quantize_inputs
 from .reader import FeedReader, collect_feeds
+from .rewrite import pools_as_convolutions, resizes_into_concat_scale
 
 METHODS = ("qat", "minmax", "percentile", "entropy")
 ACTIVATION_TYPES = ("u8", "s8")
@@ -117,52 +118,6 @@ def _quantize_static(fp32_path, out_path, feeds, calib, act, op_types, exclude, 
                         calibrate_method=calib, op_types_to_quantize=list(op_types),
                         nodes_to_exclude=list(exclude), extra_options=extra)
         os.replace(tmp_out, out_path)
-
-
-def pools_as_convolutions(path: Path) -> int:
-    """Rewrite each quantized 2x2, stride-2 AveragePool (DequantizeLinear -> AveragePool ->
-    QuantizeLinear) of the graph at ``path`` in place as a depthwise 2x2, stride-2
-    convolution whose int8 weights are 127 at scale 0.25 / 127, exactly the mean of
-    four. Its output keeps the pool's scale. Why: ONNX Runtime's QLinearAveragePool is
-    a slow memory-bound loop at 720p; the same pooling as a QLinearConv runs on MLAS's
-    channels-last depthwise kernel (docs/performance.md). The rounding of exact halves
-    can differ by one code. Returns the number of pools rewritten."""
-    from onnx import helper
-
-    model = onnx.load(str(path))
-    graph = model.graph
-    inferred = onnx.shape_inference.infer_shapes(model).graph
-    shapes = {v.name: v.type.tensor_type.shape for v in [*inferred.value_info, *inferred.input]}
-    producers = {o: n for n in graph.node for o in n.output}
-    users: dict[str, list] = {}
-    for n in graph.node:
-        for i in n.input:
-            users.setdefault(i, []).append(n)
-    done = 0
-    for node in [n for n in graph.node if n.op_type == "AveragePool"]:
-        attrs = {a.name: helper.get_attribute_value(a) for a in node.attribute}
-        dq, after = producers.get(node.input[0]), users.get(node.output[0], [])
-        if (attrs.get("kernel_shape") != [2, 2] or attrs.get("strides") != [2, 2]
-                or any(attrs.get("pads", [0])) or dq is None or dq.op_type != "DequantizeLinear"
-                or [u.op_type for u in after] != ["QuantizeLinear"]):
-            continue
-        channels = shapes[node.input[0]].dim[1].dim_value
-        if not channels:
-            raise CalibrationError(f"{path}: {node.name}: input channels unknown")
-        w = f"{node.name}/depthwise"
-        graph.initializer.extend([numpy_helper.from_array(np.full((channels, 1, 2, 2), 127, np.int8), f"{w}_q"),
-                                  numpy_helper.from_array(np.full(channels, 0.25 / 127, np.float32), f"{w}_scale"),
-                                  numpy_helper.from_array(np.zeros(channels, np.int8), f"{w}_zero_point")])
-        at = list(graph.node).index(node)
-        graph.node.remove(node)
-        graph.node.insert(at, helper.make_node("Conv", [node.input[0], w], [node.output[0]], name=node.name,
-                                               group=channels, kernel_shape=[2, 2], strides=[2, 2]))
-        graph.node.insert(at, helper.make_node("DequantizeLinear", [f"{w}_q", f"{w}_scale", f"{w}_zero_point"], [w],
-                                               name=f"{w}_DequantizeLinear", axis=0))
-        done += 1
-    if done:
-        onnx.save(model, str(path))
-    return done
 
 
 def qat_overrides(ranges: dict[str, dict]) -> dict[str, list[dict]]:
@@ -268,6 +223,7 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
         quantize_graph(root / g.file, root / file, feeds[name], cfg.method, cfg.activation_type,
                        cfg.op_types, qat_overrides(learned), cfg.percentile, cfg.float_nodes)
         pools_as_convolutions(root / file)
+        resizes_into_concat_scale(root / file)
         ranges[name] = quantized_tensors(root / file)
         if cfg.method == "qat":
             _check_overrides(file, learned, ranges[name])

@@ -75,6 +75,11 @@ def test_every_convolution_is_quantized(calibrated):
             assert prod[prod[project.input[0]].input[0]].op_type == "Transpose"
         assert convs and ops["QuantizeLinear"] >= len(convs) and ops["Relu"] <= 1  # ReLUs folded
         assert not ops["AveragePool"]  # a depthwise convolution (pools_as_convolutions)
+        for concat in [n for n in model.graph.node if n.op_type == "Concat"]:  # resizes_into_concat_scale
+            out = next(u for u in model.graph.node if concat.output[0] in u.input)
+            resized = [prod[i] for i in concat.input if prod[prod[i].input[0]].op_type == "QuantizeLinear"
+                       and prod[prod[prod[i].input[0]].input[0]].op_type == "Resize"]
+            assert len(resized) == 1 and resized[0].input[1:] == out.input[1:], concat.name
         for conv in convs:  # DQ -> Conv <- DQ(int8 weight), and Conv -> Q (what ORT fuses)
             assert prod[conv.input[0]].op_type == "DequantizeLinear", conv.name
             assert prod[conv.input[1]].op_type == "DequantizeLinear", conv.name
@@ -90,7 +95,7 @@ def test_a_quantized_pool_rewritten_as_a_depthwise_convolution_pools_the_same(tm
     import onnxruntime as ort
     from onnx import TensorProto, helper
 
-    from jnds_deploy.calibration.quantize import pools_as_convolutions
+    from jnds_deploy.calibration.rewrite import pools_as_convolutions
 
     scale, zp = numpy_helper.from_array(np.float32(0.02), "s"), numpy_helper.from_array(np.uint8(3), "z")
     nodes = [helper.make_node("DequantizeLinear", ["x", "s", "z"], ["xf"]),
