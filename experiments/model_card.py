@@ -191,9 +191,9 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str, 
            f"--qat-steps {tcfg['qat_steps']}")
     if tcfg.get("upsample_root", 1) != 1:
         cmd += f" --upsample-root {tcfg['upsample_root']}"
-    for key, default in (("batch", 4), ("patch", 64), ("unroll", 6), ("seed", 0)):
+    for key, default in (("batch", 4), ("patch", 64), ("unroll", 6), ("burn_in", 0), ("seed", 0)):
         if tcfg.get(key, default) != default:
-            cmd += f" --{key} {tcfg[key]}"
+            cmd += f" --{key.replace('_', '-')} {tcfg[key]}"
     if tcfg.get("threads", 2) != 2:
         cmd += f" --threads {tcfg['threads']}"
     if init:

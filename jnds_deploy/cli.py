@@ -94,7 +94,7 @@ def cmd_train(args) -> int:
                       device=args.device, exposure=args.exposure, rotate_normals=args.rotate_normals,
                       flips=args.flips, channels_last=not args.no_channels_last,
                       fixed_upsample=args.fixed_upsample, cross_cuts=args.cross_cuts,
-                      balance_renderers=args.balance_renderers)
+                      balance_renderers=args.balance_renderers, burn_in=args.burn_in)
     ckpt = train(cfg, progress=not args.quiet)
     print(f"checkpoint: {ckpt}")
     return 0
@@ -304,6 +304,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--rotate-normals", action="store_true",
                    help="augmentation: a uniformly random rotation of the normals' world frame per sample")
     t.add_argument("--flips", action="store_true", help="augmentation: random horizontal and vertical mirroring")
+    t.add_argument("--burn-in", type=int, default=0, metavar="N",
+                   help="up to N frames before each training window run without gradients (drawn per "
+                        "batch from 0..N): the history the loss sees has accumulated longer")
     t.add_argument("--cross-cuts", action="store_true",
                    help="training windows may span a camera cut (the history restarts there)")
     t.add_argument("--balance-renderers", action="store_true",

@@ -235,8 +235,9 @@ def test_training_resumes_from_an_init_checkpoint(tmp_path):
     assert b["quantized"] and b["quant_ranges"] == a["quant_ranges"]
     assert all(torch.equal(a["model"][k], b["model"][k]) for k in a["model"])
 
-    # one QAT step moves the weights a little, from the init's, not from a fresh model
-    tuned = torch.load(train(TrainConfig(run=str(tmp_path / "c"), fp32_steps=0, qat_steps=1, lr=1e-4,
+    # one QAT step (with burn-in frames) moves the weights a little, from the init's, not
+    # from a fresh model
+    tuned = torch.load(train(TrainConfig(run=str(tmp_path / "c"), fp32_steps=0, qat_steps=1, lr=1e-4, burn_in=2,
                                          init=str(first), **common), progress=False), weights_only=False)
     assert tuned["state"]["step"] == 1
     w = "network.output_block.head.weight"
@@ -541,3 +542,33 @@ def test_windows_across_a_cut_restart_the_history_there():
         assert not torch.allclose(outs[2].output[a:a + 1],
                                   model(batch["current"][2, a:a + 1], batch["motion"][2, a:a + 1],
                                         outs[1].history()[a:a + 1]).output, atol=1e-6)
+
+
+def test_burn_in_frames_build_the_history_without_gradients():
+    from jnds_deploy.training.data import PatchSampler, load_sequence
+    from jnds_deploy.training.train import after_burn_in, run_unroll
+    from .conftest import SAMPLE
+    seq = load_sequence(SAMPLE)
+    sampler = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0))
+    sampler.windows = [(0, 1)]  # frames 1-3, and before them frame 0, then frame 0 repeated
+    batch = sampler.batch(1, burn_in=3)
+    cur = batch["current"][:, 0]
+    assert cur.shape[0] == 6  # frames 0, 0, 0, 1, 2, 3
+    assert torch.equal(cur[0], cur[1]) and torch.equal(cur[1], cur[2]) and not torch.equal(cur[2], cur[3])
+    # the history restarts at every copy of frame 0, so the last one runs as a first frame
+    assert batch["cut"][:, 0].tolist() == [False, True, True, False, False, False]
+    torch.manual_seed(0)
+    model = JNDS(ModelConfig.preset("tiny"))
+    outs = run_unroll(model, batch, burn_in=3)
+    assert len(outs) == 3 and outs[0].output.requires_grad
+    with torch.no_grad():  # the same as running every frame and keeping the last three
+        full = run_unroll(model, batch)
+        fresh = run_unroll(model, after_burn_in(batch, 2), burn_in=1)  # frame 0 once, as a first frame
+    for a, b, c in zip(outs, full[3:], fresh):
+        assert torch.allclose(a.output, b.output, atol=1e-6) and torch.allclose(a.output, c.output, atol=1e-6)
+    loss_batch = after_burn_in(batch, 3)
+    assert loss_batch["color"].shape[0] == 3 and not loss_batch["cut"].any()
+    # without burn-in the batch is what it was: the window's frames, no cut
+    plain = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0))
+    plain.windows = [(0, 1)]
+    assert plain.batch(1)["current"].shape[0] == 3

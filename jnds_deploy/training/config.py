@@ -18,6 +18,10 @@ class TrainConfig:
     fixed_upsample: bool = False
     patch: int = 64  # native patch side, a multiple of the model's pad multiple
     unroll: int = 6  # consecutive frames per sample
+    # up to this many frames before each window run first without gradients, their number
+    # drawn per batch from 0..burn_in (training.train.run_unroll): the loss then also sees
+    # a history accumulated over more frames than it back-propagates through
+    burn_in: int = 0
     batch: int = 4
     fp32_steps: int = 4000
     qat_steps: int = 1500
@@ -63,5 +67,7 @@ class TrainConfig:
             self.exposure = tuple(float(v) for v in self.exposure)  # a list when read from config.json
             if len(self.exposure) != 2 or not self.exposure[0] <= self.exposure[1]:
                 raise ConfigError(f"exposure must be (lo, hi) stops with lo <= hi, got {self.exposure}")
+        if self.burn_in < 0:
+            raise ConfigError(f"burn_in must be >= 0 frames, got {self.burn_in}")
         if not 0 <= self.w_spatial <= 1:
             raise ConfigError(f"w_spatial must be in [0, 1], got {self.w_spatial}")

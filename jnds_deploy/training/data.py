@@ -161,10 +161,12 @@ class PatchSampler:
         n = len(self.windows)
         return self.windows[self.rng.integers(n) if self.p is None else self.rng.choice(n, p=self.p)]
 
-    def batch(self, n: int, device: str | torch.device = "cpu") -> dict[str, torch.Tensor]:
+    def batch(self, n: int, device: str | torch.device = "cpu", burn_in: int = 0) -> dict[str, torch.Tensor]:
         """Tensors (T, N, C, H, W): current, motion (native patch), reference color,
         diffuse, specular, albedo (target patch); ``cut`` (T, N) bool: the history restarts
-        at that frame (a camera cut inside the window)."""
+        at that frame (a camera cut inside the window). ``burn_in`` frames precede each
+        window (T = burn_in + unroll): the sequence's frames before it, where it has them;
+        before its first frame, that frame repeated, the history restarting at the real one."""
         out = {k: [] for k in ("current", "motion", *REFERENCE_COMPONENTS)}
         cuts = []
         for _ in range(n):
@@ -175,8 +177,8 @@ class PatchSampler:
             y = int(self.rng.integers(0, h - p + 1))
             x = int(self.rng.integers(0, w - p + 1))
             k = s.scale
-            sl = slice(t, t + self.unroll)
-            cuts.append([False] + [bool(c) for c in s.cuts[t + 1:t + self.unroll]])
+            sl = np.maximum(np.arange(t - burn_in, t + self.unroll), 0)
+            cuts.append([False] + [bool(s.cuts[b]) or a == b for a, b in zip(sl[:-1], sl[1:])])
             sample = {"current": s.current[sl, :, y:y + p, x:x + p], "motion": s.motion[sl, :, y:y + p, x:x + p]}
             for c in REFERENCE_COMPONENTS:
                 sample[c] = s.ref[c][sl, :, k * y:k * (y + p), k * x:k * (x + p)]

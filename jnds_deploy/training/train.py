@@ -36,15 +36,24 @@ class TrainState:
     phase: str = "fp32"  # fp32 | qat | done
 
 
-def run_unroll(model: JNDS, batch: dict) -> list:
+def run_unroll(model: JNDS, batch: dict, burn_in: int = 0) -> list:
+    """The model's outputs for the batch's frames after the first ``burn_in``, which run
+    without gradients only to build the history (``PatchSampler.batch``)."""
     outs, history = [], None
     cut = batch.get("cut")
     for t in range(batch["current"].shape[0]):
         reset = cut[t] if cut is not None and t > 0 and bool(cut[t].any()) else None
-        out = model(batch["current"][t], batch["motion"][t], history, reset=reset)
-        outs.append(out)
+        with torch.set_grad_enabled(torch.is_grad_enabled() and t >= burn_in):
+            out = model(batch["current"][t], batch["motion"][t], history, reset=reset)
+        if t >= burn_in:
+            outs.append(out)
         history = out.history()
     return outs
+
+
+def after_burn_in(batch: dict, burn_in: int) -> dict:
+    """The batch's frames that ``run_unroll`` returns outputs for (the losses' batch)."""
+    return {k: v[burn_in:] for k, v in batch.items()}
 
 
 def _lr(cfg: TrainConfig, state: TrainState) -> float:
@@ -144,8 +153,9 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
         model.train()
         for g in opt.param_groups:
             g["lr"] = _lr(cfg, state)
-        batch = sampler.batch(cfg.batch, cfg.device)
-        loss, parts = loss_fn(run_unroll(model, batch), batch)
+        burn = int(rng.integers(cfg.burn_in + 1)) if cfg.burn_in else 0
+        batch = sampler.batch(cfg.batch, cfg.device, burn_in=burn)
+        loss, parts = loss_fn(run_unroll(model, batch, burn), after_burn_in(batch, burn))
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
