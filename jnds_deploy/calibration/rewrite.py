@@ -63,7 +63,6 @@ def pools_as_convolutions(path: Path) -> int:
     return done
 
 
-
 def resizes_into_concat_scale(path: Path) -> int:
     """Where a concatenation's input is a float Resize quantized for it (Resize ->
     QuantizeLinear -> DequantizeLinear -> Concat -> QuantizeLinear), quantize the Resize's
