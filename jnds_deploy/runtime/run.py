@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -64,27 +65,41 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
     frames, scores, nonfinite, decisions, rejected = [], [], [], [], []
     shown = set(contact_sheet.sheet_frames(len(seq))) if seq.has_reference else set()
     sheet = []
-    for i in range(len(seq)):
-        frame = pipe(seq.inputs(i), seq.frames[i].camera_cut)
-        color = frame.output
-        write_output(out / f"{i:04d}.exr", color, output_format)
-        frames.append(frame.ms)
-        nonfinite.append(frame.nonfinite)
-        decisions.append({k: v for k, v in frame.decisions.items() if v})
-        rejected.append({"pixels": frame.disoccluded, "tiles": frame.rejected})
-        if metrics and seq.has_reference:
-            from ..metrics import flip, psnr
+    # reading and writing beside the computation: OpenEXR lets go of the GIL while it reads
+    # and writes, so frame i + 1 is read and frame i - 1 written while frame i runs
+    # (benchmarks/results/memory.md). Leaving the block waits for the writes, also on an error.
+    with ThreadPoolExecutor(1, thread_name_prefix="jnds-read") as reader, \
+            ThreadPoolExecutor(1, thread_name_prefix="jnds-write") as writer:
+        pending = reader.submit(seq.inputs, 0) if len(seq) else None
+        writing = None  # (index, future) of the frame being written
+        for i in range(len(seq)):
+            inputs = pending.result()
+            pending = reader.submit(seq.inputs, i + 1) if i + 1 < len(seq) else None
+            frame = pipe(inputs, seq.frames[i].camera_cut)
+            color = frame.output
+            if writing is not None:
+                writing[1].result()
+                yield writing[0]
+            writing = (i, writer.submit(write_output, out / f"{i:04d}.exr", color, output_format))
+            frames.append(frame.ms)
+            nonfinite.append(frame.nonfinite)
+            decisions.append({k: v for k, v in frame.decisions.items() if v})
+            rejected.append({"pixels": frame.disoccluded, "tiles": frame.rejected})
+            if metrics and seq.has_reference:
+                from ..metrics import flip, psnr
 
-            ref = seq.reference(i)["color"]
-            if ref.shape[:2] != color.shape[:2]:  # --native: the reference at the output size
-                ref = cv2.resize(ref, color.shape[1::-1], interpolation=cv2.INTER_AREA)
-            scores.append({"psnr": psnr(color, ref), "flip": flip(color, ref)})
-        if i in shown:
-            ref = seq.reference(i)["color"]
-            if ref.shape[:2] != color.shape[:2]:
-                ref = cv2.resize(ref, color.shape[1::-1], interpolation=cv2.INTER_AREA)
-            sheet.append((f"frame {i}", _sheet_row(seq.inputs(i), color, ref, pipe.out_scale)))
-        yield i
+                ref = seq.reference(i)["color"]
+                if ref.shape[:2] != color.shape[:2]:  # --native: the reference at the output size
+                    ref = cv2.resize(ref, color.shape[1::-1], interpolation=cv2.INTER_AREA)
+                scores.append({"psnr": psnr(color, ref), "flip": flip(color, ref)})
+            if i in shown:
+                ref = seq.reference(i)["color"]
+                if ref.shape[:2] != color.shape[:2]:
+                    ref = cv2.resize(ref, color.shape[1::-1], interpolation=cv2.INTER_AREA)
+                sheet.append((f"frame {i}", _sheet_row(inputs, color, ref, pipe.out_scale)))
+        if writing is not None:
+            writing[1].result()
+            yield writing[0]
     stages = sorted({k for f in frames for k in f})
     report = {
         "input": str(seq.path), "artifacts": str(Path(cfg.artifacts)),

@@ -56,3 +56,24 @@ def test_output_formats_store_the_frames_as_computed(tiny_artifacts, tmp_path):
     with pytest.raises(ValueError, match="output format 'png'"):
         next(iter_run(Pipeline(cfg), SAMPLE, tmp_path / "png", output_format="png"))
     assert not (tmp_path / "png").exists()
+
+
+def test_run_yields_each_frame_once_its_file_is_complete(tiny_artifacts, tmp_path):
+    """iter_run reads ahead and writes behind (threads): still every index in order, each
+    yielded only when its frame is on disk, and the frames those of a run frame by frame."""
+    from jnds_deploy.io import open_sequence
+    from jnds_deploy.runtime.pipeline import Pipeline
+    from jnds_deploy.runtime.run import iter_run
+
+    cfg = PipelineConfig(artifacts=str(tiny_artifacts[0]))
+    seen = []
+    for item in iter_run(Pipeline(cfg), SAMPLE, tmp_path, metrics=False):
+        if isinstance(item, dict):
+            break
+        seen.append((item, read_exr(tmp_path / f"{item:04d}.exr")))  # there, and whole, when yielded
+    seq = open_sequence(SAMPLE)
+    assert [i for i, _ in seen] == list(range(len(seq)))
+    pipe = Pipeline(cfg)
+    for i, stored in seen:
+        expected = pipe(seq.inputs(i), seq.frames[i].camera_cut).output
+        np.testing.assert_array_equal(np.stack([stored[f"color.{c}"] for c in "RGB"], -1), expected)
