@@ -11,7 +11,7 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
-from ..blender_scene import CYCLES_TEST_KINDS, CYCLES_TRAIN_KINDS
+from ..blender_scene import CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS, CYCLES_TRAIN_KINDS
 from ..errors import ConfigError
 from .camera import CAMERA_PATHS
 from .sequence import ENGINES, RenderConfig
@@ -32,6 +32,8 @@ def _specs(split: str, seeds: range, frames: int, spp: int, engine: str = "mitsu
             # the test set is made of scene kinds the training and validation sets never have
             if split == "test":
                 scene = CYCLES_TEST_KINDS[k % len(CYCLES_TEST_KINDS)]
+            elif split == "holdout":
+                scene = CYCLES_HOLDOUT_KINDS[k % len(CYCLES_HOLDOUT_KINDS)]
             else:
                 scene = CYCLES_TRAIN_KINDS[(k // len(CAMERA_PATHS) + k) % len(CYCLES_TRAIN_KINDS)]
             name = f"cycles-{scene}"
@@ -49,13 +51,14 @@ SEEDS = {"mitsuba": (1000, 2000, 8000), "cycles": (5000, 6000, 7000)}
 MOVING_SEEDS = 4000  # Mitsuba training sequences of scene kind ``moving`` (objects that move)
 MIXED_SEEDS = 9000  # Cycles training sequences of scene kind ``mixed`` (blender_scene)
 LIGHTS_SEEDS = 10000  # Cycles training sequences of scene kind ``lights`` (blender_scene)
+HOLDOUT_SEEDS = 7100  # the Cycles holdout split: scene kinds built after the test set was looked at
 
 
 def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
                   engine: str = "mitsuba", moving_sequences: int = 0,
                   mixed_sequences: int = 0, lights_sequences: int = 0) -> list[tuple[str, RenderConfig]]:
     """(relative directory, config) of every sequence in a split: train, val, all (both)
-    or test.
+    test or holdout.
 
     ``train_sequences`` grows the training set with further seeds (the first 24 are
     always the same sequences); validation seeds (2000+; Cycles: 6000+) never overlap it.
@@ -64,7 +67,9 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     sequences of scene kind ``mixed`` (seeds 9000+, ``train/cycles-mixed-*``),
     ``lights_sequences`` of scene kind ``lights`` (seeds 10000+, ``train/cycles-lights-*``).
     The test split (8000+; Cycles: 7000+) is rendered only when asked for: it is never
-    trained on, and no checkpoint or setting is chosen by it.
+    trained on, and no checkpoint or setting is chosen by it. The holdout split (Cycles
+    only, seeds 7100+) is the same for two more scene kinds, written after the test set's
+    failures had been read to choose training data (``blender_scene.CYCLES_HOLDOUT_KINDS``).
     """
     if not 1 <= train_sequences <= 1000:
         raise ConfigError(f"train_sequences must be in 1..1000, got {train_sequences}")
@@ -86,10 +91,15 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
         "val": _specs("val", range(val0, val0 + 6), frames=12, spp=128, engine=engine),
         "test": _specs("test", range(test0, test0 + 6), frames=12, spp=128, engine=engine),
     }
+    if engine == "cycles":
+        specs["holdout"] = _specs("holdout", range(HOLDOUT_SEEDS, HOLDOUT_SEEDS + 6), frames=12, spp=128,
+                                  engine=engine)
+    elif split == "holdout":
+        raise ConfigError("the holdout split is rendered with Cycles only (--engine cycles)")
     if split == "all":
         return specs["train"] + specs["val"]
     if split not in specs:
-        raise ConfigError(f"unknown split {split!r}, expected train, val, all or test")
+        raise ConfigError(f"unknown split {split!r}, expected train, val, all, test or holdout")
     return specs[split]
 
 

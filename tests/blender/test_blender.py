@@ -143,11 +143,17 @@ def test_every_cycles_scene_kind_renders_a_lit_valid_frame(kind, tmp_path):
     assert (inputs["diffuse"] + inputs["specular"]).max() > 0
 
 
-def test_the_cycles_test_split_is_made_of_kinds_training_never_has():
-    from jnds_deploy.blender_scene import CYCLES_TEST_KINDS
+def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has():
+    from jnds_deploy.blender_scene import CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS
     from jnds_deploy.render.dataset import dataset_specs
     test = {cfg.scene for _, cfg in dataset_specs("test", engine="cycles")}
+    holdout = {cfg.scene for _, cfg in dataset_specs("holdout", engine="cycles")}
     seen = {cfg.scene for split in ("train", "val")
             for _, cfg in dataset_specs(split, 200, engine="cycles", mixed_sequences=20,
                                         lights_sequences=20)}
     assert test == set(CYCLES_TEST_KINDS) and not test & seen and {"mixed", "lights"} <= seen
+    assert holdout == set(CYCLES_HOLDOUT_KINDS) and not holdout & (seen | test)
+    seeds = {split: {cfg.seed for _, cfg in dataset_specs(split, 200, engine="cycles", mixed_sequences=20,
+                                                          lights_sequences=20)}
+             for split in ("train", "val", "test", "holdout")}
+    assert not seeds["holdout"] & (seeds["train"] | seeds["val"] | seeds["test"])
