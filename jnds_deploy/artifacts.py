@@ -138,6 +138,11 @@ class Manifest:
         # artifacts of checkpoints from before it was a choice have no entry: linear
         return self.model_config.get("upsample_root", 1)
 
+    @property
+    def firefly_clamp(self) -> float:
+        # model.ModelConfig.firefly_clamp; artifacts from before it existed: off
+        return float(self.model_config.get("firefly_clamp", 0.0))
+
     # -- files ---------------------------------------------------------------------------
 
     @classmethod

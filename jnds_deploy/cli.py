@@ -152,7 +152,7 @@ def cmd_run(args) -> int:
     exr_threads(args.threads)
     cfg = PipelineConfig(artifacts=args.artifacts, precision=args.precision,
                          filter_dtype=args.filter_dtype, threads=args.threads, adaptive=not args.no_adaptive,
-                         native_output=args.native, keep_freed_memory=True)
+                         native_output=args.native, keep_freed_memory=True, firefly_clamp=args.firefly_clamp)
     report = run_sequence(cfg, args.input, args.output, progress=not args.quiet, output_format=args.output_format)
     med = report["median_ms"]
     print(f"{report['frames']} frames -> {args.output}: median {med['total']:.1f} ms/frame "
@@ -396,6 +396,9 @@ def build_parser() -> argparse.ArgumentParser:
     rn.add_argument("--native", action="store_true",
                     help="denoise only: output at the input size, no upsample block (a renderer "
                          "already at display resolution); metrics against the reference area-downsampled")
+    rn.add_argument("--firefly-clamp", type=float, default=None, metavar="K",
+                    help="limit each pixel's current radiance to K x the brightest of its neighbours and its "
+                         "history (0: off; default: the model's, model_config.firefly_clamp in the manifest)")
     rn.add_argument("--threads", type=int, default=2)
     rn.add_argument("--output-format", default="float", choices=("float", "half"),
                    help="output frames: float (32-bit, uncompressed) or half (16-bit, PIZ: a quarter of the size)")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from .layout import BACKGROUND, HDR_MAX, REJECT_COS, ROOT_FLOOR, TONEMAP_FLOOR
+from .layout import BACKGROUND, HDR_MAX, LUMINANCE, REJECT_COS, ROOT_FLOOR, TONEMAP_FLOOR
 
 
 
@@ -79,6 +79,39 @@ def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor) -> torch.Tens
         best = d if best is None else torch.maximum(best, d)
     surface = warped_normal.abs().sum(1, keepdim=True) >= BACKGROUND
     return background | (surface & (best < REJECT_COS * length))
+
+
+def luminance(x: torch.Tensor) -> torch.Tensor:
+    """(N, 1, H, W) Rec. 709 luminance of RGB ``x`` (N, 3, H, W)."""
+    return x[:, 0:1] * LUMINANCE[0] + x[:, 1:2] * LUMINANCE[1] + x[:, 2:3] * LUMINANCE[2]
+
+
+def clamp_fireflies(x: torch.Tensor, history: torch.Tensor, k: float) -> torch.Tensor:
+    """A 1-spp radiance ``x`` (N, 3, H, W) with each pixel's luminance limited to ``k``
+    times the brightest of its 8 neighbours and of the warped ``history`` (N, 3, H, W) in
+    its 3x3 neighbourhood; an RGB above the bound is scaled down to it (hue kept).
+
+    Why: a rare, very bright path sample (a caustic, a small light seen in a glossy
+    surface) is a firefly in one frame and gone the next; the filter paths spread its
+    energy over their coarse levels into a blotch that the history then keeps
+    (docs/model-gap.md). Something bright in its neighbourhood or in the history (a small
+    emitter, a highlight seen before) keeps it. Where the history is the current frame
+    (first frame, disocclusion) the pixel bounds itself: nothing changes. Biased: the
+    energy above the bound is dropped. Not in the paper; borders replicate."""
+    h, w = x.shape[-2:]
+    lum = luminance(x)
+    cur = F.pad(lum, (1, 1, 1, 1), mode="replicate")
+    hist = F.pad(luminance(history), (1, 1, 1, 1), mode="replicate")
+    bound = None
+    for i in range(9):
+        dy, dx = divmod(i, 3)
+        m = hist[:, :, dy:dy + h, dx:dx + w]
+        if i != 4:
+            m = torch.maximum(m, cur[:, :, dy:dy + h, dx:dx + w])
+        bound = m if bound is None else torch.maximum(bound, m)
+    bound = bound * k
+    # lum > bound >= 0 where the ratio is taken; the floor keeps 0 / 0 out of the other branch
+    return x * torch.where(lum > bound, bound / lum.clamp_min(torch.finfo(lum.dtype).tiny), torch.ones_like(lum))
 
 
 def downsample(x: torch.Tensor) -> torch.Tensor:

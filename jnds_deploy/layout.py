@@ -81,6 +81,10 @@ def head_kind(name: str) -> str:
 REJECT_COS = 0.7
 BACKGROUND = 0.5
 
+# Rec. 709 luminance weights: the brightness the firefly clamp compares
+# (jnds_deploy.filters.clamp_fireflies; the runtime's twin, runtime.filters)
+LUMINANCE = (0.2126, 0.7152, 0.0722)
+
 # the roots the upsample filter may interpolate in (model.ModelConfig.upsample_root; here,
 # so that the runtime, which has no torch, checks a manifest against the same list)
 UPSAMPLE_ROOTS = (1, 2, 4, 8)

@@ -58,6 +58,10 @@ class ModelConfig:
     # the upsample block's filter interpolates the composite's root of this degree and raises
     # the result back (filters.upsample_filter): 1 = linear, as in the paper
     upsample_root: int = 1
+    # each pixel's current diffuse and specular luminance at most this many times the
+    # brightest of its neighbours and of its warped history (filters.clamp_fireflies); 0: off.
+    # Not in the paper, not a weight: a checkpoint trained without it can run with it
+    firefly_clamp: float = 0.0
 
     def __post_init__(self):
         object.__setattr__(self, "encoder_widths", tuple(self.encoder_widths))
@@ -69,6 +73,8 @@ class ModelConfig:
                              f"got {self.filter_levels}")
         if self.upsample_root not in UPSAMPLE_ROOTS:
             raise ConfigError(f"upsample_root must be one of {UPSAMPLE_ROOTS}, got {self.upsample_root!r}")
+        if not (self.firefly_clamp == 0 or self.firefly_clamp >= 1):
+            raise ConfigError(f"firefly_clamp must be 0 (off) or >= 1, got {self.firefly_clamp!r}")
         if not isinstance(self.scale, int) or self.scale < 1:
             raise ConfigError(f"scale must be an integer >= 1, got {self.scale!r}")
         for name, v in asdict(self).items():
@@ -552,6 +558,11 @@ class JNDS(nn.Module):
             warped = torch.where(filters.disoccluded(cur["normal"], w["normal"].clamp(-1, 1)), cur_hist, warped)
             if reset is not None:
                 warped = torch.where(reset.view(-1, 1, 1, 1), cur_hist, warped)
+            if self.cfg.firefly_clamp:
+                w = split_history(warped)
+                for p in RADIANCE:
+                    cur[p] = filters.clamp_fireflies(cur[p], w[p], self.cfg.firefly_clamp)
+                current = torch.cat([cur[n] for n, _ in CURRENT], 1)
         net = self.network(current, warped)
         hist = split_history(warped)
         paths = {}

@@ -572,3 +572,14 @@ def test_burn_in_frames_build_the_history_without_gradients():
     plain = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0))
     plain.windows = [(0, 1)]
     assert plain.batch(1)["current"].shape[0] == 3
+
+
+@pytest.mark.parametrize("k", [0.5, -1.0])
+def test_firefly_clamp_below_one_is_refused(k):
+    from jnds_deploy.errors import ConfigError
+    from jnds_deploy.runtime import PipelineConfig
+
+    with pytest.raises(ConfigError, match="firefly_clamp"):
+        ModelConfig(firefly_clamp=k)
+    with pytest.raises(ConfigError, match="firefly_clamp"):
+        PipelineConfig(artifacts="a", firefly_clamp=k)

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
-from ..layout import BACKGROUND, HDR_MAX, REJECT_COS, ROOT_FLOOR, channels
+from ..layout import BACKGROUND, HDR_MAX, LUMINANCE, REJECT_COS, ROOT_FLOOR, channels
 from .head import Coded, _decode_row
 
 # channel indices of the stacked inputs (layout.CURRENT; the history shares its first 12):
@@ -464,6 +464,61 @@ def reject_disoccluded(current: np.ndarray, warped: np.ndarray, cos: float = REJ
     channels 9-11 of both). Returns how many pixels."""
     counts = np.zeros(warped.shape[1], np.int64)
     _reject_rows(current, warped, np.float32(cos), np.float32(background), counts)
+    return int(counts.sum())
+
+
+_LUM = tuple(np.float32(v) for v in LUMINANCE)
+
+
+@njit(parallel=True, cache=True)
+def _luminance_planes(current, history, out):
+    """out[2 s] = luminance of current's signal s, out[2 s + 1] = the history's (s:
+    diffuse, specular), with the sums in ``jnds_deploy.filters.luminance``'s order."""
+    r, g, b = _LUM
+    for y in prange(current.shape[1]):
+        for s in range(2):
+            c = _DIFFUSE if s == 0 else _SPECULAR
+            for x in range(current.shape[2]):
+                out[2 * s, y, x] = current[c, y, x] * r + current[c + 1, y, x] * g + current[c + 2, y, x] * b
+                out[2 * s + 1, y, x] = history[c, y, x] * r + history[c + 1, y, x] * g + history[c + 2, y, x] * b
+
+
+@njit(parallel=True, cache=True)
+def _clamp_rows(current, lum, k, counts):
+    h, w = current.shape[1], current.shape[2]
+    for y in prange(h):
+        n = 0
+        for s in range(2):
+            c = _DIFFUSE if s == 0 else _SPECULAR
+            for x in range(w):
+                bound = np.float32(0)
+                for i in range(9):
+                    yy = min(max(y + i // 3 - 1, 0), h - 1)
+                    xx = min(max(x + i % 3 - 1, 0), w - 1)
+                    m = lum[2 * s + 1, yy, xx]
+                    if i != 4:
+                        m = max(m, lum[2 * s, yy, xx])
+                    bound = max(bound, m)
+                bound = bound * k
+                v = lum[2 * s, y, x]
+                if v > bound:
+                    f = bound / v
+                    current[c, y, x] *= f
+                    current[c + 1, y, x] *= f
+                    current[c + 2, y, x] *= f
+                    n += 1
+        counts[y] = n
+
+
+def clamp_fireflies(current: np.ndarray, history: np.ndarray, k: float) -> int:
+    """``jnds_deploy.filters.clamp_fireflies`` of the current diffuse and specular in place
+    (current (13, H, W), the warped history (12, H, W), float32). Returns how many pixel
+    values (per signal) were clamped."""
+    _, h, w = current.shape
+    lum = np.empty((4, h, w), np.float32)
+    _luminance_planes(current, history, lum)
+    counts = np.zeros(h, np.int64)
+    _clamp_rows(current, lum, np.float32(k), counts)
     return int(counts.sum())
 
 

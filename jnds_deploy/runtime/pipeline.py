@@ -98,10 +98,14 @@ class PipelineConfig:
     # let malloc reuse freed memory (process-wide, see keep_freed_memory): off in the
     # library, on in `jnds run` and `jnds serve`, which own their process
     keep_freed_memory: bool = False
+    # the firefly clamp's factor (model.ModelConfig.firefly_clamp; 0: off); None: the model's
+    firefly_clamp: float | None = None
 
     def __post_init__(self):
         if self.precision not in ("fp32", "int8"):
             raise ConfigError(f"precision must be fp32 or int8, got {self.precision!r}")
+        if self.firefly_clamp is not None and not (self.firefly_clamp == 0 or self.firefly_clamp >= 1):
+            raise ConfigError(f"firefly_clamp must be 0 (off) or >= 1, got {self.firefly_clamp!r}")
         if self.filter_dtype not in ("float32", "float16"):
             raise ConfigError(f"filter_dtype must be float32 or float16, got {self.filter_dtype!r}")
 
@@ -121,6 +125,7 @@ class FrameResult:
     decisions: dict[str, bool | int | str] = field(default_factory=dict)
     disoccluded: int = 0  # history pixels replaced by the current inputs (filters.disoccluded)
     rejected: int = 0  # history tiles restarted from the current frame (history.reject_history)
+    clamped: int = 0  # current diffuse/specular pixel values clamped as fireflies (filters.clamp_fireflies)
 
 
 @functools.cache
@@ -178,6 +183,7 @@ class Pipeline:
         self.multiple = self.manifest.pad_multiple
         self.levels = self.manifest.filter_levels
         self.upsample_root = self.manifest.upsample_root
+        self.firefly_clamp = self.manifest.firefly_clamp if cfg.firefly_clamp is None else cfg.firefly_clamp
         # a model with one fixed upsample kernel has no upsample graph (Manifest.load checks the
         # kernel); at 2x it runs as one fused pass into the output (filters.upsample_fixed_hwc)
         self._fixed_kernel = None if "upsample" in self.manifest.graphs else self.manifest.upsample_kernel
@@ -275,6 +281,10 @@ class Pipeline:
             self.history.reset()
         with t("warp"):
             warped = self.history.warp(current, motion, (w, h), self.cfg.adaptive)
+        clamped = 0
+        if self.firefly_clamp and warped.valid:  # without a history every pixel bounds itself
+            with t("firefly_clamp"):
+                clamped = F.clamp_fireflies(current, warped.signals, self.firefly_clamp)
         decisions = self._decide(current, warped)
         net = self._network(current, warped.signals, decisions, t)
         with t("reformat"):
@@ -305,7 +315,7 @@ class Pipeline:
             if bad_out:
                 nonfinite["output"] = bad_out
         t.ms["total"] = sum(t.ms.values())
-        return FrameResult(result, t.ms, nonfinite, decisions, warped.disoccluded, warped.rejected)
+        return FrameResult(result, t.ms, nonfinite, decisions, warped.disoccluded, warped.rejected, clamped)
 
     def _decide(self, current: np.ndarray, warped: Warped) -> dict:
         """What this frame can skip: a signal that is zero in the frame and its history has

@@ -279,3 +279,37 @@ def test_warp_with_rejection_fused_equals_warp_then_reject():
     got, n = N.warp_channels_last(hist, mv, lo, hi, current)
     assert n == n_want > 0
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("k", [1.0, 4.0, 16.0])
+def test_clamp_fireflies_matches_torch(k):
+    rng = np.random.default_rng(int(k))
+    cur = (rng.exponential(1, (13, 19, 27)) ** 3).astype(np.float32)  # heavy-tailed, as 1 spp is
+    hist = rng.exponential(1, (12, 19, 27)).astype(np.float32)
+    got = cur.copy()
+    n = N.clamp_fireflies(got, hist, k)
+    t, h = torch.from_numpy(cur)[None], torch.from_numpy(hist)[None]
+    want = torch.cat([T.clamp_fireflies(t[:, 0:3], h[:, 0:3], k), T.clamp_fireflies(t[:, 3:6], h[:, 3:6], k),
+                      t[:, 6:]], 1)[0].numpy()
+    np.testing.assert_array_equal(got, want)
+    changed = (got[:6] != cur[:6]).reshape(2, 3, -1).any(1).sum()
+    assert n == changed > 0
+    np.testing.assert_array_equal(got[6:], cur[6:])  # only radiance changes
+
+
+def test_clamp_fireflies_keeps_what_the_history_or_the_neighbours_show():
+    cur = np.zeros((13, 9, 9), np.float32)
+    cur[:6] = 0.1
+    cur[0:3, 4, 4] = [500.0, 400.0, 300.0]  # a firefly in the diffuse signal
+    cur[3:6, 2, 2] = 80.0  # a small emitter in the specular, bright in the history too
+    hist = np.full((12, 9, 9), 0.1, np.float32)
+    hist[3:6, 2, 2] = 60.0
+    got = cur.copy()
+    assert N.clamp_fireflies(got, hist, 4.0) == 1
+    lum = np.dot(np.array([0.2126, 0.7152, 0.0722], np.float32), got[0:3, 4, 4])
+    assert lum == pytest.approx(0.4, rel=1e-6)  # 4 x the brightest neighbour / history (0.1)
+    np.testing.assert_allclose(got[0:3, 4, 4] / cur[0:3, 4, 4], got[0, 4, 4] / cur[0, 4, 4], rtol=1e-6)  # hue kept
+    np.testing.assert_array_equal(got[3:6], cur[3:6])
+    bright = cur.copy()
+    bright[0:3, 4, 5] = 200.0  # a bright neighbour: no longer isolated, kept
+    assert N.clamp_fireflies(bright, hist, 4.0) == 0

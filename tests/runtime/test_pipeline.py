@@ -175,3 +175,26 @@ def test_frame_errors_name_the_layer(artifacts):
         pipe({**layers, "albedo": layers["albedo"][:, :80]})
     with pytest.raises(FrameError, match="'normal' has shape"):
         pipe({**layers, "normal": layers["normal"][..., :2]})
+
+
+def test_firefly_clamp_matches_torch(artifacts):
+    """The runtime's clamp (the manifest's factor or PipelineConfig's) equals the model's."""
+    import dataclasses
+
+    path, model = artifacts
+    model.cfg = dataclasses.replace(model.cfg, firefly_clamp=2.0)
+    try:
+        ref = infer_sequence(model, load_sequence(SAMPLE))[:4]
+    finally:
+        model.cfg = dataclasses.replace(model.cfg, firefly_clamp=0.0)
+    plain = infer_sequence(model, load_sequence(SAMPLE))[:4]
+    seq = open_sequence(SAMPLE)
+    pipe = Pipeline(PipelineConfig(artifacts=str(path), firefly_clamp=2.0))
+    assert Pipeline(PipelineConfig(artifacts=str(path))).firefly_clamp == 0  # the manifest's: off
+    for i in range(4):
+        frame = pipe(seq.inputs(i), seq.frames[i].camera_cut)
+        assert (frame.clamped > 0) == (i > 0)  # no history on the first frame: nothing to clamp against
+        rel = np.abs(frame.output - ref[i]).mean() / np.abs(ref[i]).mean()
+        assert rel < 1e-4, (i, rel)
+        if i > 0:
+            assert np.abs(ref[i] - plain[i]).mean() / np.abs(ref[i]).mean() > 1e-3  # the clamp changed it
