@@ -29,7 +29,7 @@ from jnds_deploy.runtime import Pipeline  # noqa: E402
 from jnds_deploy.runtime.network import Edges  # noqa: E402
 from jnds_deploy.runtime.profile import STAGES, profile_stages  # noqa: E402
 
-ROWS = ("reformat", "warp", "input_block", "feature_extractor", "output_block", "filter_diffuse",
+ROWS = ("reformat", "warp", "firefly_clamp", "input_block", "feature_extractor", "output_block", "filter_diffuse",
         "filter_specular", "filter_auxiliary", "composite", "upsample_kernel", "upsample_filter")
 
 

@@ -88,6 +88,7 @@ def cmd_train(args) -> int:
     from .training.train import train
 
     cfg = TrainConfig(data=args.data, run=args.run, preset=args.preset, upsample_root=args.upsample_root,
+                      firefly_clamp=args.firefly_clamp,
                       patch=args.patch, unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
                       qat_steps=args.qat_steps, lr=args.lr, qat_lr=args.qat_lr, spatial_loss=args.spatial_loss,
                       feature_net=args.feature_net, init=args.init, val_every=args.val_every,
@@ -280,6 +281,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--upsample-root", type=int, default=1, choices=(1, 2, 4, 8),
                    help="the upsample filter interpolates the composite's root of this degree (1: linear, "
                         "the paper)")
+    t.add_argument("--firefly-clamp", type=float, default=0.0, metavar="K",
+                   help="train with the firefly clamp (model.ModelConfig.firefly_clamp; 0: off)")
     t.add_argument("--fixed-upsample", action="store_true",
                    help="one learned upsample kernel for every pixel instead of the upsample block's "
                         "per-pixel prediction (no upsample graph; --init from a predicting checkpoint "

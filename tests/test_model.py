@@ -235,6 +235,15 @@ def test_training_resumes_from_an_init_checkpoint(tmp_path):
     assert b["quantized"] and b["quant_ranges"] == a["quant_ranges"]
     assert all(torch.equal(a["model"][k], b["model"][k]) for k in a["model"])
 
+    # the firefly clamp changes no weight: a checkpoint with one (as the shipped one) starts
+    # a run with another, and each run records its own
+    clamped = train(TrainConfig(run=str(tmp_path / "f"), fp32_steps=0, qat_steps=0, init=str(same),
+                                firefly_clamp=16.0, **common), progress=False)
+    assert torch.load(clamped, weights_only=False)["model_config"]["firefly_clamp"] == 16.0
+    plain = train(TrainConfig(run=str(tmp_path / "g"), fp32_steps=0, qat_steps=0, init=str(clamped), **common),
+                  progress=False)
+    assert torch.load(plain, weights_only=False)["model_config"]["firefly_clamp"] == 0.0
+
     # one QAT step (with burn-in frames) moves the weights a little, from the init's, not
     # from a fresh model
     tuned = torch.load(train(TrainConfig(run=str(tmp_path / "c"), fp32_steps=0, qat_steps=1, lr=1e-4, burn_in=2,

@@ -14,6 +14,7 @@ class TrainConfig:
     run: str = "runs/small"
     preset: str = "small"
     upsample_root: int = 1  # ModelConfig.upsample_root of the trained model
+    firefly_clamp: float = 0.0  # ModelConfig.firefly_clamp of the trained model (0: off)
     # one learned upsample kernel for every pixel (ModelConfig.upsample_width 0)
     fixed_upsample: bool = False
     patch: int = 64  # native patch side, a multiple of the model's pad multiple
@@ -56,7 +57,8 @@ class TrainConfig:
         from ..model import ModelConfig
 
         fixed = dict(upsample_width=0, upsample_features=0) if self.fixed_upsample else {}
-        return ModelConfig.preset(self.preset, upsample_root=self.upsample_root, **fixed)
+        return ModelConfig.preset(self.preset, upsample_root=self.upsample_root, firefly_clamp=self.firefly_clamp,
+                                  **fixed)
 
     def __post_init__(self):
         if self.spatial_loss not in SPATIAL_LOSSES:
