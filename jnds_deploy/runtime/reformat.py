@@ -138,7 +138,8 @@ def _tonemap_codes(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
     """Tables giving Eq. 1's tonemap of x >= 0, quantized, without evaluating it per
     value. ``first``: the code of the smallest float32 in each bin of floats that share
     their top 17 bits (sign, exponent and 8 mantissa bits: ``x.view(uint32) >> 15``);
-    ``at``: the x from which each code on is reached (code k for x >= at[k]). Within a bin
+    ``at``: the x from which each code on is reached (code k for x >= at[k]; at[256] = inf,
+    so that ``_pack`` can add ``v >= at[q + 1]`` without a branch). Within a bin
     x changes by 2^-8 of itself, the tonemap (t^(1/2.2) of log(x + 1)) by at most 0.46 of
     that, so a bin holds at most one step of any code that is not saturated: the code of x
     is first[bin] or one more (``_pack``). The thresholds are exact in float64: the codes
@@ -152,7 +153,7 @@ def _tonemap_codes(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
         lows = (np.arange(1 << 16, dtype=np.uint32) << 15).view(np.float32).astype(np.float64)
     lows = np.where(np.isfinite(lows), lows, np.inf)
     first = (np.searchsorted(at, lows, side="right") - 1).clip(0, 255).astype(np.uint8)
-    return first, at
+    return first, np.append(at, np.inf)
 
 
 @njit(parallel=True, cache=True)
@@ -169,10 +170,11 @@ def _pack(current, history, kinds, scale, zero_point, first, at, out):
             if k == 1:  # tonemap, through the tables
                 for i in range(w):
                     v = min(max(src[y, i], lo), top)  # keeps -0.0: the sign bit is masked off
-                    q = first[np.int64((np.float32(v).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 15)]
-                    if q < 255 and v >= at[q + 1]:
-                        q += 1
-                    out[0, y, i, c] = q
+                    q = np.int64(first[np.int64((np.float32(v).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 15)])
+                    # no branch: on 1-spp noise a branch here is mispredicted often
+                    # (docs/performance.md, stop 40)
+                    q += np.int64(v >= at[q + 1])
+                    out[0, y, i, c] = np.uint8(q)
             else:
                 a = half if k == 2 else np.float32(1)
                 b = half if k == 2 else lo
