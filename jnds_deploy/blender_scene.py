@@ -46,7 +46,15 @@ CYCLES_TEST_KINDS = ("gallery", "night")
 # through a skylight, rings of columns and a thin railing, a still pool; workshop: a dark
 # room under shaded pendant lamps, a bench of many small props, a spinning fan
 CYCLES_HOLDOUT_KINDS = ("atrium", "workshop")
-CYCLES_SCENE_KINDS = CYCLES_TRAIN_KINDS + CYCLES_EXTRA_KINDS + CYCLES_TEST_KINDS + CYCLES_HOLDOUT_KINDS
+# kinds of the second holdout split (render.dataset), written at stop 40 after the first
+# holdout had been looked at (the firefly clamp's idea came from it): built apart from every
+# kind above, with what none of them has. street: a wet road at dusk between lit facades,
+# street lamps, cars whose headlights move with them; studio: a cyclorama under large
+# softboxes, a turntable, materials no other kind uses (subsurface, sheen, coat,
+# anisotropic metal, thin-film) and a wire mesh
+CYCLES_HOLDOUT2_KINDS = ("street", "studio")
+CYCLES_SCENE_KINDS = (CYCLES_TRAIN_KINDS + CYCLES_EXTRA_KINDS + CYCLES_TEST_KINDS + CYCLES_HOLDOUT_KINDS
+                      + CYCLES_HOLDOUT2_KINDS)
 TEXTURES = ("brick", "checker", "noise", "voronoi")
 
 
@@ -351,6 +359,10 @@ def build(cfg: dict):
         moving, target, radius, height = _atrium(scene, rng, frames)
     elif kind == "workshop":
         moving, target, radius, height = _workshop(scene, rng, frames)
+    elif kind == "street":
+        moving, target, radius, height = _street(scene, rng, frames)
+    elif kind == "studio":
+        moving, target, radius, height = _studio(scene, rng, frames)
     else:
         raise ConfigError(f"unknown Cycles scene {kind!r}, expected one of {', '.join(CYCLES_SCENE_KINDS)}")
     for obj in moving:
@@ -552,6 +564,225 @@ def _workshop(scene, rng, frames):
         hub.keyframe_insert("rotation_euler", frame=f)
     moving = _objects(rng, rng.randint(2, 4), 2.5, 0.3, 0.5, frames) + [hub]
     return moving, (bx, by, 1.0), rng.uniform(2.2, 3.0), rng.uniform(1.3, 2.0)
+
+
+def _key_path(obj, frames, start, step):
+    """Key ``obj`` moving by ``step`` (x, y, z) a frame from ``start``, one frame beyond each
+    end (Cycles evaluates frame - 1 and frame + 1 for the Vector pass)."""
+    for f in (0, frames + 1):
+        obj.location = tuple(a + b * f for a, b in zip(start, step))
+        obj.keyframe_insert("location", frame=f)
+
+
+def _street(scene, rng, frames):
+    """The ``street`` second-holdout kind: a wet road at dusk between two rows of facades
+    with lit windows, street lamps on thin poles, and one to three cars driving along it
+    whose headlights (emissive discs and spot lights) move with them."""
+    import bpy
+
+    world = bpy.data.worlds.new("world")  # dusk: a sky with the sun just below the horizon
+    scene.world = world
+    world.use_nodes = True
+    sky = world.node_tree.nodes.new("ShaderNodeTexSky")
+    sky.sky_type = "PREETHAM"
+    sky.sun_direction = (rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(0.0, 0.08))
+    bg = world.node_tree.nodes["Background"]
+    world.node_tree.links.new(sky.outputs["Color"], bg.inputs["Color"])
+    bg.inputs["Strength"].default_value = rng.uniform(0.02, 0.15)
+    world.cycles.sampling_method = "MANUAL"
+    world.cycles.sample_map_resolution = 512
+    road_half = rng.uniform(3.0, 4.5)
+    road = _material("asphalt", rng, rough=rng.uniform(0.03, 0.25), color=[rng.uniform(0.03, 0.08)] * 3,
+                     texture="noise")
+    _box("road", (60, 2 * road_half, 0.1), (0, 0, -0.05), road)
+    kerb = _material("pavement", rng, rough=rng.uniform(0.4, 0.9), texture=rng.choice(("brick", "checker")))
+    for side in (-1, 1):
+        _box(f"pavement{side}", (60, 2.5, 0.25), (0, side * (road_half + 1.25), 0.075), kerb)
+        x = -20.0
+        while x < 20.0:  # facades of random widths and heights, windows lit at random
+            width, tall, depth = rng.uniform(4, 9), rng.uniform(6, 18), 4.0
+            y = side * (road_half + 2.5 + depth / 2)
+            _box(f"house{side}_{x:.0f}", (width, depth, tall), (x + width / 2, y, tall / 2),
+                 _material(f"facade{side}_{x:.0f}", rng, rough=rng.uniform(0.5, 0.95),
+                           texture=rng.choice(("brick", "noise", None))))
+            lit = _material(f"window{side}_{x:.0f}", rng, emission=rng.uniform(1.0, 12.0), rough=0.3,
+                            color=(1.0, rng.uniform(0.6, 0.95), rng.uniform(0.3, 0.8)))
+            dark = _material(f"glass{side}_{x:.0f}", rng, rough=0.05, color=(0.02, 0.02, 0.03))
+            for fx in range(int(width // 1.5)):
+                for fz in range(int((tall - 1.0) // 2.5)):
+                    wx = x + 0.75 + 1.5 * fx
+                    _box(f"w{side}_{wx:.1f}_{fz}", (0.8, 0.05, 1.2),
+                         (wx, y - side * (depth / 2 + 0.03), 1.8 + 2.5 * fz),
+                         lit if rng.random() < 0.4 else dark)
+            x += width + rng.uniform(0.0, 1.0)
+    pole = _material("pole", rng, metal=True, rough=rng.uniform(0.3, 0.6), color=(0.3, 0.3, 0.32))
+    lamp = _material("lamp", rng, emission=rng.uniform(20.0, 60.0), rough=0.5, color=(1.0, 0.85, 0.6))
+    x0 = rng.uniform(-12, -6)
+    for k in range(rng.randint(3, 5)):
+        side = 1 if k % 2 else -1
+        x, y, h = x0 + k * rng.uniform(5, 8), side * (road_half + 0.4), rng.uniform(4.0, 6.0)
+        bpy.ops.mesh.primitive_cylinder_add(radius=0.06, depth=h, location=(x, y, h / 2))
+        bpy.context.object.data.materials.append(pole)
+        _emitter(f"globe{k}", 0.18, (x, y, h + 0.1), lamp)
+        bpy.ops.object.light_add(type="SPOT", location=(x, y, h - 0.1))
+        light = bpy.context.object.data
+        light.energy = rng.uniform(800, 2500)
+        light.spot_size = math.radians(rng.uniform(70, 110))
+        light.spot_blend = rng.uniform(0.2, 0.6)
+        light.color = (1.0, 0.8, 0.55)
+    moving = []
+    for c in range(rng.randint(1, 3)):
+        lane = rng.choice((-1, 1)) * road_half / 2
+        speed = rng.uniform(0.25, 0.8) * (1 if lane < 0 else -1)  # metres a frame, driving on the right
+        start = (rng.uniform(-4, 4) - speed * frames / 2, lane, 0.0)
+        car = bpy.data.objects.new(f"car{c}", None)
+        scene.collection.objects.link(car)
+        paint = _material(f"paint{c}", rng, metal=rng.random() < 0.5, rough=rng.uniform(0.1, 0.4))
+        body = _box(f"body{c}", (4.2, 1.8, 0.8), (0, 0, 0.65), paint)
+        cabin = _box(f"cabin{c}", (2.2, 1.6, 0.6), (-0.3, 0, 1.35),
+                     _material(f"cabin{c}", rng, rough=0.05, color=(0.05, 0.06, 0.08)))
+        parts = [body, cabin]
+        front = 2.1 if speed > 0 else -2.1
+        head = _material(f"head{c}", rng, emission=rng.uniform(30.0, 80.0), rough=0.5, color=(1.0, 0.95, 0.85))
+        tail = _material(f"tail{c}", rng, emission=rng.uniform(5.0, 20.0), rough=0.5, color=(1.0, 0.05, 0.02))
+        for sy in (-0.65, 0.65):
+            parts.append(_emitter(f"head{c}{sy}", 0.1, (front * 1.01, sy, 0.7), head))
+            parts.append(_box(f"tail{c}{sy}", (0.04, 0.3, 0.12), (-front * 1.0, sy, 0.8), tail))
+            # a spot shines along its -Z: -84 degrees about Y aims it ahead (+X) and a little down
+            bpy.ops.object.light_add(type="SPOT", location=(front * 1.05, sy, 0.7),
+                                     rotation=(0, math.radians(-84 if speed > 0 else 84), 0))
+            light = bpy.context.object
+            light.data.energy = rng.uniform(300, 900)
+            light.data.spot_size = math.radians(rng.uniform(40, 60))
+            light.data.spot_blend = 0.3
+            parts.append(light)
+        for obj in parts:
+            obj.parent = car
+        _key_path(car, frames, start, (speed, 0.0, 0.0))
+        moving.append(car)
+    # the camera stays off the facades: at most 2 m from the road's edge (its path's radius)
+    return moving, (rng.uniform(-2, 2), 0, 1.2), rng.uniform(3.5, road_half + 2.0), rng.uniform(1.5, 4.0)
+
+
+def _studio_material(name, rng, sort):
+    """A Principled BSDF of one of the sorts no other kind uses."""
+    m = _material(name, rng, rough=rng.uniform(0.2, 0.6))
+    bsdf = m.node_tree.nodes["Principled BSDF"]
+    if sort == "subsurface":  # wax, skin, marble
+        bsdf.inputs["Subsurface Weight"].default_value = 1.0
+        bsdf.inputs["Subsurface Radius"].default_value = [rng.uniform(0.2, 1.0) for _ in range(3)]
+        bsdf.inputs["Subsurface Scale"].default_value = rng.uniform(0.02, 0.2)
+    elif sort == "sheen":  # cloth, velvet
+        bsdf.inputs["Sheen Weight"].default_value = 1.0
+        bsdf.inputs["Sheen Roughness"].default_value = rng.uniform(0.2, 0.8)
+        bsdf.inputs["Roughness"].default_value = 0.9
+    elif sort == "coat":  # car paint, lacquer
+        bsdf.inputs["Coat Weight"].default_value = 1.0
+        bsdf.inputs["Coat Roughness"].default_value = rng.uniform(0.0, 0.1)
+        bsdf.inputs["Metallic"].default_value = rng.choice((0.0, 1.0))
+    elif sort == "anisotropic":  # brushed metal
+        bsdf.inputs["Metallic"].default_value = 1.0
+        bsdf.inputs["Anisotropic"].default_value = rng.uniform(0.5, 1.0)
+        bsdf.inputs["Anisotropic Rotation"].default_value = rng.uniform(0.0, 1.0)
+        bsdf.inputs["Roughness"].default_value = rng.uniform(0.15, 0.5)
+    else:  # thin film over a dark dielectric: soap bubble, oil slick colours
+        bsdf.inputs["Thin Film Thickness"].default_value = rng.uniform(200, 800)
+        bsdf.inputs["Roughness"].default_value = rng.uniform(0.02, 0.2)
+        bsdf.inputs["Base Color"].default_value = (0.05, 0.05, 0.05, 1.0)
+    return m
+
+
+STUDIO_SORTS = ("subsurface", "sheen", "coat", "anisotropic", "thin_film")
+
+
+def _studio(scene, rng, frames):
+    """The ``studio`` second-holdout kind: a seamless backdrop curving from floor to wall
+    under two or three large softboxes, a turntable carrying a smooth hero object, props of
+    materials no other kind uses, and a fine wire mesh."""
+    import bpy
+
+    _world(scene, rng, "dark")
+    backdrop = _material("backdrop", rng, rough=rng.uniform(0.6, 1.0), color=[rng.uniform(0.3, 0.85)] * 3)
+    # floor (up to y = 4), a cove (the inside of a quarter cylinder of radius r) and a wall
+    r = rng.uniform(1.0, 2.0)
+    _box("floor", (20, 14, 0.1), (0, -3.0, -0.05), backdrop)
+    profile = [(4.0 + r * math.cos(a), r + r * math.sin(a))
+               for a in (-math.pi / 2 + math.pi / 2 * k / 24 for k in range(25))]
+    verts = [(x, y, z) for x in (-10.0, 10.0) for y, z in profile]
+    faces = [(k, k + 1, 26 + k, 25 + k) for k in range(24)]
+    mesh = bpy.data.meshes.new("cove")
+    mesh.from_pydata(verts, [], faces)
+    mesh.materials.append(backdrop)
+    for poly in mesh.polygons:
+        poly.use_smooth = True
+    cove = bpy.data.objects.new("cove", mesh)
+    scene.collection.objects.link(cove)
+    _box("wall", (20, 0.1, 10), (0, 4.0 + r + 0.05, r + 5), backdrop)
+    for k in range(rng.randint(2, 3)):  # large softboxes around the set
+        a = rng.uniform(-2.4, 2.4) if k else rng.uniform(-0.6, 0.6)
+        d, h = rng.uniform(3.0, 5.0), rng.uniform(2.0, 4.0)
+        bpy.ops.object.light_add(type="AREA", location=(d * math.sin(a), -d * math.cos(a), h))
+        light = bpy.context.object
+        light.data.shape = "RECTANGLE"
+        light.data.size, light.data.size_y = rng.uniform(1.0, 2.5), rng.uniform(1.0, 2.5)
+        light.data.energy = rng.uniform(300, 1500) / (k + 1)
+        light.data.color = (1.0, rng.uniform(0.85, 1.0), rng.uniform(0.75, 1.0))
+        track = light.constraints.new("TRACK_TO")
+        aim = bpy.data.objects.new(f"aim{k}", None)
+        scene.collection.objects.link(aim)
+        aim.location = (0, 0, 0.6)
+        track.target = aim
+    table = _material("turntable", rng, rough=0.3, color=(0.05, 0.05, 0.05))
+    bpy.ops.mesh.primitive_cylinder_add(vertices=64, radius=0.9, depth=0.1, location=(0, 0, 0.05))
+    bpy.context.object.data.materials.append(table)
+    spin = bpy.data.objects.new("turntable_hub", None)
+    scene.collection.objects.link(spin)
+    hero = rng.choice(("monkey", "torus_knot", "sphere"))
+    if hero == "monkey":
+        bpy.ops.mesh.primitive_monkey_add(size=0.9, location=(0, 0, 0.6))
+        bpy.ops.object.modifier_add(type="SUBSURF")
+        bpy.context.object.modifiers[-1].levels = 2
+    elif hero == "torus_knot":
+        bpy.ops.mesh.primitive_torus_add(major_radius=0.4, minor_radius=0.12, location=(0, 0, 0.6),
+                                         rotation=(rng.uniform(0.3, 1.2), 0, 0), major_segments=96)
+    else:
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=0.45, location=(0, 0, 0.55), segments=64, ring_count=32)
+    bpy.ops.object.shade_smooth()
+    obj = bpy.context.object
+    obj.data.materials.append(_studio_material("hero", rng, rng.choice(STUDIO_SORTS)))
+    obj.parent = spin
+    turn = rng.uniform(0.04, 0.15) * rng.choice((-1, 1))  # radians a frame
+    for f in (0, frames + 1):
+        spin.rotation_euler[2] = turn * f
+        spin.keyframe_insert("rotation_euler", frame=f)
+    for i in range(rng.randint(4, 7)):  # props on the backdrop, one material sort each
+        a, d = rng.uniform(0, 2 * math.pi), rng.uniform(1.3, 2.8)
+        x, y, s = d * math.cos(a), min(d * math.sin(a), 3.0), rng.uniform(0.2, 0.6)
+        shape = rng.choice(("cube", "sphere", "cylinder", "cone"))
+        if shape == "cube":
+            bpy.ops.mesh.primitive_cube_add(size=s, location=(x, y, s / 2), rotation=(0, 0, rng.uniform(0, 3)))
+            bpy.ops.object.modifier_add(type="BEVEL")
+            bpy.context.object.modifiers[-1].width = s * 0.1
+            bpy.context.object.modifiers[-1].segments = 3
+        elif shape == "sphere":
+            bpy.ops.mesh.primitive_uv_sphere_add(radius=s / 2, location=(x, y, s / 2), segments=48, ring_count=24)
+            bpy.ops.object.shade_smooth()
+        elif shape == "cylinder":
+            bpy.ops.mesh.primitive_cylinder_add(vertices=48, radius=s / 3, depth=s * 1.4, location=(x, y, s * 0.7))
+            bpy.ops.object.shade_smooth()
+        else:
+            bpy.ops.mesh.primitive_cone_add(vertices=48, radius1=s / 2, depth=s, location=(x, y, s / 2))
+            bpy.ops.object.shade_smooth()
+        bpy.context.object.data.materials.append(_studio_material(f"prop{i}", rng, rng.choice(STUDIO_SORTS)))
+    # a fine wire mesh standing behind the set: a grid turned into thin struts
+    cells = rng.randint(12, 30)
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=cells, y_subdivisions=cells, size=rng.uniform(1.2, 2.0),
+                                    location=(rng.uniform(-1.5, 1.5), rng.uniform(1.5, 2.5), 1.0),
+                                    rotation=(math.pi / 2, 0, rng.uniform(-0.5, 0.5)))
+    bpy.ops.object.modifier_add(type="WIREFRAME")
+    bpy.context.object.modifiers[-1].thickness = rng.uniform(0.004, 0.012)
+    bpy.context.object.data.materials.append(_material("wire", rng, metal=True, rough=rng.uniform(0.2, 0.5)))
+    return [spin], (0, 0, 0.6), rng.uniform(2.6, 4.0), rng.uniform(1.0, 2.2)
 
 
 def _all_fcurves(obj):

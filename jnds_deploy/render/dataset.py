@@ -11,7 +11,7 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
-from ..blender_scene import CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS, CYCLES_TRAIN_KINDS
+from ..blender_scene import CYCLES_HOLDOUT2_KINDS, CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS, CYCLES_TRAIN_KINDS
 from ..errors import ConfigError
 from .camera import CAMERA_PATHS
 from .sequence import ENGINES, RenderConfig
@@ -34,6 +34,8 @@ def _specs(split: str, seeds: range, frames: int, spp: int, engine: str = "mitsu
                 scene = CYCLES_TEST_KINDS[k % len(CYCLES_TEST_KINDS)]
             elif split == "holdout":
                 scene = CYCLES_HOLDOUT_KINDS[k % len(CYCLES_HOLDOUT_KINDS)]
+            elif split == "holdout2":
+                scene = CYCLES_HOLDOUT2_KINDS[k % len(CYCLES_HOLDOUT2_KINDS)]
             else:
                 scene = CYCLES_TRAIN_KINDS[(k // len(CAMERA_PATHS) + k) % len(CYCLES_TRAIN_KINDS)]
             name = f"cycles-{scene}"
@@ -52,6 +54,7 @@ MOVING_SEEDS = 4000  # Mitsuba training sequences of scene kind ``moving`` (obje
 MIXED_SEEDS = 9000  # Cycles training sequences of scene kind ``mixed`` (blender_scene)
 LIGHTS_SEEDS = 10000  # Cycles training sequences of scene kind ``lights`` (blender_scene)
 HOLDOUT_SEEDS = 7100  # the Cycles holdout split: scene kinds built after the test set was looked at
+HOLDOUT2_SEEDS = 7200  # the second: scene kinds built after the first holdout was looked at
 
 
 def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
@@ -69,7 +72,9 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     The test split (8000+; Cycles: 7000+) is rendered only when asked for: it is never
     trained on, and no checkpoint or setting is chosen by it. The holdout split (Cycles
     only, seeds 7100+) is the same for two more scene kinds, written after the test set's
-    failures had been read to choose training data (``blender_scene.CYCLES_HOLDOUT_KINDS``).
+    failures had been read to choose training data (``blender_scene.CYCLES_HOLDOUT_KINDS``);
+    holdout2 (seeds 7200+) for two more, written after the first holdout had been looked at
+    (``blender_scene.CYCLES_HOLDOUT2_KINDS``).
     """
     if not 1 <= train_sequences <= 1000:
         raise ConfigError(f"train_sequences must be in 1..1000, got {train_sequences}")
@@ -94,12 +99,14 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     if engine == "cycles":
         specs["holdout"] = _specs("holdout", range(HOLDOUT_SEEDS, HOLDOUT_SEEDS + 6), frames=12, spp=128,
                                   engine=engine)
-    elif split == "holdout":
-        raise ConfigError("the holdout split is rendered with Cycles only (--engine cycles)")
+        specs["holdout2"] = _specs("holdout2", range(HOLDOUT2_SEEDS, HOLDOUT2_SEEDS + 6), frames=12, spp=128,
+                                   engine=engine)
+    elif split in ("holdout", "holdout2"):
+        raise ConfigError(f"the {split} split is rendered with Cycles only (--engine cycles)")
     if split == "all":
         return specs["train"] + specs["val"]
     if split not in specs:
-        raise ConfigError(f"unknown split {split!r}, expected train, val, all, test or holdout")
+        raise ConfigError(f"unknown split {split!r}, expected train, val, all, test, holdout or holdout2")
     return specs[split]
 
 

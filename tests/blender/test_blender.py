@@ -144,7 +144,7 @@ def test_every_cycles_scene_kind_renders_a_lit_valid_frame(kind, tmp_path):
 
 
 def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has():
-    from jnds_deploy.blender_scene import CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS
+    from jnds_deploy.blender_scene import CYCLES_HOLDOUT2_KINDS, CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS
     from jnds_deploy.render.dataset import dataset_specs
     test = {cfg.scene for _, cfg in dataset_specs("test", engine="cycles")}
     holdout = {cfg.scene for _, cfg in dataset_specs("holdout", engine="cycles")}
@@ -153,7 +153,10 @@ def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has
                                         lights_sequences=20)}
     assert test == set(CYCLES_TEST_KINDS) and not test & seen and {"mixed", "lights"} <= seen
     assert holdout == set(CYCLES_HOLDOUT_KINDS) and not holdout & (seen | test)
+    holdout2 = {cfg.scene for _, cfg in dataset_specs("holdout2", engine="cycles")}
+    assert holdout2 == set(CYCLES_HOLDOUT2_KINDS) and not holdout2 & (seen | test | holdout)
     seeds = {split: {cfg.seed for _, cfg in dataset_specs(split, 200, engine="cycles", mixed_sequences=20,
                                                           lights_sequences=20)}
-             for split in ("train", "val", "test", "holdout")}
+             for split in ("train", "val", "test", "holdout", "holdout2")}
     assert not seeds["holdout"] & (seeds["train"] | seeds["val"] | seeds["test"])
+    assert not seeds["holdout2"] & (seeds["train"] | seeds["val"] | seeds["test"] | seeds["holdout"])
