@@ -211,12 +211,13 @@ def _world(scene, rng, kind):
     scene.world = world
     world.use_nodes = True
     bg = world.node_tree.nodes["Background"]
-    if kind == "sky":
+    if kind in ("sky", "dusk"):  # dusk: the sun just below the horizon, dim
         sky = world.node_tree.nodes.new("ShaderNodeTexSky")
         sky.sky_type = "PREETHAM"
-        sky.sun_direction = (rng.uniform(-0.3, 0.3), 0.8, rng.uniform(0.3, 0.7))
+        sky.sun_direction = ((rng.uniform(-0.3, 0.3), 0.8, rng.uniform(0.3, 0.7)) if kind == "sky" else
+                             (rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(0.0, 0.08)))
         world.node_tree.links.new(sky.outputs["Color"], bg.inputs["Color"])
-        bg.inputs["Strength"].default_value = rng.uniform(0.3, 1.0)
+        bg.inputs["Strength"].default_value = rng.uniform(0.3, 1.0) if kind == "sky" else rng.uniform(0.02, 0.15)
     elif kind == "dark":
         bg.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
         bg.inputs["Strength"].default_value = 0.0
@@ -580,17 +581,7 @@ def _street(scene, rng, frames):
     whose headlights (emissive discs and spot lights) move with them."""
     import bpy
 
-    world = bpy.data.worlds.new("world")  # dusk: a sky with the sun just below the horizon
-    scene.world = world
-    world.use_nodes = True
-    sky = world.node_tree.nodes.new("ShaderNodeTexSky")
-    sky.sky_type = "PREETHAM"
-    sky.sun_direction = (rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(0.0, 0.08))
-    bg = world.node_tree.nodes["Background"]
-    world.node_tree.links.new(sky.outputs["Color"], bg.inputs["Color"])
-    bg.inputs["Strength"].default_value = rng.uniform(0.02, 0.15)
-    world.cycles.sampling_method = "MANUAL"
-    world.cycles.sample_map_resolution = 512
+    _world(scene, rng, "dusk")
     road_half = rng.uniform(3.0, 4.5)
     road = _material("asphalt", rng, rough=rng.uniform(0.03, 0.25), color=[rng.uniform(0.03, 0.08)] * 3,
                      texture="noise")
