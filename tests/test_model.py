@@ -276,14 +276,15 @@ def test_training_resumes_from_an_init_checkpoint(tmp_path):
         assert torch.allclose(fix.upsample(comp, None), filters_upsampled(comp, ModelConfig(**fixed["model_config"])))
 
 
-@pytest.mark.parametrize("fixed", [True, False])
-def test_init_widens_a_checkpoint_to_a_wider_preset_computing_the_same(fixed):
+@pytest.mark.parametrize("fixed,narrow,wide", [(True, "small", "medium"), (False, "small", "medium"),
+                                                (True, "medium", "large")])
+def test_init_widens_a_checkpoint_to_a_wider_preset_computing_the_same(fixed, narrow, wide):
     from jnds_deploy.training.train import _widened, _widens
     up = dict(upsample_width=0, upsample_features=0) if fixed else {}
-    small, medium = ModelConfig.preset("small", **up), ModelConfig.preset("medium", **up)
+    small, medium = ModelConfig.preset(narrow, **up), ModelConfig.preset(wide, **up)
     assert _widens(small, medium) and not _widens(medium, small)
-    assert not _widens(small, ModelConfig.preset("small", encoder_widths=(24, 32, 48), **up))  # deeper
-    assert not _widens(small, ModelConfig.preset("small", filter_levels=2, **up))
+    assert not _widens(small, ModelConfig.preset(narrow, encoder_widths=(*small.encoder_widths, 64), **up))  # deeper
+    assert not _widens(small, ModelConfig.preset(narrow, filter_levels=2, **up))
     torch.manual_seed(0)
     old = JNDS(small)
     for p in old.parameters():  # away from the identity initialization
