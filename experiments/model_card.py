@@ -191,6 +191,8 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str, 
            f"--qat-steps {tcfg['qat_steps']}")
     if tcfg.get("upsample_root", 1) != 1:
         cmd += f" --upsample-root {tcfg['upsample_root']}"
+    if tcfg.get("firefly_clamp"):
+        cmd += f" --firefly-clamp {tcfg['firefly_clamp']:g}"
     for key, default in (("batch", 4), ("patch", 64), ("unroll", 6), ("burn_in", 0), ("seed", 0)):
         if tcfg.get(key, default) != default:
             cmd += f" --{key.replace('_', '-')} {tcfg[key]}"

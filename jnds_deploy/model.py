@@ -113,9 +113,9 @@ class ModelConfig:
             # allowed beside OIDN leaves room for; trained from "small" (``jnds train --init``
             # widens a checkpoint)
             "medium": dict(encoder_widths=(32, 48), bottleneck_width=64, output_width=24),
-            # the U-Net wider again (about 54 GMAC at 720p; the output block as in "medium"):
-            # what is left of the time allowed beside OIDN on a 2-core Zen 4 (issue 24: at most
-            # 0.5x OIDN balanced), widened from "medium" the same way
+            # the U-Net wider again (about 53 GMAC at 720p; the output block as in "medium"):
+            # what the time allowed beside OIDN left room for on a 2-core CPU (docs/training.md,
+            # gen8); widened from "medium" the same way
             "large": dict(encoder_widths=(48, 64), bottleneck_width=96, output_width=24),
             # deeper and wider, closer to the paper's network (whose exact widths are in its
             # Fig. 3, not in the text we have): for GPUs and quality comparisons
