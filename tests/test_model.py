@@ -281,16 +281,16 @@ def test_training_resumes_from_an_init_checkpoint(tmp_path):
 def test_init_widens_a_checkpoint_to_a_wider_preset_computing_the_same(fixed, narrow, wide):
     from jnds_deploy.training.train import _widened, _widens
     up = dict(upsample_width=0, upsample_features=0) if fixed else {}
-    small, medium = ModelConfig.preset(narrow, **up), ModelConfig.preset(wide, **up)
-    assert _widens(small, medium) and not _widens(medium, small)
-    assert not _widens(small, ModelConfig.preset(narrow, encoder_widths=(*small.encoder_widths, 64), **up))  # deeper
-    assert not _widens(small, ModelConfig.preset(narrow, filter_levels=2, **up))
+    lo, hi = ModelConfig.preset(narrow, **up), ModelConfig.preset(wide, **up)
+    assert _widens(lo, hi) and not _widens(hi, lo)
+    assert not _widens(lo, ModelConfig.preset(narrow, encoder_widths=(*lo.encoder_widths, 64), **up))  # deeper
+    assert not _widens(lo, ModelConfig.preset(narrow, filter_levels=2, **up))
     torch.manual_seed(0)
-    old = JNDS(small)
+    old = JNDS(lo)
     for p in old.parameters():  # away from the identity initialization
         torch.nn.init.normal_(p, std=0.1)
-    new = JNDS(medium)
-    new.load_state_dict(_widened(small, old.state_dict(), new))
+    new = JNDS(hi)
+    new.load_state_dict(_widened(lo, old.state_dict(), new))
     x, mv = _inputs(1, 32, 48)
     h = torch.rand(1, 12, 32, 48)
     with torch.no_grad():
