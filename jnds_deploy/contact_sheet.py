@@ -51,11 +51,13 @@ def render(rows: list[tuple[str, dict[str, np.ndarray]]]) -> np.ndarray:
 
 
 def write(path: str | Path, rows: list[tuple[str, dict[str, np.ndarray]]]) -> Path:
-    """Write the contact sheet of ``rows`` (see ``render``) as a PNG, atomically."""
+    """Write the contact sheet of ``rows`` (see ``render``) atomically: JPEG (quality 90)
+    if ``path`` ends in .jpg or .jpeg, else PNG."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    if not cv2.imwrite(str(tmp), render(rows)):
+    jpeg = path.suffix.lower() in (".jpg", ".jpeg")
+    tmp = path.with_name(f".{path.name}.tmp{'.jpg' if jpeg else '.png'}")
+    if not cv2.imwrite(str(tmp), render(rows), [cv2.IMWRITE_JPEG_QUALITY, 90] if jpeg else []):
         raise OSError(f"{path}: could not write the contact sheet")
     os.replace(tmp, path)
     return path

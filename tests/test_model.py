@@ -420,6 +420,17 @@ def test_evaluate_reports_sets_side_by_side_with_a_contact_sheet(tmp_path, make_
     assert "### test-set (1 sequences)" in text and "| seq-a | " in text
     sheet = cv2.imread(str(tmp_path / "sheet.png"))
     assert sheet.shape[0] == 2 * (180 + 14) and sheet.shape[1] == 4 * 320 + 3 * 2  # input, tiny, bicubic, reference
+    assert (tmp_path / "sheet.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_contact_sheet_format_follows_its_name(tmp_path):
+    """A sheet named .jpg is a JPEG (it was a PNG under that name), anything else a PNG."""
+    from jnds_deploy import contact_sheet
+    img = np.random.default_rng(0).random((12, 16, 3), dtype=np.float32)
+    row = [("seq", {"input": img, "reference": img})]
+    assert contact_sheet.write(tmp_path / "s.jpg", row).read_bytes()[:3] == b"\xff\xd8\xff"
+    assert contact_sheet.write(tmp_path / "s.png", row).read_bytes()[:4] == b"\x89PNG"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.jpg", "s.png"]  # no temporary left
 
 
 def test_augmentations_keep_what_must_hold():
