@@ -106,10 +106,16 @@ def raw_ranges(path: Path, feeds: list[dict[str, np.ndarray]], stops=STOPS) -> d
 
 def channel_ranges(raw: dict[str, np.ndarray]) -> dict[str, dict[str, list[float]]]:
     """{output: {"centre": [...], "range": [...]}} per channel: its u8 code covers
-    [centre - range, centre + range], the raw range within the part's ``BOUNDS``."""
+    [centre - range, centre + range], the raw range within the part's ``BOUNDS``. A
+    linear kernel's channels cover their whole clamp, [-1, 1], whatever the calibration
+    data reached: the ranges the bundled sample gave lost up to 0.24 dB on static
+    window-lit rooms, whose taps go further (docs/performance.md, "The u8 head's kernel
+    ranges")."""
     out = {}
     for name, mm in raw.items():
         lo, hi = BOUNDS[head_kind(name)]
+        if head_kind(name) == "kernel":
+            mm = np.broadcast_to(np.array([lo, hi]), mm.shape)
         a, b = np.clip(mm[:, 0], lo, hi), np.clip(mm[:, 1], lo, hi)
         r = np.maximum((b - a) / 2, MIN_RANGE)
         out[name] = {"centre": [float(v) for v in (a + b) / 2], "range": [float(v) for v in r]}

@@ -231,6 +231,8 @@ def test_head_ranges_and_the_float_head_option(calibrated):
             # (a channel constant on these frames gets MIN_RANGE either side)
             assert rng > 0 and lo - MIN_RANGE <= c - rng <= max(a, lo) + 1e-6
             assert min(b, hi) - 1e-6 <= c + rng <= hi + MIN_RANGE
+            if head_kind(name) == "kernel":  # the whole clamp, not what these frames reached
+                assert (c, rng) == (0.0, 1.0)
     manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="minmax", frames=2,
                                          u8_edges=False), log=lambda s: None)
     entry = manifest.graphs["network"].int8["minmax"]
