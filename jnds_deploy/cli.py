@@ -413,7 +413,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--data", nargs="+", default=["data/val"],
                    help="sets, each a sequence or a directory of sequences (e.g. data/val data/test): "
                         "reported side by side")
-    e.add_argument("--sheet", default=None, help="write a contact sheet PNG here (middle frame of every sequence)")
+    e.add_argument("--sheet", default=None, help="write a contact sheet here, a JPEG if the name ends in .jpg or .jpeg, else a PNG (middle frame of every sequence)")
     e.add_argument("--baselines", nargs="*", default=["bicubic", "oidn-balanced"],
                    help="bicubic, oidn-fast, oidn-balanced, oidn-high")
     e.add_argument("--out", default=None, help="write the report as JSON")
