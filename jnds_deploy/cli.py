@@ -96,7 +96,8 @@ def cmd_train(args) -> int:
                       device=args.device, exposure=args.exposure, rotate_normals=args.rotate_normals,
                       flips=args.flips, channels_last=not args.no_channels_last,
                       fixed_upsample=args.fixed_upsample, cross_cuts=args.cross_cuts,
-                      balance_renderers=args.balance_renderers, burn_in=args.burn_in)
+                      balance_renderers=args.balance_renderers, burn_in=args.burn_in,
+                      clean_references=args.clean_references)
     ckpt = train(cfg, progress=not args.quiet)
     print(f"checkpoint: {ckpt}")
     return 0
@@ -317,6 +318,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="draw each renderer's sequences (mitsuba, cycles: render.json's engine, or "
                         "sequence.json's renderer.engine; sequences with neither are a group of their own) "
                         "as often as another's, whatever their counts")
+    t.add_argument("--clean-references", choices=["oidn"], default=None,
+                   help="train against references whose diffuse and specular components OIDN denoised (colour "
+                        "recomposed from them; cached in each sequence's .cache/): the renders' references keep "
+                        "noise (benchmarks/results/reference_noise.md)")
     t.add_argument("--no-channels-last", action="store_true",
                    help="keep convolutions in NCHW memory (the default NHWC gives the same values, faster on a CPU)")
     t.add_argument("--quiet", action="store_true")

@@ -526,6 +526,41 @@ def test_balanced_renderers_are_drawn_equally_often():
     assert s.batch(2)["current"].shape[:2] == (3, 2)
 
 
+def test_clean_references_denoise_recompose_and_cache(tmp_path, monkeypatch):
+    import os
+    import shutil
+    import pyoidn
+    from jnds_deploy.training.data import CLEAN_CACHE, load_sequence
+    from .conftest import SAMPLE
+    path = tmp_path / "seq"
+    shutil.copytree(SAMPLE, path)
+    raw, clean = load_sequence(path), load_sequence(path, clean="oidn")
+    np.testing.assert_array_equal(clean.ref["albedo"], raw.ref["albedo"])
+    np.testing.assert_allclose(clean.ref["color"], raw.ref["albedo"] * clean.ref["diffuse"] + clean.ref["specular"],
+                               rtol=1e-6)
+    for c in ("diffuse", "specular", "color"):
+        assert clean.ref[c].shape == raw.ref[c].shape and clean.ref[c].dtype == np.float32
+        assert np.isfinite(clean.ref[c]).all() and clean.ref[c].min() >= 0
+
+    def grain(x):  # mean |x - its 3x3 box mean|: the noise a denoiser removes
+        return float(np.abs(x - torch.nn.functional.avg_pool2d(torch.from_numpy(x), 3, 1, 1).numpy()).mean())
+    assert grain(clean.ref["color"]) < 0.9 * grain(raw.ref["color"])  # 0.76 with OIDN 2.3
+    assert abs(clean.ref["diffuse"].mean() / raw.ref["diffuse"].mean() - 1) < 0.05  # the level kept
+    # a second load reads the cache, without OIDN; a newer reference frame invalidates it
+    assert (path / CLEAN_CACHE).is_file()
+    calls = []
+    real = pyoidn.denoise
+    monkeypatch.setattr(pyoidn, "denoise", lambda *a, **k: calls.append(1) or real(*a, **k))
+    again = load_sequence(path, clean="oidn")
+    assert not calls and all(np.array_equal(again.ref[k], clean.ref[k]) for k in clean.ref)
+    t = (path / CLEAN_CACHE).stat().st_mtime
+    os.utime(path / "reference" / "0000.exr", (t + 10, t + 10))
+    load_sequence(path, clean="oidn")
+    assert len(calls) == 2 * len(raw.cuts)  # diffuse and specular of every frame
+    with pytest.raises(Exception, match="unknown method"):
+        load_sequence(path, clean="median")
+
+
 def filters_upsampled(comp, cfg):
     """The upsample filter's bilinear upsampling alone (root ``cfg.upsample_root``)."""
     from jnds_deploy import filters

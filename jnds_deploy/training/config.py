@@ -51,6 +51,8 @@ class TrainConfig:
     cross_cuts: bool = False
     # each renderer's sequences drawn as often as another's, whatever their counts (PatchSampler)
     balance_renderers: bool = False
+    # "oidn": train against references with OIDN-denoised diffuse and specular (training.data.clean_references)
+    clean_references: str | None = None
 
     def model_config(self):
         """The ``ModelConfig`` this run trains."""
@@ -69,6 +71,8 @@ class TrainConfig:
             self.exposure = tuple(float(v) for v in self.exposure)  # a list when read from config.json
             if len(self.exposure) != 2 or not self.exposure[0] <= self.exposure[1]:
                 raise ConfigError(f"exposure must be (lo, hi) stops with lo <= hi, got {self.exposure}")
+        if self.clean_references not in (None, "oidn"):
+            raise ConfigError(f"clean_references must be None or 'oidn', got {self.clean_references!r}")
         if self.burn_in < 0:
             raise ConfigError(f"burn_in must be >= 0 frames, got {self.burn_in}")
         if not 0 <= self.w_spatial <= 1:

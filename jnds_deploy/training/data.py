@@ -3,7 +3,7 @@ consecutive frames drawn from them."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,9 +34,14 @@ class SequenceArrays:
         return self.ref["color"].shape[-1] // self.current.shape[-1]
 
 
-def load_sequence(path: str | Path) -> SequenceArrays:
+def load_sequence(path: str | Path, clean: str | None = None) -> SequenceArrays:
     """A sequence with references in memory: the reference components it has (colour
-    always; training needs diffuse, specular and albedo too, ``PatchSampler`` checks)."""
+    always; training needs diffuse, specular and albedo too, ``PatchSampler`` checks).
+    ``clean="oidn"``: the references denoised (``clean_references``)."""
+    if clean is not None:
+        if clean != "oidn":
+            raise TrainError(f"clean references: unknown method {clean!r} (known: oidn)")
+        return clean_references(load_sequence(path), path)
     seq = open_sequence(path)
     present = seq.reference(0) if len(seq) else {}
     cur, mot, refs = [], [], {k: [] for k in REFERENCE_COMPONENTS if k in present}
@@ -67,12 +72,72 @@ def _renderer(path: Path) -> str:
         return "unknown"
 
 
-def load_split(root: str | Path, limit: int | None = None) -> list[SequenceArrays]:
+def load_split(root: str | Path, limit: int | None = None, clean: str | None = None) -> list[SequenceArrays]:
     """Every sequence under ``root`` (e.g. data/train), or TrainError if there is none."""
     paths = find_sequences(root)[:limit]
     if not paths:
         raise TrainError(f"{root}: no sequences found; run `jnds dataset --out {Path(root).parent}` first")
-    return [load_sequence(p) for p in paths]
+    return [load_sequence(p, clean) for p in paths]
+
+
+CLEAN_CACHE = ".cache/reference-oidn.npz"  # beside a sequence's reference/, like Cycles' .cycles/
+
+
+def clean_references(seq: SequenceArrays, path: str | Path) -> SequenceArrays:
+    """``seq`` with its reference's diffuse and specular components denoised by OIDN
+    (``high``, HDR, no guides: the components are lighting without the albedo's texture)
+    and its colour recomposed from them (Eq. 2: albedo * diffuse + specular); albedo
+    unchanged. Why: the renders' 64-spp references keep noise as strong as the model's
+    own error, and the losses then teach it to keep sparkle (benchmarks/results/reference_noise.md).
+    Cached in ``<sequence>/.cache/reference-oidn.npz``, redone when a reference frame is
+    newer than the cache or OIDN's version differs; without a writable sequence directory
+    it is recomputed at every load."""
+    try:
+        import pyoidn
+    except ImportError as e:
+        raise TrainError(f"cleaning the references needs pyoidn (pip install -e .[bench]): {e}") from e
+    for c in ("diffuse", "specular", "albedo"):
+        if c not in seq.ref:
+            raise TrainError(f"{path}: cleaning the references needs their {c} component")
+    path = Path(path)
+    cache = path / CLEAN_CACHE
+    version = oidn_version()
+    newest = max((p.stat().st_mtime for p in (path / "reference").glob("*.exr")), default=0.0)
+    if cache.is_file() and cache.stat().st_mtime >= newest:
+        with np.load(cache) as z:
+            if str(z["oidn"]) == version and z["diffuse"].shape == seq.ref["diffuse"].shape:
+                return _recomposed(seq, z["diffuse"], z["specular"])
+    clean = {}
+    for c in ("diffuse", "specular"):
+        frames = []
+        for x in seq.ref[c]:  # (3, H, W) each
+            hwc = np.ascontiguousarray(x.transpose(1, 2, 0), np.float32)
+            out = np.asarray(pyoidn.denoise(hwc, None, None, hdr=True, quality="high"), np.float32)
+            frames.append(np.maximum(out, 0.0).transpose(2, 0, 1))
+        clean[c] = np.stack(frames)
+    try:
+        cache.parent.mkdir(exist_ok=True)
+        tmp = cache.with_name(cache.name + ".tmp.npz")
+        np.savez_compressed(tmp, oidn=np.array(version), **clean)
+        tmp.replace(cache)
+    except OSError:
+        pass
+    return _recomposed(seq, clean["diffuse"], clean["specular"])
+
+
+def oidn_version() -> str:
+    """The installed pyoidn's version (the cleaned-reference cache's key)."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("pyoidn")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _recomposed(seq: SequenceArrays, diffuse: np.ndarray, specular: np.ndarray) -> SequenceArrays:
+    ref = dict(seq.ref, diffuse=diffuse, specular=specular,
+               color=(seq.ref["albedo"] * diffuse + specular).astype(np.float32))
+    return replace(seq, ref=ref)
 
 
 @dataclass(frozen=True)

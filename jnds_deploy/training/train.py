@@ -96,7 +96,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
     torch.manual_seed(cfg.seed)
     if torch.device(cfg.device).type == "cuda" and not torch.cuda.is_available():
         raise TrainError(f"--device {cfg.device}: torch {torch.__version__} sees no CUDA device here")
-    train_seqs = load_split(Path(cfg.data) / "train")
+    train_seqs = load_split(Path(cfg.data) / "train", clean=cfg.clean_references)
     run = Path(cfg.run)
     run.mkdir(parents=True, exist_ok=True)
     ckpt = run / "checkpoint.pt"
