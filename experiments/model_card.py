@@ -207,6 +207,8 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str, 
     for key in ("rotate_normals", "flips", "fixed_upsample", "cross_cuts", "balance_renderers"):
         if tcfg.get(key):
             cmd += " --" + key.replace("_", "-")
+    if tcfg.get("clean_references"):
+        cmd += f" --clean-references {tcfg['clean_references']}"
     if on_gpu:
         cmd += f" --device {tcfg['device']}"
     where = f"one GPU ({gpu})" if on_gpu else f"2 CPU cores ({cpu})"
