@@ -557,6 +557,9 @@ def test_clean_references_denoise_recompose_and_cache(tmp_path, monkeypatch):
     os.utime(path / "reference" / "0000.exr", (t + 10, t + 10))
     load_sequence(path, clean="oidn")
     assert len(calls) == 2 * len(raw.cuts)  # diffuse and specular of every frame
+    (path / CLEAN_CACHE).write_bytes(b"not a cache")  # unreadable: made again, not an error
+    again = load_sequence(path, clean="oidn")
+    assert len(calls) == 4 * len(raw.cuts) and np.array_equal(again.ref["color"], clean.ref["color"])
     with pytest.raises(Exception, match="unknown method"):
         load_sequence(path, clean="median")
 

@@ -88,7 +88,7 @@ def clean_references(seq: SequenceArrays, path: str | Path) -> SequenceArrays:
     (``high``, HDR, no guides: the components are lighting without the albedo's texture)
     and its colour recomposed from them (Eq. 2: albedo * diffuse + specular); albedo
     unchanged. Why: the renders' 64-spp references keep noise as strong as the model's
-    own error, and the losses then teach it to keep sparkle (benchmarks/results/reference_noise.md).
+    own error, which the losses may teach it to keep (benchmarks/results/reference_noise.md).
     Cached in ``<sequence>/.cache/reference-oidn.npz``, redone when a reference frame is
     newer than the cache or OIDN's version differs; without a writable sequence directory
     it is recomputed at every load."""
@@ -104,9 +104,12 @@ def clean_references(seq: SequenceArrays, path: str | Path) -> SequenceArrays:
     version = oidn_version()
     newest = max((p.stat().st_mtime for p in (path / "reference").glob("*.exr")), default=0.0)
     if cache.is_file() and cache.stat().st_mtime >= newest:
-        with np.load(cache) as z:
-            if str(z["oidn"]) == version and z["diffuse"].shape == seq.ref["diffuse"].shape:
-                return _recomposed(seq, z["diffuse"], z["specular"])
+        try:
+            with np.load(cache) as z:
+                if str(z["oidn"]) == version and z["diffuse"].shape == seq.ref["diffuse"].shape:
+                    return _recomposed(seq, z["diffuse"], z["specular"])
+        except (OSError, ValueError, KeyError, EOFError):
+            pass  # an unreadable cache (a copy cut short, say) is made again
     clean = {}
     for c in ("diffuse", "specular"):
         frames = []
