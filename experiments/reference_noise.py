@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository r
 from benchmarks.common import RESULTS, arguments, command_line, machine_info, write_report  # noqa: E402
 from jnds_deploy.io import expand_sequences  # noqa: E402
 from jnds_deploy.metrics import psnr, to_ldr  # noqa: E402
-from jnds_deploy.training.data import load_sequence, oidn_version  # noqa: E402
+from jnds_deploy.training.data import clean_references, load_sequence, oidn_version  # noqa: E402
 
 
 def _spp(path: Path) -> int | None:
@@ -45,7 +45,8 @@ def main() -> int:
     result = {"machine": machine_info(), "oidn": oidn, "sequences": {}}
     pictures = {}
     for path in map(Path, expand_sequences(args.data)):
-        raw, clean = load_sequence(path), load_sequence(path, clean="oidn")
+        raw = load_sequence(path)
+        clean = clean_references(raw, path)  # the frames read once, not again by load_sequence(clean=)
         ref = [r.transpose(1, 2, 0) for r in raw.ref["color"]]
         cleaned = [c.transpose(1, 2, 0) for c in clean.ref["color"]]
         name = f"{path.parent.name}/{path.name}"
