@@ -389,7 +389,8 @@ def _mixed(scene, rng, frames, rigs=RIGS, count=(1, 3)):
     world = rng.choice(("sky", "dark", "color"))
     _world(scene, rng, world)
     half = rng.uniform(4.0, 7.0)
-    if rng.random() < 0.6:
+    room = rng.random() < 0.6
+    if room:
         _room(rng, half, rng.uniform(2.6, 4.0), window=rng.random() < 0.5, texture_walls=rng.random() < 0.6)
     else:
         ground = _material("ground", rng, rough=rng.uniform(0.05, 0.9), texture=rng.choice(TEXTURES))
@@ -421,7 +422,14 @@ def _mixed(scene, rng, frames, rigs=RIGS, count=(1, 3)):
         else:
             _lights_rig(rig, rng)
     moving = _objects(rng, rng.randint(4, 10), 3.5, rng.uniform(0.1, 0.7), rng.uniform(0.2, 0.9), frames)
-    return moving, (0, 0, rng.uniform(0.4, 1.0)), rng.uniform(3.5, 6.0), rng.uniform(1.0, 3.0)
+    target, radius, height = (0, 0, rng.uniform(0.4, 1.0)), rng.uniform(3.5, 6.0), rng.uniform(1.0, 3.0)
+    if room:
+        # The camera circles the room's centre: a radius beyond the walls (x = +-half, y = half)
+        # shows the walls' unlit outsides (docs/dataset.md, the stop-43 defect). Clamped rather
+        # than redrawn, so that the random draws and every seed's scene that was inside stay as
+        # rendered.
+        radius = min(radius, half - 0.15)
+    return moving, target, radius, height
 
 
 def _lights_rig(rig, rng):

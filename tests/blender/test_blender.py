@@ -1,6 +1,7 @@
 """Blender in: a real Blender (bpy in its own environment) sets up and renders a scene, and
 ``jnds import cycles`` turns it into a sequence the pipeline runs. Skipped only where the
 Blender environment is absent (``scripts/setup.sh`` makes it; CI has it)."""
+import json
 import os
 import subprocess
 from pathlib import Path
@@ -160,3 +161,23 @@ def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has
              for split in ("train", "val", "test", "holdout", "holdout2")}
     assert not seeds["holdout"] & (seeds["train"] | seeds["val"] | seeds["test"])
     assert not seeds["holdout2"] & (seeds["train"] | seeds["val"] | seeds["test"] | seeds["holdout"])
+
+
+def test_procedural_cameras_stay_inside_their_rooms():
+    """The ``mixed`` and ``lights`` training kinds draw a room's size and the camera's radius
+    apart; before the clamp, lights 10002, 10009 and 10012 looked at walls from outside
+    (docs/dataset.md). Every training seed rendered so far, built and not rendered."""
+    from jnds_deploy.render.dataset import dataset_specs
+
+    jobs = [{"scene": c.scene, "seed": c.seed, "camera": c.camera, "frames": c.frames, "size": list(c.size),
+             "spp": c.spp, "scale": c.scale}
+            for _, c in dataset_specs("train", 1, "cycles", mixed_sequences=16, lights_sequences=16)
+            if c.scene in ("mixed", "lights")]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([str(_blender_python()), str(Path(__file__).with_name("camera_paths.py")),
+                           json.dumps(jobs)], env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    found = [json.loads(line[7:]) for line in proc.stdout.splitlines() if line.startswith("CAMERA ")]
+    assert len(found) == len(jobs) == 32
+    assert sum(r["half"] is not None for r in found) >= 10  # rooms were drawn, so the check saw some
+    assert [r for r in found if r["outside"]] == []
