@@ -1,7 +1,7 @@
 """Per-stage timing of the pipeline, in the form of the paper's Table 4.
 
     .venv/bin/python benchmarks/timing.py [--artifacts out/artifacts] [--input samples/orbit-160x90]
-        [--size 1280x720] [--repeats 3] [--out benchmarks/results/timing]
+        [--size 1280x720] [--repeats 3] [--no-oidn] [--out benchmarks/results/timing]
 
 Runs the frame-recurrent pipeline (fp32 and int8 network graphs, float32 filter stage)
 on the input sequence at its own size and on the same frames resized to --size native
@@ -217,6 +217,8 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3, help="passes over the sequence's frames 1..N")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--precisions", nargs="+", default=["int8", "fp32"])
+    ap.add_argument("--no-oidn", action="store_true",
+                    help="leave out the head to head with OIDN (where pyoidn cannot be installed)")
     args = ap.parse_args()
     tune_process()
     seq = open_sequence(args.input)
@@ -261,7 +263,7 @@ def main() -> int:
                 report["results"][f"{label} {precision}"]["traffic"] = traffic_table(
                     rows, traffic_bytes(cfg, w, h, u8_head), float(np.median(bw)))[1]
             print(f"{label} {precision}: {rows['total']['median_ms']:.1f} ms/frame", flush=True)
-        if size == big:
+        if size == big and not args.no_oidn:
             report[f"head_to_head_{label}"] = head_to_head(pipeline(args.artifacts, precision="int8",
                                                                     threads=args.threads), frames, args.repeats + 2)
     # the share of CPU time the VM host stole during this run goes into the report
