@@ -171,13 +171,13 @@ def test_procedural_cameras_stay_inside_their_rooms():
 
     jobs = [{"scene": c.scene, "seed": c.seed, "camera": c.camera, "frames": c.frames, "size": list(c.size),
              "spp": c.spp, "scale": c.scale}
-            for _, c in dataset_specs("train", 1, "cycles", mixed_sequences=16, lights_sequences=16)
+            for _, c in dataset_specs("train", 1, "cycles", mixed_sequences=24, lights_sequences=24)
             if c.scene in ("mixed", "lights")]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.run([str(_blender_python()), str(Path(__file__).with_name("camera_paths.py")),
                            json.dumps(jobs)], env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     found = [json.loads(line[7:]) for line in proc.stdout.splitlines() if line.startswith("CAMERA ")]
-    assert len(found) == len(jobs) == 32
+    assert len(found) == len(jobs) == 48
     assert sum(r["half"] is not None for r in found) >= 10  # rooms were drawn, so the check saw some
     assert [r for r in found if r["outside"]] == []
