@@ -424,10 +424,10 @@ def _mixed(scene, rng, frames, rigs=RIGS, count=(1, 3)):
     moving = _objects(rng, rng.randint(4, 10), 3.5, rng.uniform(0.1, 0.7), rng.uniform(0.2, 0.9), frames)
     target, radius, height = (0, 0, rng.uniform(0.4, 1.0)), rng.uniform(3.5, 6.0), rng.uniform(1.0, 3.0)
     if room:
-        # The camera circles the room's centre: a radius beyond the walls (x = +-half, y = half)
-        # shows the walls' unlit outsides (docs/dataset.md, the stop-43 defect). Clamped rather
-        # than redrawn, so that the random draws and every seed's scene that was inside stay as
-        # rendered.
+        # The camera circles the room's centre: with a radius beyond the walls (x = +-half,
+        # y = half) it leaves the room, and three training seeds' frames went black or looked in
+        # from outside (docs/dataset.md). Clamped rather than redrawn, so that the random draws,
+        # and every scene whose camera stayed inside, are as rendered before.
         radius = min(radius, half - 0.15)
     return moving, target, radius, height
 

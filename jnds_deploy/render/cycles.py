@@ -33,6 +33,13 @@ def blender_python() -> Path:
     return path
 
 
+def scene_job(cfg) -> dict:
+    """What ``blender_scene`` is given of a ``RenderConfig``: the scene's kind, seed, camera
+    path, frames, size, samples and scale."""
+    return {"scene": cfg.scene, "seed": cfg.seed, "camera": cfg.camera, "frames": cfg.frames,
+            "size": list(cfg.size), "spp": cfg.spp, "scale": cfg.scale}
+
+
 def render_sequence(cfg, out: str | Path, progress: bool = True) -> dict:
     """Render ``cfg`` (a ``RenderConfig`` with engine ``cycles``) into ``out``; returns the
     median seconds per frame of the inputs and the reference."""
@@ -48,9 +55,7 @@ def render_sequence(cfg, out: str | Path, progress: bool = True) -> dict:
         raise RenderError(f"{out}: holds a render of another configuration; use a new --out")
     out.mkdir(parents=True, exist_ok=True)
     marker.write_text(json.dumps({"config": config, "engine": "cycles"}, indent=1))
-    job = {"scene": cfg.scene, "seed": cfg.seed, "camera": cfg.camera, "frames": cfg.frames,
-           "size": list(cfg.size), "spp": cfg.spp, "scale": cfg.scale}
-    cmd = [str(blender_python()), "-m", "jnds_deploy.blender_scene", json.dumps(job), str(work / "raw")]
+    cmd = [str(blender_python()), "-m", "jnds_deploy.blender_scene", json.dumps(scene_job(cfg)), str(work / "raw")]
     if cfg.reference:
         cmd.append(str(work / "ref"))
     env = {**os.environ, "PYTHONPATH": str(ROOT)}

@@ -167,11 +167,10 @@ def test_procedural_cameras_stay_inside_their_rooms():
     """The ``mixed`` and ``lights`` training kinds draw a room's size and the camera's radius
     apart; before the clamp, lights 10002, 10009 and 10012 looked at walls from outside
     (docs/dataset.md). Every training seed rendered so far, built and not rendered."""
+    from jnds_deploy.render.cycles import scene_job
     from jnds_deploy.render.dataset import dataset_specs
 
-    jobs = [{"scene": c.scene, "seed": c.seed, "camera": c.camera, "frames": c.frames, "size": list(c.size),
-             "spp": c.spp, "scale": c.scale}
-            for _, c in dataset_specs("train", 1, "cycles", mixed_sequences=24, lights_sequences=24)
+    jobs = [scene_job(c) for _, c in dataset_specs("train", 1, "cycles", mixed_sequences=24, lights_sequences=24)
             if c.scene in ("mixed", "lights")]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.run([str(_blender_python()), str(Path(__file__).with_name("camera_paths.py")),
