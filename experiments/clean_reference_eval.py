@@ -1,5 +1,5 @@
 """Two checkpoints scored against the references and against the same references cleaned
-(``load_sequence(clean="oidn")``: OIDN ``high`` on the reference's diffuse and specular,
+(``training.data.clean_references``: OIDN ``high`` on the reference's diffuse and specular,
 colour recomposed, as ``jnds train --clean-references oidn`` trains). A diagnostic for a
 choice between two of our models whose references keep noise (docs/model-gap.md, "The
 references keep noise"), not a score against OIDN: cleaned references favour OIDN's look,
@@ -21,7 +21,7 @@ from benchmarks.common import RESULTS, arguments, command_line, cpu_line, machin
 from jnds_deploy.checkpoint import load_model  # noqa: E402
 from jnds_deploy.io import expand_sequences  # noqa: E402
 from jnds_deploy.training.evaluate import evaluate_model, method_name  # noqa: E402
-from jnds_deploy.training.data import load_sequence  # noqa: E402
+from jnds_deploy.training.data import clean_references, load_sequence  # noqa: E402
 
 
 def main() -> int:
@@ -34,8 +34,8 @@ def main() -> int:
 
     torch.set_num_threads(args.threads)
     paths = expand_sequences(args.data)
-    refs = {"as rendered": [load_sequence(p) for p in paths],
-            "cleaned": [load_sequence(p, clean="oidn") for p in paths]}
+    rendered = [load_sequence(p) for p in paths]  # read once, cleaned in memory
+    refs = {"as rendered": rendered, "cleaned": [clean_references(s, p) for s, p in zip(rendered, paths)]}
     report = {"command": command_line(), "machine": machine_info(), "data": args.data, "results": {}}
     for ck in args.checkpoint:
         model = load_model(ck)
