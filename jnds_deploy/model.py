@@ -117,6 +117,10 @@ class ModelConfig:
             # what the time allowed beside OIDN left room for on a 2-core CPU (docs/training.md,
             # gen8); widened from "medium" the same way
             "large": dict(encoder_widths=(48, 64), bottleneck_width=96, output_width=24),
+            # "large" one U-Net level deeper, filtering down to native / 16 (4 levels, as the
+            # paper): the reach "large" lacked on unseen scenes (docs/model-gap.md); deepened
+            # from "large" (``jnds train --init`` keeps what the old levels computed)
+            "deep": dict(encoder_widths=(48, 64, 96), bottleneck_width=128, output_width=24, filter_levels=4),
             # deeper and wider, closer to the paper's network (whose exact widths are in its
             # Fig. 3, not in the text we have): for GPUs and quality comparisons
             "paper": dict(input_width=32, encoder_widths=(48, 64, 80), bottleneck_width=96,

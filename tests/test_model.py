@@ -1,5 +1,5 @@
 import json
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import numpy as np
 import pytest
@@ -301,6 +301,46 @@ def test_init_widens_a_checkpoint_to_a_wider_preset_computing_the_same(fixed, na
         assert torch.allclose(old(x, mv, None).output, new(x, mv, None).output, atol=1e-4)
         # the new channels are live: they compute features the old channels may learn to read
         assert new.network.feature_extractor.bottleneck.a.weight[48:].abs().sum() > 0
+
+
+@pytest.mark.parametrize("fixed", [True, False])
+def test_init_deepens_a_checkpoint_by_one_unet_level_computing_nearly_the_same(fixed, monkeypatch):
+    from jnds_deploy.training import train
+    up = dict(upsample_width=0, upsample_features=0) if fixed else {}
+    lo = ModelConfig.preset("small", **up)
+    hi = ModelConfig.preset("small", encoder_widths=(24, 32, 48), bottleneck_width=64, filter_levels=4, **up)
+    assert train._deepens(lo, hi) and not train._deepens(hi, lo)
+    assert not train._deepens(lo, replace(hi, filter_levels=3))  # the old coarsest level must go on
+    assert not train._deepens(lo, replace(hi, encoder_widths=(24, 32, 40)))  # not the old bottleneck's width
+    assert train._deepens(ModelConfig.preset("large"), ModelConfig.preset("deep"))
+    torch.manual_seed(0)
+    old = JNDS(lo)
+    for p in old.parameters():  # away from the identity initialization
+        torch.nn.init.normal_(p, std=0.1)
+    x, mv = _inputs(1, 32, 48)
+    h = torch.rand(1, 12, 32, 48)
+    with torch.no_grad():
+        a = old.network(x, h)
+        # with the new level blended in at weight ~0 the mapping is exact: every old output as before
+        monkeypatch.setattr(train, "DEEPENED_BLEND", -40.0)
+        exact = JNDS(hi)
+        exact.load_state_dict(train._deepened(lo, old.state_dict(), exact))
+        b = exact.network(x, h)
+        assert set(b) - set(a) == {f"{p}.{n}" for p in ("diffuse", "specular")
+                                   for n in ("level4.down", "level3.up", "level3.up_blend")}
+        for k in a:
+            assert torch.allclose(a[k], b[k], atol=1e-5), k
+        assert torch.allclose(old(x, mv, None).output, exact(x, mv, None).output, atol=1e-4)
+        # as shipped, the new level enters with weight sigmoid(-4): close, and a live path to learn
+        monkeypatch.undo()
+        new = JNDS(hi)
+        new.load_state_dict(train._deepened(lo, old.state_dict(), new))
+        c = new.network(x, h)
+        for k in a:
+            assert torch.allclose(a[k], c[k], atol=1e-5), k
+        blend = c["diffuse.level3.up_blend"]
+        assert 0.005 < blend.min() and blend.max() < 0.05
+        assert new.network.feature_extractor.bottleneck.a.weight.abs().sum() > 0
 
 
 def test_evaluate_names_training_checkpoints_by_run_and_scores_them(tmp_path):

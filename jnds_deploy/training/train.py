@@ -192,6 +192,8 @@ def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
         init_cfg, weights = _without_upsample_block(init_cfg, weights)
     if init_cfg != model.cfg and _widens(init_cfg, model.cfg):
         init_cfg, weights = model.cfg, _widened(init_cfg, weights, model)
+    if init_cfg != model.cfg and _deepens(init_cfg, model.cfg):
+        init_cfg, weights = model.cfg, _deepened(init_cfg, weights, model)
     if init_cfg != model.cfg:
         raise ConfigError(f"--init {cfg.init}: model config {data['model_config']} is not preset "
                           f"{cfg.preset!r} ({asdict(model.cfg)})")
@@ -266,6 +268,63 @@ def _widened(cfg: ModelConfig, weights: dict, model: JNDS) -> dict:
             w[:o] = 0.0
             w[:o, cols] = old
         out[key] = w
+    return out
+
+
+def _deepens(old: ModelConfig, new: ModelConfig) -> bool:
+    """``new`` is ``old`` with one U-Net level more: its old bottleneck an encoder block
+    (``new.encoder_widths`` = ``old``'s + the old bottleneck width), a new bottleneck below
+    it, and one filter level more if ``old`` filtered down to its bottleneck."""
+    levels = old.filter_levels + (old.filter_levels == old.depth + 1)
+    return (new.encoder_widths == (*old.encoder_widths, old.bottleneck_width) and new.filter_levels == levels
+            and replace(old, encoder_widths=new.encoder_widths, bottleneck_width=new.bottleneck_width,
+                        filter_levels=levels) == new)
+
+
+# the blend weight (sigmoid of this) of the new coarsest filter level where it enters the
+# old one: near 0, so that the deepened model starts close to the old, but not so far in
+# the sigmoid's tail that the weight cannot learn
+DEEPENED_BLEND = -4.0
+
+
+@torch.no_grad()
+def _deepened(cfg: ModelConfig, weights: dict, model: JNDS) -> dict:
+    """A checkpoint's weights in a ``model`` one U-Net level deeper (``_deepens``), so that
+    it computes nearly the same outputs: the old bottleneck becomes the deepest encoder
+    block; the new decoder block above the new bottleneck starts as the identity of its
+    skip connection (ReLU of a non-negative input: exact), which is the old bottleneck's
+    output, so every shallower decoder reads what it read before; the old coarsest filter
+    level's head keeps its down kernel and gains up kernels (identity) and an up blend of
+    sigmoid(``DEEPENED_BLEND``) towards the new level, the one inexact step. The new
+    bottleneck and level keep ``model``'s fresh initialization (written here, as
+    ``_widened``: a few lines over the state dict)."""
+    fe = "network.feature_extractor."
+    d = cfg.depth
+    rename = {f"{fe}bottleneck.": f"{fe}encoders.{d}."}
+    rename.update({f"{fe}decoders.{i}.": f"{fe}decoders.{i + 1}." for i in range(d)})
+    moved = {}
+    for key, v in weights.items():
+        for old, new in rename.items():
+            if key.startswith(old):
+                key = new + key[len(old):]
+                break
+        moved[key] = v
+    out = {}
+    fresh = model.state_dict()
+    for key, f in fresh.items():
+        out[key] = moved[key].clone() if key in moved and moved[key].shape == f.shape else f.clone()
+    width, below = model.cfg.encoder_widths[d], model.cfg.bottleneck_width
+    for conv, first in ((f"{fe}decoders.0.a", below), (f"{fe}decoders.0.b", 0)):
+        w = torch.zeros_like(out[f"{conv}.weight"])
+        w[torch.arange(width), first + torch.arange(width), 1, 1] = 1.0
+        out[f"{conv}.weight"], out[f"{conv}.bias"] = w, torch.zeros_like(out[f"{conv}.bias"])
+    if cfg.filter_levels == d + 1:  # the old coarsest level: its down kernel, then up and up_blend
+        for path in ("diffuse", "specular"):
+            head = f"{fe}heads.{path}{cfg.filter_levels}"
+            for p in ("weight", "bias"):
+                old = weights[f"{head}.{p}"]
+                out[f"{head}.{p}"][: len(old)] = old
+            out[f"{head}.bias"][-1] = DEEPENED_BLEND  # up_blend, the last of _path_sizes
     return out
 
 
