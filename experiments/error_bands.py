@@ -46,8 +46,8 @@ def band_energy(err: np.ndarray, levels: int = LEVELS) -> np.ndarray:
 
 
 def sequence_bands(outs, refs) -> dict:
-    bands = np.mean([band_energy(to_ldr(o) - to_ldr(r)) for o, r in zip(outs, refs)], axis=0)
     errs = [to_ldr(o) - to_ldr(r) for o, r in zip(outs, refs)]
+    bands = np.mean([band_energy(e) for e in errs], axis=0)
     mse = float(np.mean([np.mean(e ** 2) for e in errs]))
     # the frame's mean error per channel, squared: a brightness or colour bias, inside the coarsest band
     dc = float(np.mean([np.mean(e.mean(axis=(0, 1)) ** 2) for e in errs]))
@@ -67,18 +67,16 @@ def markdown(report: dict) -> str:
                   "by band (the band's scale in target pixels); the bias is the frame's mean error per channel, squared:", "",
                   "| method | total MSE | bands' sum | " + " | ".join(labels) + " | of which bias |",
                   "| --- | ---: | ---: | " + " | ".join("---:" for _ in labels) + " | ---: |"]
-        means = {}
+        means, mses = {}, {}
         for name, seqs in methods.items():
-            mse = np.mean([s["mse"] for s in seqs.values()])
-            b = np.mean([s["bands"] for s in seqs.values()], axis=0)
-            means[name] = b
+            mse = mses[name] = np.mean([s["mse"] for s in seqs.values()])
+            b = means[name] = np.mean([s["bands"] for s in seqs.values()], axis=0)
             lines.append(f"| {name} | {1e4 * mse:.2f} | {1e4 * b.sum():.2f} | " + " | ".join(f"{1e4 * v:.2f}" for v in b)
                          + f" | {1e4 * np.mean([s['dc'] for s in seqs.values()]):.2f} |")
         names = list(means)
         if len(names) >= 2:
             d = means[names[0]] - means[names[-1]]
-            dm = np.mean([s["mse"] for s in methods[names[0]].values()]) - np.mean(
-                [s["mse"] for s in methods[names[-1]].values()])
+            dm = mses[names[0]] - mses[names[-1]]
             lines.append(f"| {names[0]} - {names[-1]} | {1e4 * dm:+.2f} | {1e4 * d.sum():+.2f} | "
                          + " | ".join(f"{1e4 * v:+.2f}" for v in d) + " |")
         lines += ["", f"Per sequence, {names[0]}'s excess over {names[-1]} by band (x 1e-4), and the mean "
