@@ -33,8 +33,9 @@ CYCLES_TRAIN_KINDS = ("sunroom", "darkroom", "metals", "textures")
 # draws each ingredient of the training kinds at random and combines them (world, room or
 # open ground, light rig, materials), for variety rather than another fixed layout; ``lights``
 # (``--lights-sequences``) does the same with every sort of light Blender has: spot lights,
-# area lights of each shape and emissive meshes other than small spheres besides mixed's
-CYCLES_EXTRA_KINDS = ("mixed", "lights")
+# area lights of each shape and emissive meshes other than small spheres besides mixed's;
+# ``interior`` (``--interior-sequences``, stop 46) is a closed room lit mostly by bounced light
+CYCLES_EXTRA_KINDS = ("mixed", "lights", "interior")
 # kinds only the test set is made of (render.dataset): built apart from the training kinds,
 # so that the test measures scenes the model never saw the like of. gallery: a long hall
 # under strip lights, a polished floor, finely textured panels, sculptures; night: an
@@ -323,6 +324,8 @@ def build(cfg: dict):
         moving, target, radius, height = _mixed(scene, rng, frames)
     elif kind == "lights":
         moving, target, radius, height = _mixed(scene, rng, frames, RIGS + LIGHTS_RIGS, (2, 4))
+    elif kind == "interior":
+        moving, target, radius, height = _interior(scene, rng, frames)
     elif kind == "gallery":
         _world(scene, rng, "dark")
         _room(rng, 6.0, 4.0, window=False, texture_walls=False)
@@ -468,6 +471,163 @@ def _lights_rig(rig, rng):
             else:
                 bpy.ops.mesh.primitive_cylinder_add(radius=width / 2, depth=length, location=loc, rotation=rot)
                 bpy.context.object.data.materials.append(em)
+
+
+INTERIOR_RIGS = ("uplight", "cove", "lamps", "wallwash")
+
+
+def _interior(scene, rng, frames):
+    """The ``interior`` training kind: a closed room lit mostly by light that has bounced
+    once or more, the usual case in real interiors and the one that leaves the most
+    low-frequency noise at 1 spp. Lamps hidden from the camera or aimed at the ceiling and
+    walls (``INTERIOR_RIGS``), daylight through a door or a hatch in the roof, walls of one
+    tint (colour bleeding); shelves along the walls and tables carrying clusters of small
+    props, lamps hanging on thin cords; a few props moving on the floor.
+    Returns (moving props, camera target, radius, height)."""
+    import bpy
+
+    world = rng.choice(("sky", "dusk", "dark"))
+    _world(scene, rng, world)
+    half, height, t = rng.uniform(3.0, 6.0), rng.uniform(2.4, 4.0), 0.1
+    # the camera circles inside the walls, clear of the shelves (0.4 m deep at most); hanging
+    # lamps stay inside its circle
+    radius = min(rng.uniform(2.5, 4.5), half - 0.6)
+    tint = [rng.uniform(0.3, 0.9) for _ in range(3)]
+    walls = _material("walls", rng, rough=rng.uniform(0.5, 1.0), color=tint,
+                      texture=rng.choice(TEXTURES) if rng.random() < 0.4 else None)
+    floor = _material("floor", rng, rough=rng.uniform(0.05, 0.8), texture=rng.choice(TEXTURES))
+    _box("floor", (2 * half, 2 * half, t), (0, 0, -t / 2), floor)
+    _box("wall_w", (t, 2 * half, height), (-half, 0, height / 2), walls)
+    _box("wall_e", (t, 2 * half, height), (half, 0, height / 2), walls)
+    _box("wall_s", (2 * half, t, height), (0, -half, height / 2), walls)
+    daylight = world != "dark"
+    door = daylight and rng.random() < 0.6  # else a hatch in the roof
+    if door:  # a doorway in the north wall, 0.9-2.0 m wide and 2.0-2.3 m tall
+        w, top, x0 = rng.uniform(0.9, 2.0), min(rng.uniform(2.0, 2.3), height - 0.2), rng.uniform(-0.5, 0.5) * half
+        _box("wall_n_l", (x0 - w / 2 + half, t, height), ((-half + x0 - w / 2) / 2, half, height / 2), walls)
+        _box("wall_n_r", (half - x0 - w / 2, t, height), ((x0 + w / 2 + half) / 2, half, height / 2), walls)
+        _box("wall_n_t", (w, t, height - top), (x0, half, (top + height) / 2), walls)
+    else:
+        _box("wall_n", (2 * half, t, height), (0, half, height / 2), walls)
+    if daylight and not door:  # the roof around a hatch of 0.6-1.5 m, off centre
+        hx, hy, o = rng.uniform(-0.5, 0.5) * half, rng.uniform(-0.5, 0.5) * half, rng.uniform(0.3, 0.75)
+        z = height + t / 2
+        _box("roof_n", (2 * half, half - hy - o, t), (0, (hy + o + half) / 2, z), walls)
+        _box("roof_s", (2 * half, hy - o + half, t), (0, (hy - o - half) / 2, z), walls)
+        _box("roof_e", (half - hx - o, 2 * o, t), ((hx + o + half) / 2, hy, z), walls)
+        _box("roof_w", (hx - o + half, 2 * o, t), ((hx - o - half) / 2, hy, z), walls)
+    else:
+        _box("ceiling", (2 * half, 2 * half, t), (0, 0, height + t / 2), walls)
+    if daylight:  # the sun low through the door (from the north), or steep through the hatch
+        rot = ((math.radians(rng.uniform(45, 75)), 0, math.radians(rng.uniform(150, 210))) if door else
+               (math.radians(rng.uniform(5, 35)), 0, math.radians(rng.uniform(0, 360))))
+        bpy.ops.object.light_add(type="SUN", rotation=rot)
+        bpy.context.object.data.energy = rng.uniform(2.0, 8.0)
+        bpy.context.object.data.angle = math.radians(rng.uniform(0.5, 3))
+    rigs = rng.sample(INTERIOR_RIGS, rng.randint(1 if daylight else 2, 3))
+    for rig in rigs:
+        _interior_rig(rig, rng, half, height, radius - 0.5)
+    wood = _material("furniture", rng, rough=rng.uniform(0.3, 0.8), texture=rng.choice(("noise", None)))
+    for i in range(rng.randint(1, 3)):  # shelves against the west, east or south wall
+        side = rng.choice(("w", "e", "s"))
+        along, depth, shelf_h, levels = rng.uniform(-0.5, 0.5) * half, 0.35, rng.uniform(1.2, 2.2), rng.randint(2, 4)
+        width = rng.uniform(0.8, 1.8)
+        cx, cy = {"w": (-half + 0.25, along), "e": (half - 0.25, along), "s": (along, -half + 0.25)}[side]
+        sx, sy = (depth, width) if side in ("w", "e") else (width, depth)
+        for k in range(levels):
+            z = 0.15 + (shelf_h - 0.15) * k / (levels - 1)
+            _box(f"shelf{i}_{k}", (sx, sy, 0.03), (cx, cy, z), wood)
+            _props(f"s{i}_{k}", rng, rng.randint(3, 8), (cx, cy, z + 0.015), (sx * 0.4, sy * 0.45), 0.03, 0.18)
+        for e in (-1, 1):  # the two uprights
+            off = (0, e * sy / 2) if side in ("w", "e") else (e * sx / 2, 0)
+            _box(f"upright{i}{e}", (sx if side in ("w", "e") else 0.03, 0.03 if side in ("w", "e") else sy, shelf_h),
+                 (cx + off[0], cy + off[1], shelf_h / 2), wood)
+    for i in range(rng.randint(1, 2)):  # tables in the middle of the room
+        tx, ty = rng.uniform(-0.35, 0.35) * half, rng.uniform(-0.35, 0.35) * half
+        tw, td, th = rng.uniform(0.8, 1.8), rng.uniform(0.6, 1.0), rng.uniform(0.7, 0.8)
+        _box(f"table{i}", (tw, td, 0.04), (tx, ty, th), wood)
+        for lx in (-1, 1):
+            for ly in (-1, 1):
+                _box(f"table{i}leg{lx}{ly}", (0.04, 0.04, th), (tx + lx * (tw / 2 - 0.05), ty + ly * (td / 2 - 0.05),
+                                                                th / 2), wood)
+        _props(f"t{i}", rng, rng.randint(4, 12), (tx, ty, th + 0.02), (tw * 0.45, td * 0.45), 0.03, 0.2)
+    moving = _objects(rng, rng.randint(2, 5), 0.5 * half, rng.uniform(0.1, 0.5), rng.uniform(0.2, 0.7), frames)
+    return moving, (0, 0, rng.uniform(0.6, 1.1)), radius, rng.uniform(1.2, min(2.2, height - 0.3))
+
+
+def _props(name, rng, n, base, extent, smallest, largest):
+    """``n`` small props standing on a surface centred at ``base`` (x, y, top z)."""
+    import bpy
+
+    for i in range(n):
+        s = rng.uniform(smallest, largest)
+        loc = (base[0] + rng.uniform(-extent[0], extent[0]), base[1] + rng.uniform(-extent[1], extent[1]),
+               base[2] + s / 2)
+        shape = rng.choice(("cube", "sphere", "cylinder", "cone"))
+        if shape == "cube":
+            bpy.ops.mesh.primitive_cube_add(size=s, location=loc, rotation=(0, 0, rng.uniform(0, 3)))
+        elif shape == "sphere":
+            bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=3, radius=s / 2, location=loc)
+            bpy.ops.object.shade_smooth()
+        elif shape == "cylinder":
+            bpy.ops.mesh.primitive_cylinder_add(radius=s / 3, depth=s, location=loc)
+        else:
+            bpy.ops.mesh.primitive_cone_add(radius1=s / 2.5, depth=s, location=loc)
+        r = rng.random()
+        bpy.context.object.data.materials.append(
+            _material(f"{name}p{i}", rng, metal=r < 0.25, glass=0.25 <= r < 0.35,
+                      texture=rng.choice(TEXTURES) if rng.random() < 0.4 else None))
+
+
+def _interior_rig(rig, rng, half, height, reach):
+    """One of the ``interior`` kind's light sorts, each lighting the room mostly by bounce:
+    uplight (area lights facing the ceiling), cove (an emissive strip hidden on top of a
+    ledge near the ceiling), lamps (point lights in shades open at both ends, hanging on thin
+    cords, within ``reach`` of the room's vertical axis), wallwash (an area light close to a wall, facing it)."""
+    import bpy
+
+    if rig == "uplight":
+        for i in range(rng.randint(1, 2)):
+            bpy.ops.object.light_add(type="AREA", location=(rng.uniform(-0.7, 0.7) * half, rng.uniform(-0.7, 0.7) * half,
+                                                            rng.uniform(0.3, height - 0.8)),
+                                     rotation=(math.pi + rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), 0))
+            bpy.context.object.data.size = rng.uniform(0.1, 0.6)
+            bpy.context.object.data.energy = rng.uniform(100, 600)
+            bpy.context.object.data.color = (1.0, rng.uniform(0.75, 1.0), rng.uniform(0.55, 1.0))
+    elif rig == "cove":
+        side = rng.choice((-1, 1))
+        x, z = side * (half - 0.3), height - rng.uniform(0.3, 0.6)
+        ledge = _material("ledge", rng, rough=0.8, color=[rng.uniform(0.5, 0.9)] * 3)
+        _box("ledge", (0.3, 2 * half - 0.4, 0.05), (x, 0, z), ledge)
+        _box("ledge_lip", (0.03, 2 * half - 0.4, 0.12), (x - side * 0.15, 0, z + 0.06), ledge)
+        strip = _material("cove", rng, emission=rng.uniform(5.0, 30.0), rough=0.5)
+        _box("cove_strip", (0.04, 2 * half - 0.6, 0.03), (x, 0, z + 0.04), strip)
+    elif rig == "lamps":
+        shade = _material("lampshade", rng, rough=rng.uniform(0.3, 0.9), metal=rng.random() < 0.4)
+        cord = _material("cord", rng, rough=0.6, color=(0.02, 0.02, 0.02))
+        for i in range(rng.randint(1, 3)):
+            a, r = rng.uniform(0, 2 * math.pi), rng.uniform(0, reach)
+            x, y = r * math.cos(a), r * math.sin(a)
+            z = height - rng.uniform(0.6, 1.2)
+            bpy.ops.object.light_add(type="POINT", location=(x, y, z))
+            bpy.context.object.data.energy = rng.uniform(40, 250)
+            bpy.context.object.data.shadow_soft_size = rng.uniform(0.02, 0.06)
+            bpy.context.object.data.color = (1.0, rng.uniform(0.7, 0.95), rng.uniform(0.45, 0.8))
+            bpy.ops.mesh.primitive_cylinder_add(vertices=32, radius=rng.uniform(0.12, 0.25), depth=rng.uniform(0.2, 0.35),
+                                                end_fill_type="NOTHING", location=(x, y, z))
+            bpy.context.object.data.materials.append(shade)
+            bpy.ops.mesh.primitive_cylinder_add(radius=0.004, depth=height - z, location=(x, y, (height + z) / 2))
+            bpy.context.object.data.materials.append(cord)
+    else:  # wallwash
+        side = rng.choice(("w", "e", "s"))
+        d = half - rng.uniform(0.3, 0.8)
+        # an area light shines along its local -z: turned to face the wall, tilted up a little
+        loc, rot = {"w": ((-d, rng.uniform(-0.5, 0.5) * half, height * 0.6), (0, math.pi / 2 + 0.3, 0)),
+                    "e": ((d, rng.uniform(-0.5, 0.5) * half, height * 0.6), (0, -math.pi / 2 - 0.3, 0)),
+                    "s": ((rng.uniform(-0.5, 0.5) * half, -d, height * 0.6), (-math.pi / 2 - 0.3, 0, 0))}[side]
+        bpy.ops.object.light_add(type="AREA", location=loc, rotation=rot)
+        bpy.context.object.data.size = rng.uniform(0.2, 1.0)
+        bpy.context.object.data.energy = rng.uniform(150, 700)
 
 
 def _atrium(scene, rng, frames):

@@ -63,12 +63,18 @@ def cmd_import_cycles(args) -> int:
     return 0
 
 
+def _extra_sequences(args) -> dict[str, int]:
+    """{kind: N} of the training-only Cycles kinds from --mixed/--lights/--interior-sequences."""
+    return {kind: getattr(args, f"{kind}_sequences") for kind in ("mixed", "lights", "interior")
+            if getattr(args, f"{kind}_sequences")}
+
+
 def cmd_dataset(args) -> int:
     from .render.dataset import dataset_specs, render_dataset
 
     if args.list:
         for rel, cfg in dataset_specs(args.split, args.train_sequences, args.engine, args.moving_sequences,
-                                      args.mixed_sequences, args.lights_sequences):
+                                      _extra_sequences(args)):
             print(rel, json.dumps({"scene": cfg.scene, "seed": cfg.seed, "camera": cfg.camera,
                                    "frames": cfg.frames, "size": cfg.size, "spp": cfg.spp}))
         return 0
@@ -76,7 +82,7 @@ def cmd_dataset(args) -> int:
     done = render_dataset(args.out, args.split, args.limit, variant=args.variant,
                           train_sequences=args.train_sequences, jobs=args.jobs, engine=args.engine,
                           address=args.address, progress=not args.quiet, moving_sequences=args.moving_sequences,
-                          mixed_sequences=args.mixed_sequences, lights_sequences=args.lights_sequences)
+                          extra_sequences=_extra_sequences(args))
     for path, times in done:
         print(f"{path}: inputs {times['inputs']:.2f} s/frame, reference {times['reference']:.2f} s/frame")
     print(f"{len(done)} sequence(s) rendered in {time.perf_counter() - t0:.0f} s")
@@ -265,6 +271,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--lights-sequences", type=int, default=0,
                    help="Cycles training sequences of scene kind lights (mixed with spot, shaped area and "
                         "emissive bar lights; seeds 10000, ...)")
+    d.add_argument("--interior-sequences", type=int, default=0,
+                   help="Cycles training sequences of scene kind interior (closed rooms lit mostly by bounced "
+                        "light; seeds 11000, ...)")
     d.add_argument("--jobs", type=int, default=1, help="sequences rendered at once, in separate processes")
     d.add_argument("--variant", default=None, help="Mitsuba variant, e.g. cuda_ad_rgb on a GPU machine")
     d.add_argument("--engine", default="mitsuba", choices=ENGINES,

@@ -11,7 +11,10 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
-from ..blender_scene import CYCLES_HOLDOUT2_KINDS, CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS, CYCLES_TRAIN_KINDS
+from collections.abc import Mapping
+
+from ..blender_scene import (CYCLES_EXTRA_KINDS, CYCLES_HOLDOUT2_KINDS, CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS,
+                             CYCLES_TRAIN_KINDS)
 from ..errors import ConfigError
 from .camera import CAMERA_PATHS
 from .sequence import ENGINES, RenderConfig
@@ -51,24 +54,25 @@ TRAIN_SEQUENCES = 24  # the training set's default size; seeds 1000, 1001, ...
 # first seeds of each engine's training, validation and test sequences (never overlapping)
 SEEDS = {"mitsuba": (1000, 2000, 8000), "cycles": (5000, 6000, 7000)}
 MOVING_SEEDS = 4000  # Mitsuba training sequences of scene kind ``moving`` (objects that move)
-MIXED_SEEDS = 9000  # Cycles training sequences of scene kind ``mixed`` (blender_scene)
-LIGHTS_SEEDS = 10000  # Cycles training sequences of scene kind ``lights`` (blender_scene)
+# first seeds of the Cycles training-only kinds (blender_scene.CYCLES_EXTRA_KINDS), added on request
+EXTRA_SEEDS = {"mixed": 9000, "lights": 10000, "interior": 11000}
+assert set(EXTRA_SEEDS) == set(CYCLES_EXTRA_KINDS)
 HOLDOUT_SEEDS = 7100  # the Cycles holdout split: scene kinds built after the test set was looked at
 HOLDOUT2_SEEDS = 7200  # the second: scene kinds built after the first holdout was looked at
 
 
 def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
                   engine: str = "mitsuba", moving_sequences: int = 0,
-                  mixed_sequences: int = 0, lights_sequences: int = 0) -> list[tuple[str, RenderConfig]]:
+                  extra_sequences: Mapping[str, int] | None = None) -> list[tuple[str, RenderConfig]]:
     """(relative directory, config) of every sequence in a split: train, val, all (both)
     test or holdout.
 
     ``train_sequences`` grows the training set with further seeds (the first 24 are
     always the same sequences); validation seeds (2000+; Cycles: 6000+) never overlap it.
     ``moving_sequences`` adds Mitsuba training sequences whose objects move (scene kind
-    ``moving``, seeds 4000+, ``train/moving-*``); ``mixed_sequences`` Cycles training
-    sequences of scene kind ``mixed`` (seeds 9000+, ``train/cycles-mixed-*``),
-    ``lights_sequences`` of scene kind ``lights`` (seeds 10000+, ``train/cycles-lights-*``).
+    ``moving``, seeds 4000+, ``train/moving-*``); ``extra_sequences`` ({kind: N}) N Cycles
+    training sequences of each training-only kind (``EXTRA_SEEDS``: ``mixed`` 9000+,
+    ``lights`` 10000+, ``interior`` 11000+; ``train/cycles-<kind>-*``).
     The test split (8000+; Cycles: 7000+) is rendered only when asked for: it is never
     trained on, and no checkpoint or setting is chosen by it. The holdout split (Cycles
     only, seeds 7100+) is the same for two more scene kinds, written after the test set's
@@ -80,19 +84,21 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
         raise ConfigError(f"train_sequences must be in 1..1000, got {train_sequences}")
     if not 0 <= moving_sequences <= 1000 or (moving_sequences and engine != "mitsuba"):
         raise ConfigError(f"moving_sequences must be in 0..1000 (Mitsuba only), got {moving_sequences}")
-    for name, n in (("mixed_sequences", mixed_sequences), ("lights_sequences", lights_sequences)):
+    extra_sequences = dict(extra_sequences or {})
+    for kind, n in extra_sequences.items():
+        if kind not in EXTRA_SEEDS:
+            raise ConfigError(f"unknown training-only kind {kind!r}, expected one of {', '.join(EXTRA_SEEDS)}")
         if not 0 <= n <= 1000 or (n and engine != "cycles"):
-            raise ConfigError(f"{name} must be in 0..1000 (Cycles only), got {n}")
+            raise ConfigError(f"{kind} sequences must be in 0..1000 (Cycles only), got {n}")
     if engine not in ENGINES:
         raise ConfigError(f"unknown engine {engine!r}, expected one of {', '.join(ENGINES)}")
     train0, val0, test0 = SEEDS[engine]
     specs = {
         "train": _specs("train", range(train0, train0 + train_sequences), frames=12, spp=64, engine=engine)
         + _specs("train", range(MOVING_SEEDS, MOVING_SEEDS + moving_sequences), frames=12, spp=64, kind="moving")
-        + _specs("train", range(MIXED_SEEDS, MIXED_SEEDS + mixed_sequences), frames=12, spp=64, engine="cycles",
-                 kind="mixed")
-        + _specs("train", range(LIGHTS_SEEDS, LIGHTS_SEEDS + lights_sequences), frames=12, spp=64, engine="cycles",
-                 kind="lights"),
+        + [spec for kind, n in extra_sequences.items()
+           for spec in _specs("train", range(EXTRA_SEEDS[kind], EXTRA_SEEDS[kind] + n), frames=12, spp=64,
+                              engine="cycles", kind=kind)],
         "val": _specs("val", range(val0, val0 + 6), frames=12, spp=128, engine=engine),
         "test": _specs("test", range(test0, test0 + 6), frames=12, spp=128, engine=engine),
     }
@@ -121,15 +127,14 @@ def render_dataset(out: str | Path, split: str = "all", limit: int | None = None
                    variant: str | None = None, train_sequences: int = TRAIN_SEQUENCES,
                    jobs: int = 1, engine: str = "mitsuba", address: str | None = None,
                    progress: bool = True, moving_sequences: int = 0,
-                   mixed_sequences: int = 0, lights_sequences: int = 0) -> list[tuple[Path, dict]]:
+                   extra_sequences: Mapping[str, int] | None = None) -> list[tuple[Path, dict]]:
     """Render every missing sequence of a split; ``jobs`` > 1 renders that many sequences
     at once in separate processes (Mitsuba's Python-side tracing is single-threaded, so
     many cores or a GPU are only kept busy by several sequences at a time). ``address``
     (a Ray cluster, or ``local``; ``RAY_ADDRESS`` too) renders them as Ray tasks instead
     (``jnds_deploy.cluster.render_on_ray``)."""
     todo = []
-    for rel, cfg in dataset_specs(split, train_sequences, engine, moving_sequences, mixed_sequences,
-                                  lights_sequences)[:limit]:
+    for rel, cfg in dataset_specs(split, train_sequences, engine, moving_sequences, extra_sequences)[:limit]:
         if variant and engine == "mitsuba":
             cfg = replace(cfg, variant=variant)
         path = Path(out) / rel

@@ -150,33 +150,35 @@ def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has
     test = {cfg.scene for _, cfg in dataset_specs("test", engine="cycles")}
     holdout = {cfg.scene for _, cfg in dataset_specs("holdout", engine="cycles")}
     seen = {cfg.scene for split in ("train", "val")
-            for _, cfg in dataset_specs(split, 200, engine="cycles", mixed_sequences=20,
-                                        lights_sequences=20)}
-    assert test == set(CYCLES_TEST_KINDS) and not test & seen and {"mixed", "lights"} <= seen
+            for _, cfg in dataset_specs(split, 200, engine="cycles", extra_sequences=dict.fromkeys(
+                                            ("mixed", "lights", "interior"), 20))}
+    assert test == set(CYCLES_TEST_KINDS) and not test & seen and {"mixed", "lights", "interior"} <= seen
     assert holdout == set(CYCLES_HOLDOUT_KINDS) and not holdout & (seen | test)
     holdout2 = {cfg.scene for _, cfg in dataset_specs("holdout2", engine="cycles")}
     assert holdout2 == set(CYCLES_HOLDOUT2_KINDS) and not holdout2 & (seen | test | holdout)
-    seeds = {split: {cfg.seed for _, cfg in dataset_specs(split, 200, engine="cycles", mixed_sequences=20,
-                                                          lights_sequences=20)}
+    seeds = {split: {cfg.seed for _, cfg in dataset_specs(split, 200, engine="cycles",
+                                                          extra_sequences={"mixed": 20, "lights": 20,
+                                                                           "interior": 20})}
              for split in ("train", "val", "test", "holdout", "holdout2")}
     assert not seeds["holdout"] & (seeds["train"] | seeds["val"] | seeds["test"])
     assert not seeds["holdout2"] & (seeds["train"] | seeds["val"] | seeds["test"] | seeds["holdout"])
 
 
 def test_procedural_cameras_stay_inside_their_rooms():
-    """The ``mixed`` and ``lights`` training kinds draw a room's size and the camera's radius
+    """The ``mixed``, ``lights`` and ``interior`` training kinds draw a room's size and the camera's radius
     apart; before the clamp, lights 10002, 10009 and 10012 looked at walls from outside
     (docs/dataset.md). Every training seed rendered so far, built and not rendered."""
     from jnds_deploy.render.cycles import scene_job
     from jnds_deploy.render.dataset import dataset_specs
 
-    jobs = [scene_job(c) for _, c in dataset_specs("train", 1, "cycles", mixed_sequences=24, lights_sequences=24)
-            if c.scene in ("mixed", "lights")]
+    jobs = [scene_job(c) for _, c in dataset_specs("train", 1, "cycles",
+                                                   extra_sequences={"mixed": 24, "lights": 24, "interior": 16})
+            if c.scene in ("mixed", "lights", "interior")]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.run([str(_blender_python()), str(Path(__file__).with_name("camera_paths.py")),
                            json.dumps(jobs)], env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     found = [json.loads(line[7:]) for line in proc.stdout.splitlines() if line.startswith("CAMERA ")]
-    assert len(found) == len(jobs) == 48
+    assert len(found) == len(jobs) == 64
     assert sum(r["half"] is not None for r in found) >= 10  # rooms were drawn, so the check saw some
     assert [r for r in found if r["outside"]] == []
