@@ -309,10 +309,16 @@ def _deepened(cfg: ModelConfig, weights: dict, model: JNDS) -> dict:
                 key = new + key[len(old):]
                 break
         moved[key] = v
-    out = {}
     fresh = model.state_dict()
-    for key, f in fresh.items():
-        out[key] = moved[key].clone() if key in moved and moved[key].shape == f.shape else f.clone()
+    # only the old coarsest filter level's heads change shape (they gain up kernels, below);
+    # anything else that does not carry over means the renaming above is wrong
+    grown = ({f"{fe}heads.{path}{cfg.filter_levels}.{p}" for path in ("diffuse", "specular") for p in ("weight", "bias")}
+             if cfg.filter_levels == d + 1 else set())
+    lost = sorted(k for k in moved if k not in fresh or (moved[k].shape != fresh[k].shape and k not in grown))
+    if lost:
+        raise ConfigError(f"deepening {cfg.encoder_widths} -> {model.cfg.encoder_widths}: weights that do not carry "
+                          f"over: {', '.join(lost[:6])}{' ...' if len(lost) > 6 else ''}")
+    out = {key: (moved[key] if key in moved and key not in grown else f).clone() for key, f in fresh.items()}
     width, below = model.cfg.encoder_widths[d], model.cfg.bottleneck_width
     for conv, first in ((f"{fe}decoders.0.a", below), (f"{fe}decoders.0.b", 0)):
         w = torch.zeros_like(out[f"{conv}.weight"])
