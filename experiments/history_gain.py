@@ -2,13 +2,15 @@
 and with the geometric history rejection (``filters.disoccluded``, the default).
 
     .venv/bin/python experiments/history_gain.py --data data/val data/adaptive [--checkpoint CKPT]
-        [--out benchmarks/results/history_gain]
+        [--baseline oidn-balanced] [--out benchmarks/results/history_gain]
 
 PyTorch, the shipped checkpoint (or --checkpoint) at int8 fake quantization, every
 frame of every sequence. "no history": every frame is run as a first frame (the current
 inputs stand in for the history). "history, no rejection": the warped history is used
 everywhere. Per sequence: mean PSNR, FLIP and temporal error (``jnds_deploy.metrics``),
-and per-frame PSNR. Writes benchmarks/results/history_gain.md and .json.
+and per-frame PSNR; ``--baseline`` adds a baseline's per-frame PSNR (``jnds evaluate``'s
+baselines), to see whether the history makes up for the single frame's error (frame 0
+has none). Writes benchmarks/results/history_gain.md and .json.
 """
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ from jnds_deploy.checkpoint import default_checkpoint, load_model  # noqa: E402
 from jnds_deploy.io import expand_sequences  # noqa: E402
 from jnds_deploy.metrics import psnr  # noqa: E402
 from jnds_deploy.training.data import load_sequence  # noqa: E402
-from jnds_deploy.training.evaluate import infer_sequence, score_frames  # noqa: E402
+from jnds_deploy.training.evaluate import baseline_outputs, infer_sequence, score_frames  # noqa: E402
 
 MODES = ("no history", "history, no rejection", "history + rejection (default)")
 
@@ -49,6 +51,7 @@ def main() -> int:
     ap = arguments(__doc__, RESULTS / "history_gain")
     ap.add_argument("--data", nargs="+", default=["data/val"])
     ap.add_argument("--checkpoint", default=None)
+    ap.add_argument("--baseline", default=None, help="e.g. oidn-balanced: its per-frame PSNR beside the model's")
     args = ap.parse_args()
     model = load_model(args.checkpoint or default_checkpoint())
     model.eval()
@@ -64,6 +67,9 @@ def main() -> int:
             m = score_frames(outs, refs, motions, seq.cuts)
             m["psnr_per_frame"] = [psnr(o, r) for o, r in zip(outs, refs)]
             per[mode] = m
+        if args.baseline:
+            per[args.baseline] = {"psnr_per_frame": [psnr(o, r) for o, r in zip(baseline_outputs(args.baseline, path),
+                                                                               refs)]}
         result["sequences"][name] = per
         print(name, "  ".join(f"{mode}: {per[mode]['psnr']:.2f}" for mode in MODES), flush=True)
     lines = ["# What the history gives",
@@ -86,7 +92,7 @@ def main() -> int:
     lines += ["", "## PSNR per frame", ""]
     for name, per in seqs.items():
         lines.append(f"- {name}:")
-        for m in MODES:
+        for m in per:
             lines.append(f"  - {m}: " + " ".join(f"{v:.1f}" for v in per[m]["psnr_per_frame"]))
     lines.append("")
     write_report(Path(args.out), result, "\n".join(lines))
