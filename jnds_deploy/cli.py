@@ -65,7 +65,9 @@ def cmd_import_cycles(args) -> int:
 
 def _extra_sequences(args) -> dict[str, int]:
     """{kind: N} of the training-only Cycles kinds from --mixed/--lights/--interior-sequences."""
-    return {kind: getattr(args, f"{kind}_sequences") for kind in ("mixed", "lights", "interior")
+    from .blender_scene import CYCLES_EXTRA_KINDS
+
+    return {kind: getattr(args, f"{kind}_sequences") for kind in CYCLES_EXTRA_KINDS
             if getattr(args, f"{kind}_sequences")}
 
 

@@ -145,8 +145,10 @@ def test_every_cycles_scene_kind_renders_a_lit_valid_frame(kind, tmp_path):
 
 
 def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has():
-    from jnds_deploy.blender_scene import CYCLES_HOLDOUT2_KINDS, CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS
-    from jnds_deploy.render.dataset import dataset_specs
+    from jnds_deploy.blender_scene import (CYCLES_EXTRA_KINDS, CYCLES_HOLDOUT2_KINDS, CYCLES_HOLDOUT_KINDS,
+                                           CYCLES_TEST_KINDS)
+    from jnds_deploy.render.dataset import EXTRA_SEEDS, dataset_specs
+    assert set(EXTRA_SEEDS) == set(CYCLES_EXTRA_KINDS)  # every training-only kind has its seeds
     test = {cfg.scene for _, cfg in dataset_specs("test", engine="cycles")}
     holdout = {cfg.scene for _, cfg in dataset_specs("holdout", engine="cycles")}
     seen = {cfg.scene for split in ("train", "val")
