@@ -102,7 +102,7 @@ def cmd_train(args) -> int:
                       feature_net=args.feature_net, init=args.init, val_every=args.val_every,
                       val_sequences=args.val_sequences, threads=args.threads, seed=args.seed,
                       device=args.device, exposure=args.exposure, rotate_normals=args.rotate_normals,
-                      flips=args.flips, channels_last=not args.no_channels_last,
+                      flips=args.flips, colours=args.colours, warmup_steps=args.warmup_steps, channels_last=not args.no_channels_last,
                       fixed_upsample=args.fixed_upsample, cross_cuts=args.cross_cuts,
                       balance_renderers=args.balance_renderers, burn_in=args.burn_in,
                       clean_references=args.clean_references)
@@ -306,6 +306,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--qat-steps", type=int, default=1500)
     t.add_argument("--lr", type=float, default=1e-3, help="fp32 phase learning rate")
     t.add_argument("--qat-lr", type=float, default=1e-4, help="QAT phase learning rate")
+    t.add_argument("--warmup-steps", type=int, default=0, metavar="N",
+                   help="the fp32 learning rate rises linearly over the first N steps (a fine-tune's fresh "
+                        "optimizer moments otherwise move every weight by a full step at once)")
     t.add_argument("--spatial-loss", default="l1", choices=("l1", "feature", "l1+feature"))
     t.add_argument("--feature-net", default=None, help="feature-loss network checkpoint")
     t.add_argument("--init", default=None,
@@ -320,6 +323,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--rotate-normals", action="store_true",
                    help="augmentation: a uniformly random rotation of the normals' world frame per sample")
     t.add_argument("--flips", action="store_true", help="augmentation: random horizontal and vertical mirroring")
+    t.add_argument("--colours", action="store_true",
+                   help="augmentation: half the samples with R, G, B permuted (radiance and albedo) and the "
+                        "radiance tinted by up to half a stop per channel")
     t.add_argument("--burn-in", type=int, default=0, metavar="N",
                    help="up to N frames before each training window run without gradients (drawn per "
                         "batch from 0..N): the history the loss sees has accumulated longer")

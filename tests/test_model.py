@@ -531,8 +531,50 @@ def test_augmentations_keep_what_must_hold():
         for k in ("current", "color", "diffuse", "specular", "albedo"):
             np.testing.assert_array_equal(out[k], mirrored(sample[k], *match[0]))
     assert seen == {(False, False), (True, False), (False, True), (True, True)}
+
+    tinted = 0
+    for s in range(12):  # half the samples keep their colours
+        out = Augment(colours=True)(sample, np.random.default_rng(s))
+        if all(np.array_equal(out[k], sample[k]) for k in sample):
+            continue
+        tinted += 1
+        albedo = sample["current"][:, channels("albedo")]
+        # the permutation: the channel of the original albedo each output channel holds
+        perm = [next(j for j in range(3) if np.array_equal(out["current"][:, channels("albedo")][:, i],
+                                                          albedo[:, j])) for i in range(3)]
+        np.testing.assert_array_equal(out["albedo"], sample["albedo"][:, perm])
+        tint = out["diffuse"][:, :, :1, :1] / sample["diffuse"][:, perm][:, :, :1, :1]
+        assert np.all((2 ** -0.5 - 1e-6 <= tint) & (tint <= 2 ** 0.5 + 1e-6))
+        for c in ("color", "diffuse", "specular"):  # one tint per channel, inputs and reference alike
+            np.testing.assert_allclose(out[c], sample[c][:, perm] * tint[:1], rtol=1e-5)
+        for name in ("diffuse", "specular"):
+            np.testing.assert_allclose(out["current"][:, channels(name)],
+                                       sample["current"][:, channels(name)][:, perm] * tint[:1], rtol=1e-5)
+        # colour = albedo x diffuse + specular still holds after the augmentation
+        np.testing.assert_allclose(out["albedo"] * out["diffuse"] + out["specular"],
+                                   (sample["albedo"] * sample["diffuse"] + sample["specular"])[:, perm] * tint[:1],
+                                   rtol=1e-5)
+        for name in ("normal", "roughness"):
+            np.testing.assert_array_equal(out["current"][:, channels(name)], sample["current"][:, channels(name)])
+        np.testing.assert_array_equal(out["motion"], sample["motion"])
+    assert 0 < tinted < 12
     for k in sample:  # the sequence's arrays are never written
         np.testing.assert_array_equal(sample[k], before[k])
+
+
+def test_warmup_raises_the_learning_rate_linearly_in_the_fp32_phase_only():
+    from jnds_deploy.errors import ConfigError
+    from jnds_deploy.training.config import TrainConfig
+    from jnds_deploy.training.train import TrainState, _lr
+    cfg = TrainConfig(data="d", run="r", fp32_steps=100, qat_steps=10, lr=1e-3, qat_lr=1e-4, warmup_steps=10)
+    plain = TrainConfig(data="d", run="r", fp32_steps=100, qat_steps=10, lr=1e-3, qat_lr=1e-4)
+    assert _lr(cfg, TrainState(step=0)) == pytest.approx(0.1 * _lr(plain, TrainState(step=0)))
+    assert _lr(cfg, TrainState(step=4)) == pytest.approx(0.5 * _lr(plain, TrainState(step=4)))
+    for step in (9, 50):
+        assert _lr(cfg, TrainState(step=step)) == _lr(plain, TrainState(step=step))
+    assert _lr(cfg, TrainState(step=100, phase="qat")) == _lr(plain, TrainState(step=100, phase="qat")) == 1e-4
+    with pytest.raises(ConfigError, match="warmup_steps"):
+        TrainConfig(data="d", run="r", fp32_steps=5, warmup_steps=6)
 
 
 def test_sampler_without_augmentation_draws_what_it_drew_before(tmp_path):
@@ -543,7 +585,7 @@ def test_sampler_without_augmentation_draws_what_it_drew_before(tmp_path):
     b = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0), augment=Augment()).batch(2)
     assert all(torch.equal(a[k], b[k]) for k in a)
     c = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0),
-                     augment=Augment(exposure=(-4, 8), rotate_normals=True, flips=True)).batch(2)
+                     augment=Augment(exposure=(-4, 8), rotate_normals=True, flips=True, colours=True)).batch(2)
     assert all(torch.isfinite(v).all() for v in c.values())
     assert not torch.equal(a["current"], c["current"])
 

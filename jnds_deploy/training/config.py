@@ -29,6 +29,7 @@ class TrainConfig:
     lr: float = 1e-3
     qat_lr: float = 1e-4
     lr_decay: float = 0.1  # exponential decay to lr * lr_decay over each phase
+    warmup_steps: int = 0  # the fp32 phase's lr rises linearly over its first steps
     w_spatial: float = 0.2
     spatial_loss: str = "l1"  # l1 | feature | l1+feature (the sum of both)
     feature_net: str | None = None  # checkpoint of the feature-loss network
@@ -43,10 +44,12 @@ class TrainConfig:
     # convolutions in NHWC memory (the same values up to rounding): faster steps on a CPU
     # (benchmarks/results/train_throughput.md)
     channels_last: bool = True
-    # augmentations (training.data.Augment): exposure range in stops, normal-frame rotation, flips
+    # augmentations (training.data.Augment): exposure range in stops, normal-frame rotation, flips,
+    # colour permutation and tint
     exposure: tuple[float, float] | None = None
     rotate_normals: bool = False
     flips: bool = False
+    colours: bool = False
     # training windows may span a camera cut, the history restarting there (PatchSampler)
     cross_cuts: bool = False
     # each renderer's sequences drawn as often as another's, whatever their counts (PatchSampler)
@@ -73,6 +76,8 @@ class TrainConfig:
                 raise ConfigError(f"exposure must be (lo, hi) stops with lo <= hi, got {self.exposure}")
         if self.clean_references not in (None, "oidn"):
             raise ConfigError(f"clean_references must be None or 'oidn', got {self.clean_references!r}")
+        if not 0 <= self.warmup_steps <= self.fp32_steps:
+            raise ConfigError(f"warmup_steps must be in [0, fp32_steps={self.fp32_steps}], got {self.warmup_steps}")
         if self.burn_in < 0:
             raise ConfigError(f"burn_in must be >= 0 frames, got {self.burn_in}")
         if not 0 <= self.w_spatial <= 1:

@@ -152,15 +152,20 @@ class Augment:
     ``rotate_normals`` turns the world frame of the normals
     by a uniformly random rotation (a Z-up renderer must look like a Y-up one);
     ``flips`` mirrors the patch horizontally and/or vertically (each with probability
-    1/2), negating the motion component across the mirror. Off by default: the sampler
-    then draws exactly what it drew before augmentations existed."""
+    1/2), negating the motion component across the mirror; ``colours`` gives half the
+    samples other colours: one random permutation of R, G and B for every colour (radiance
+    and albedo, inputs and reference), and the radiance tinted by a gain of 2^u per channel,
+    u uniform in (-1/2, 1/2) (lights of another colour). Both are the same scene rendered
+    otherwise by an RGB renderer, whose channels are independent and linear in the lights.
+    Off by default: the sampler then draws exactly what it drew before augmentations existed."""
 
     exposure: tuple[float, float] | None = None
     rotate_normals: bool = False
     flips: bool = False
+    colours: bool = False
 
     def __bool__(self) -> bool:
-        return bool(self.exposure) or self.rotate_normals or self.flips
+        return bool(self.exposure) or self.rotate_normals or self.flips or self.colours
 
     def __call__(self, sample: dict[str, np.ndarray], rng: np.random.Generator) -> dict[str, np.ndarray]:
         """``sample``: current (T, 13, p, p), motion (T, 2, p, p) and the reference
@@ -172,6 +177,14 @@ class Augment:
                 out["current"][:, channels(name)] *= gain
             for name in ("color", "diffuse", "specular"):
                 out[name] *= gain
+        if self.colours and rng.random() < 0.5:
+            perm = rng.permutation(3)
+            tint = (2.0 ** rng.uniform(-0.5, 0.5, size=(1, 3, 1, 1))).astype(np.float32)
+            for name in (*RADIANCE, "albedo"):
+                c = channels(name)
+                out["current"][:, c] = out["current"][:, c][:, perm] * (tint if name in RADIANCE else 1)
+            for name in REFERENCE_COMPONENTS:  # color = albedo * diffuse + specular: tinted too
+                out[name] = np.ascontiguousarray(out[name][:, perm] * (1 if name == "albedo" else tint))
         if self.rotate_normals:
             n = channels("normal")
             out["current"][:, n] = np.einsum("ij,tjhw->tihw", random_rotation(rng), out["current"][:, n])

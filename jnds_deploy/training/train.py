@@ -60,7 +60,8 @@ def _lr(cfg: TrainConfig, state: TrainState) -> float:
     base, steps, start = ((cfg.lr, cfg.fp32_steps, 0) if state.phase == "fp32"
                           else (cfg.qat_lr, cfg.qat_steps, cfg.fp32_steps))
     frac = min(1.0, (state.step - start) / max(1, steps))
-    return base * cfg.lr_decay ** frac
+    warmup = min(1.0, (state.step + 1) / cfg.warmup_steps) if state.phase == "fp32" and cfg.warmup_steps else 1.0
+    return warmup * base * cfg.lr_decay ** frac
 
 
 def save_checkpoint(path: Path, model: JNDS, opt, state: TrainState, cfg: TrainConfig, rng,
@@ -127,7 +128,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
                 val_seqs[p] = load_sequence(p)
         return list(val_seqs.values())
     sampler = PatchSampler(train_seqs, cfg.patch, cfg.unroll, rng,
-                           Augment(cfg.exposure, cfg.rotate_normals, cfg.flips), cross_cuts=cfg.cross_cuts,
+                           Augment(cfg.exposure, cfg.rotate_normals, cfg.flips, cfg.colours), cross_cuts=cfg.cross_cuts,
                            balance_renderers=cfg.balance_renderers)
     loss_fn = Loss(cfg, model.cfg.scale)
     if cfg.channels_last:
