@@ -99,7 +99,7 @@ def cmd_train(args) -> int:
                       firefly_clamp=args.firefly_clamp,
                       patch=args.patch, unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
                       qat_steps=args.qat_steps, lr=args.lr, qat_lr=args.qat_lr, spatial_loss=args.spatial_loss,
-                      feature_net=args.feature_net, init=args.init, val_every=args.val_every,
+                      feature_net=args.feature_net, init=args.init, deepen_blend=args.deepen_blend, val_every=args.val_every,
                       val_sequences=args.val_sequences, threads=args.threads, seed=args.seed,
                       device=args.device, exposure=args.exposure, rotate_normals=args.rotate_normals,
                       flips=args.flips, colours=args.colours, warmup_steps=args.warmup_steps, channels_last=not args.no_channels_last,
@@ -313,6 +313,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--feature-net", default=None, help="feature-loss network checkpoint")
     t.add_argument("--init", default=None,
                    help="start a new run from this checkpoint's weights (e.g. the shipped one) to fine-tune it")
+    t.add_argument("--deepen-blend", type=float, default=-4.0, metavar="LOGIT",
+                   help="--init one U-Net level shallower than --preset: the new level enters the old coarsest "
+                        "one with blend weight sigmoid(LOGIT)")
     t.add_argument("--val-every", type=int, default=500)
     t.add_argument("--val-sequences", type=int, default=None)
     t.add_argument("--threads", type=int, default=2)

@@ -304,7 +304,7 @@ def test_init_widens_a_checkpoint_to_a_wider_preset_computing_the_same(fixed, na
 
 
 @pytest.mark.parametrize("fixed", [True, False])
-def test_init_deepens_a_checkpoint_by_one_unet_level_computing_nearly_the_same(fixed, monkeypatch):
+def test_init_deepens_a_checkpoint_by_one_unet_level_computing_nearly_the_same(fixed):
     from jnds_deploy.training import train
     up = dict(upsample_width=0, upsample_features=0) if fixed else {}
     lo = ModelConfig.preset("small", **up)
@@ -322,17 +322,15 @@ def test_init_deepens_a_checkpoint_by_one_unet_level_computing_nearly_the_same(f
     with torch.no_grad():
         a = old.network(x, h)
         # with the new level blended in at weight ~0 the mapping is exact: every old output as before
-        monkeypatch.setattr(train, "DEEPENED_BLEND", -40.0)
         exact = JNDS(hi)
-        exact.load_state_dict(train._deepened(lo, old.state_dict(), exact))
+        exact.load_state_dict(train._deepened(lo, old.state_dict(), exact, blend=-40.0))
         b = exact.network(x, h)
         assert set(b) - set(a) == {f"{p}.{n}" for p in ("diffuse", "specular")
                                    for n in ("level4.down", "level3.up", "level3.up_blend")}
         for k in a:
             assert torch.allclose(a[k], b[k], atol=1e-5), k
         assert torch.allclose(old(x, mv, None).output, exact(x, mv, None).output, atol=1e-4)
-        # as shipped, the new level enters with weight sigmoid(-4): close, and a live path to learn
-        monkeypatch.undo()
+        # by default the new level enters with weight sigmoid(-4): close, and a live path to learn
         new = JNDS(hi)
         new.load_state_dict(train._deepened(lo, old.state_dict(), new))
         c = new.network(x, h)
@@ -340,6 +338,14 @@ def test_init_deepens_a_checkpoint_by_one_unet_level_computing_nearly_the_same(f
             assert torch.allclose(a[k], c[k], atol=1e-5), k
         blend = c["diffuse.level3.up_blend"]
         assert 0.005 < blend.min() and blend.max() < 0.05
+        # --deepen-blend -2: further in (sigmoid(-2) = 0.12), the other outputs unchanged
+        further = JNDS(hi)
+        further.load_state_dict(train._deepened(lo, old.state_dict(), further, blend=-2.0))
+        d = further.network(x, h)
+        assert 0.08 < d["specular.level3.up_blend"].min() and d["specular.level3.up_blend"].max() < 0.16
+        for k in a:
+            if not k.endswith("up_blend"):
+                assert torch.allclose(c[k], d[k]), k
         assert new.network.feature_extractor.bottleneck.a.weight.abs().sum() > 0
 
 

@@ -34,6 +34,7 @@ class TrainConfig:
     spatial_loss: str = "l1"  # l1 | feature | l1+feature (the sum of both)
     feature_net: str | None = None  # checkpoint of the feature-loss network
     init: str | None = None  # start a new run from this checkpoint's weights (fine-tuning)
+    deepen_blend: float = -4.0  # an init one U-Net level shallower: the new level's blend logit (train._deepened)
     observe_batches: int = 8  # batches to observe activation ranges before QAT
     val_every: int = 500
     checkpoint_every: int = 100

@@ -194,7 +194,7 @@ def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
     if init_cfg != model.cfg and _widens(init_cfg, model.cfg):
         init_cfg, weights = model.cfg, _widened(init_cfg, weights, model)
     if init_cfg != model.cfg and _deepens(init_cfg, model.cfg):
-        init_cfg, weights = model.cfg, _deepened(init_cfg, weights, model)
+        init_cfg, weights = model.cfg, _deepened(init_cfg, weights, model, cfg.deepen_blend)
     if init_cfg != model.cfg:
         raise ConfigError(f"--init {cfg.init}: model config {data['model_config']} is not preset "
                           f"{cfg.preset!r} ({asdict(model.cfg)})")
@@ -282,21 +282,22 @@ def _deepens(old: ModelConfig, new: ModelConfig) -> bool:
                         filter_levels=levels) == new)
 
 
-# the blend weight (sigmoid of this) of the new coarsest filter level where it enters the
-# old one: near 0, so that the deepened model starts close to the old, but not so far in
-# the sigmoid's tail that the weight cannot learn
+# the default blend weight (sigmoid of this) of the new coarsest filter level where it
+# enters the old one: near 0, so that the deepened model starts close to the old. AdamW
+# moves a bias by about the learning rate a step, so a fine-tune hardly moves it from
+# there (gen13, docs/training.md): TrainConfig.deepen_blend enters further in.
 DEEPENED_BLEND = -4.0
 
 
 @torch.no_grad()
-def _deepened(cfg: ModelConfig, weights: dict, model: JNDS) -> dict:
+def _deepened(cfg: ModelConfig, weights: dict, model: JNDS, blend: float = DEEPENED_BLEND) -> dict:
     """A checkpoint's weights in a ``model`` one U-Net level deeper (``_deepens``), so that
     it computes nearly the same outputs: the old bottleneck becomes the deepest encoder
     block; the new decoder block above the new bottleneck starts as the identity of its
     skip connection (ReLU of a non-negative input: exact), which is the old bottleneck's
     output, so every shallower decoder reads what it read before; the old coarsest filter
     level's head keeps its down kernel and gains up kernels (identity) and an up blend of
-    sigmoid(``DEEPENED_BLEND``) towards the new level, the one inexact step. The new
+    sigmoid(``blend``) towards the new level, the one inexact step. The new
     bottleneck and level keep ``model``'s fresh initialization (written here, as
     ``_widened``: a few lines over the state dict)."""
     fe = "network.feature_extractor."
@@ -331,7 +332,7 @@ def _deepened(cfg: ModelConfig, weights: dict, model: JNDS) -> dict:
             for p in ("weight", "bias"):
                 old = weights[f"{head}.{p}"]
                 out[f"{head}.{p}"][: len(old)] = old
-            out[f"{head}.bias"][-1] = DEEPENED_BLEND  # up_blend, the last of _path_sizes
+            out[f"{head}.bias"][-1] = blend  # up_blend, the last of _path_sizes
     return out
 
 
