@@ -200,11 +200,15 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str, 
         cmd += f" --threads {tcfg['threads']}"
     if init:
         cmd += f" --init {init} --lr {tcfg['lr']} --qat-lr {tcfg['qat_lr']}"
+        if tcfg.get("deepen_blend", -4.0) != -4.0:
+            cmd += f" --deepen-blend {tcfg['deepen_blend']:g}"
+    if tcfg.get("warmup_steps"):
+        cmd += f" --warmup-steps {tcfg['warmup_steps']}"
     if tcfg["spatial_loss"] != "l1":
         cmd += f" --spatial-loss {tcfg['spatial_loss']} --feature-net {tcfg['feature_net']}"
     if tcfg.get("exposure"):
         cmd += " --exposure {:g} {:g}".format(*tcfg["exposure"])
-    for key in ("rotate_normals", "flips", "fixed_upsample", "cross_cuts", "balance_renderers"):
+    for key in ("rotate_normals", "flips", "colours", "fixed_upsample", "cross_cuts", "balance_renderers"):
         if tcfg.get(key):
             cmd += " --" + key.replace("_", "-")
     if tcfg.get("clean_references"):
