@@ -158,12 +158,16 @@ def _tonemap_codes(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
 
 @njit(parallel=True, cache=True)
 def _pack(current, history, kinds, scale, zero_point, first, at, out):
+    # each channel of a row into a contiguous byte row first, then the row's pixels
+    # written out whole: storing straight into the channels-last output was one byte store
+    # per value at a stride of C bytes (docs/design-notes.md, "Input packing")
     nc = current.shape[0]
     zp = np.float32(zero_point)
     half, top = np.float32(0.5), np.float32(HDR_MAX)
     lo, hi = np.float32(0), np.float32(255)
-    w = out.shape[2]
+    w, C = out.shape[2], out.shape[3]
     for y in prange(out.shape[1]):
+        codes = np.empty((C, w), np.uint8)
         for c in range(kinds.shape[0]):
             src = current[c] if c < nc else history[c - nc]
             k = kinds[c]
@@ -174,16 +178,19 @@ def _pack(current, history, kinds, scale, zero_point, first, at, out):
                     # no branch: on 1-spp noise a branch here is mispredicted often
                     # (docs/performance.md, stop 40)
                     q += np.int64(v >= at[q + 1])
-                    out[0, y, i, c] = np.uint8(q)
+                    codes[c, i] = np.uint8(q)
             else:
                 a = half if k == 2 else np.float32(1)
                 b = half if k == 2 else lo
                 for i in range(w):
                     q = np.rint((src[y, i] * a + b) / scale) + zp
-                    out[0, y, i, c] = np.uint8(min(max(q, lo), hi))
-        for c in range(kinds.shape[0], out.shape[3]):
+                    codes[c, i] = np.uint8(min(max(q, lo), hi))
+        for c in range(kinds.shape[0], C):
             for i in range(w):
-                out[0, y, i, c] = np.uint8(zero_point)
+                codes[c, i] = np.uint8(zero_point)
+        for i in range(w):
+            for c in range(C):
+                out[0, y, i, c] = codes[c, i]
 
 
 def pack_inputs(current: np.ndarray, history: np.ndarray, layout: InputsLayout) -> np.ndarray:
