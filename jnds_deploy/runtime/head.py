@@ -87,30 +87,21 @@ class HeadLayout:
 def _decode_row(q, y, c0, n, kinds, scale, offset, table, out, r):
     """out[t, r, :] = channel c0 + t of head row y, decoded (t < n): kernel taps clamped,
     features ReLU'd, blend weights through the sigmoid table, normalized kernels through
-    the exp table and divided by their taps' sum.
-
-    The row's n channels are first copied out of the channels-last head into one
-    contiguous byte row each, in a single pass along the row; decoding straight from the
-    head read every channel with a stride of C bytes, n passes over the row, and took
-    longer than the filtering it fed (docs/design-notes.md, "The u8 head's decoding")."""
+    the exp table and divided by their taps' sum."""
     w = q.shape[1]
     one = np.float32(1)
-    codes = np.empty((n, w), np.uint8)
-    for x in range(w):
-        for t in range(n):
-            codes[t, x] = q[y, x, c0 + t]
     for t in range(n):
         c = c0 + t
         k, s, o = kinds[c], scale[c], offset[c]
         if k == 0:  # kernel
             for x in range(w):
-                out[t, r, x] = min(max(np.float32(codes[t, x]) * s + o, -one), one)
+                out[t, r, x] = min(max(np.float32(q[y, x, c]) * s + o, -one), one)
         elif k == 3:  # relu
             for x in range(w):
-                out[t, r, x] = max(np.float32(codes[t, x]) * s + o, np.float32(0))
+                out[t, r, x] = max(np.float32(q[y, x, c]) * s + o, np.float32(0))
         else:
             for x in range(w):
-                out[t, r, x] = table[c, codes[t, x]]
+                out[t, r, x] = table[c, q[y, x, c]]
     if kinds[c0] == 2:  # normalized
         for x in range(w):
             total = out[0, r, x]
