@@ -27,6 +27,7 @@ from jnds_deploy.io import open_sequence  # noqa: E402
 from jnds_deploy.model import ModelConfig, count_macs  # noqa: E402
 from jnds_deploy.runtime import Pipeline  # noqa: E402
 from jnds_deploy.runtime.network import Edges  # noqa: E402
+from jnds_deploy.runtime.reformat import DECODED, NATIVE, block_input  # noqa: E402
 from jnds_deploy.runtime.profile import STAGES, profile_stages  # noqa: E402
 
 ROWS = ("reformat", "warp", "firefly_clamp", "input_block", "feature_extractor", "output_block", "filter_diffuse",
@@ -45,12 +46,13 @@ def time_pipeline(pipe: Pipeline, frames, repeats: int, between=None) -> list[di
     return recorded
 
 
-def network_split(pipe: Pipeline, frames, threads: int) -> tuple[dict[str, float], dict, float]:
+def network_split(pipe: Pipeline, frames, threads: int) -> tuple[dict[str, float], dict, float, float]:
     """Shares of input block / feature extractor / output block in the network graph,
     ONNX Runtime's per-node times (``profile_stages``' ``by_node_ms``), and the ms of the
-    network stage spent before the graph runs: an int8 graph's input packing
-    (``runtime.reformat.pack_inputs``: the input block's tonemap and quantization, in
-    numba), median of 7 on the same frame; 0 for a graph that takes float inputs."""
+    network stage spent outside the graph, medians of 7 on the same frame: an int8 graph's
+    input packing (``runtime.reformat.pack_inputs``: the input block's tonemap and
+    quantization, in numba) and the output block's upsampling and concatenation where the
+    graph is cut there (``runtime.reformat.block_input``); 0 where the graph has no such step."""
     feeds = {}
     pipe.on_feeds = lambda name, f: feeds.setdefault(name, f)
     pipe.reset()
@@ -63,22 +65,29 @@ def network_split(pipe: Pipeline, frames, threads: int) -> tuple[dict[str, float
     inside = sum(prof[s] for s in STAGES)
     edges = Edges(pipe.sessions["network"])
     pack = float(np.median([timed(edges.feeds, feeds["network"])[1] for _ in range(7)])) if edges.inputs else 0.0
-    return {s: prof[s] / inside for s in STAGES}, profile["by_node_ms"], pack
+    glue = 0.0
+    if edges.block:
+        sess = pipe.sessions["network"]
+        dec, nat = sess.run([DECODED, NATIVE], edges.feeds(feeds["network"]))
+        glue = float(np.median([timed(block_input, dec, nat, edges.block)[1] for _ in range(7)]))
+    return {s: prof[s] / inside for s in STAGES}, profile["by_node_ms"], pack, glue
 
 
-def summarize(recorded: list[dict], split: dict, macs: dict, peaks: dict, gemm: dict, pack_ms: float = 0.0) -> dict:
+def summarize(recorded: list[dict], split: dict, macs: dict, peaks: dict, gemm: dict, pack_ms: float = 0.0,
+              glue_ms: float = 0.0) -> dict:
     """Per stage: spread of its time, share of the frame, and for the network stages and
     the upsample block GMAC, GMAC/s and the share of ``peaks`` ({stage: GMAC/s of this CPU
     at the precision the stage runs at}) and of ``gemm`` (the same, by ONNX Runtime on one
     large matrix product here, ``common.gemm_throughput``) reached. The network time less
-    ``pack_ms`` (``network_split``) is split by ``split``; ``pack_ms`` goes to the input
-    block, whose preprocessing it is (an fp32 graph runs it inside the input block)."""
+    ``pack_ms`` and ``glue_ms`` (``network_split``) is split by ``split``; ``pack_ms`` goes to
+    the input block, whose preprocessing it is (an fp32 graph runs it inside the input
+    block), ``glue_ms`` to the output block (the fp32 graph's upsampling and concatenation)."""
     rows = {}
-    net = np.array([r["network"] for r in recorded]) - pack_ms
+    net = np.array([r["network"] for r in recorded]) - pack_ms - glue_ms
     total = np.array([r["total"] for r in recorded])
     for k in ROWS:
         if k in STAGES:
-            v = net * split[k] + (pack_ms if k == "input_block" else 0.0)
+            v = net * split[k] + {"input_block": pack_ms, "output_block": glue_ms}.get(k, 0.0)
         elif k in recorded[0]:
             v = np.array([r[k] for r in recorded])
         else:
@@ -241,7 +250,7 @@ def main() -> int:
         macs = count_macs(cfg, w, h)
         for precision in args.precisions:
             pipe = pipeline(args.artifacts, precision=precision, threads=args.threads)
-            split, nodes, pack_ms = network_split(pipe, frames, args.threads)
+            split, nodes, pack_ms, glue_ms = network_split(pipe, frames, args.threads)
             # copy-bandwidth samples between the frames of the large int8 run: the
             # filter stage's memory-traffic bound (below)
             probed = size == big and precision == "int8"
@@ -252,10 +261,11 @@ def main() -> int:
             gemms = {**{s: at[pipe.graph_precision["network"]] for s in STAGES},
                      "upsample_kernel": at[pipe.graph_precision.get("upsample", "fp32")]}
             rows = summarize(time_pipeline(pipe, frames, args.repeats, probe if probed else None), split, macs,
-                             peaks, gemms, pack_ms)
+                             peaks, gemms, pack_ms, glue_ms)
             report["results"][f"{label} {precision}"] = {"native": [w, h], "target": [w * pipe.scale, h * pipe.scale],
                                                          "precision": precision, "graphs": dict(pipe.graph_precision),
-                                                         "split": split, "input_packing_ms": pack_ms, "stages": rows,
+                                                         "split": split, "input_packing_ms": pack_ms,
+                                                         "block_glue_ms": glue_ms, "stages": rows,
                                                          "network_nodes": nodes}
             if probed:
                 bw = np.array(probe.samples)
@@ -331,13 +341,17 @@ def main() -> int:
            "291.3, filter_auxiliary 305.5, upsample_filter 344.6, reformat 201.7 ms (int8, 1280x720; total "
            "2554.7 ms against OIDN balanced 1416.3 ms in that run).", ""]
     packing = {name: r["input_packing_ms"] for name, r in report["results"].items() if r["input_packing_ms"]}
+    glue = {name: r["block_glue_ms"] for name, r in report["results"].items() if r["block_glue_ms"]}
     md += ["The input block / feature extractor / output block rows split the measured network time by the "
            "shares ONNX Runtime's profiler gives those stages on the same inputs. An int8 graph takes its "
            "input packed (`runtime.reformat.pack_inputs`: the input block's tonemap, quantization and channels-"
            "last layout, a numba loop, which the fp32 graph runs inside the input block): that time, measured "
            "apart on the same frame (median of 7), is taken out before the split and counted in the input block "
-           "row (" + "; ".join(f"{name}: {ms:.1f} ms" for name, ms in packing.items()) + "); the feature "
-           "extractor and output block rows are graph time only.", ""]
+           "row (" + "; ".join(f"{name}: {ms:.1f} ms" for name, ms in packing.items()) + "). Where the int8 "
+           "graph is cut at the output block (`calibration.block`), the block's upsampling and concatenation "
+           "between its two runs (`runtime.reformat.block_input`, numba) is measured apart likewise and counted "
+           "in the output block row (" + "; ".join(f"{name}: {ms:.1f} ms" for name, ms in glue.items()) + "). "
+           "The feature extractor row is graph time only.", ""]
     write_report(out, report, "\n".join(md))
     print("\n".join(md))
     return 0

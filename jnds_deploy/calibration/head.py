@@ -182,13 +182,16 @@ def quantize_head(src: Path, dst: Path, ranges: dict[str, dict[str, list[float]]
     return layout
 
 
-def save_extracted(model: onnx.ModelProto, dst: Path, inputs: list[str], outputs: list[str], props: dict) -> None:
+def save_extracted(model: onnx.ModelProto, dst: Path, inputs: list[str], outputs: list[str], props: dict,
+                   defaults: dict[str, np.ndarray] | None = None) -> None:
     """``model`` reduced to what ``outputs`` need from ``inputs`` (the nodes a surgery cut
-    off go), with ``props`` added to its metadata, checked and written to ``dst`` atomically."""
+    off go), with ``props`` added to its metadata, checked and written to ``dst`` atomically.
+    ``defaults``: values of inputs a run may leave out (overridable initializers)."""
     props = {**{p.key: p.value for p in model.metadata_props}, **props}
     with tempfile.TemporaryDirectory(dir=dst.parent) as tmp:
         onnx.save(model, f"{tmp}/m.onnx")
         model = onnx.utils.Extractor(onnx.load(f"{tmp}/m.onnx")).extract_model(inputs, outputs)
+    model.graph.initializer.extend(numpy_helper.from_array(v, n) for n, v in (defaults or {}).items())
     onnx.helper.set_model_props(model, props)
     onnx.checker.check_model(model)
     tmp = dst.with_name(f".{dst.name}.tmp")

@@ -34,6 +34,7 @@ from onnx import numpy_helper
 from ..artifacts import MANIFEST, Int8Graph, Manifest, file_hash, write_json
 from ..errors import CalibrationError
 from ..export.prune import INT8_VARIANT_TOL, validate_variant, write_variants
+from .block import cut_block
 from .head import HEAD_NODE, STOPS, channel_ranges, quantize_head, raw_ranges
 from .inputs import quantize_inputs
 from .reader import FeedReader, collect_feeds
@@ -177,7 +178,7 @@ def validate_int8(root: Path, manifest: Manifest, method: str, feeds: dict[str, 
     from ..checkpoint import load_fp32_model
     from ..export.convert import validate_graph
     from ..filters import to_phases
-    from ..runtime.network import output_names
+    from ..runtime.network import output_names, quiet
 
     ckpt = Path(checkpoint or manifest.checkpoint["path"])
     if not ckpt.is_file():
@@ -188,7 +189,7 @@ def validate_int8(root: Path, manifest: Manifest, method: str, feeds: dict[str, 
     rows = []
     for name, g in manifest.graphs.items():
         path = root / g.int8[method].file
-        names = output_names(ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]))
+        names = output_names(ort.InferenceSession(str(path), quiet(), providers=["CPUExecutionProvider"]))
         recorded = feeds[name]
         for i in sorted({0, len(recorded) // 2, len(recorded) - 1}):
             f = {k: torch.from_numpy(v) for k, v in recorded[i].items()}
@@ -238,6 +239,7 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
             for f in [file] + [v.file for v in variants.values()]:
                 quantize_head(root / f, root / f, head)
                 quantize_inputs(root / f, root / f)
+                cut_block(root / f, root / f, manifest.pad_multiple)
         for v in variants.values():
             vrows += validate_variant(root / file, root / v.file, feeds[name][0], *INT8_VARIANT_TOL)
             v.sha256 = file_hash(root / v.file)

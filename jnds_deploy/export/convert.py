@@ -55,9 +55,9 @@ def validate_graph(onnx_path: Path, torch_fn, feeds: dict[str, torch.Tensor], na
     ``atol`` (max) and ``mean_tol`` (mean, if given)."""
     import onnxruntime as ort
 
-    from ..runtime.network import run_network
+    from ..runtime.network import quiet, run_network
 
-    sess = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
+    sess = ort.InferenceSession(str(onnx_path), quiet(), providers=["CPUExecutionProvider"])
     out = run_network(sess, {k: v.numpy() for k, v in feeds.items()})
     got = [out[n] for n in names]
     with torch.no_grad():

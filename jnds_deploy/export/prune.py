@@ -135,10 +135,10 @@ def validate_variant(full: Path, variant: Path, feeds: dict[str, np.ndarray], at
     ``calibrate`` validates them with ``INT8_VARIANT_TOL``."""
     import onnxruntime as ort
 
-    from ..runtime.network import run_network
+    from ..runtime.network import quiet, run_network
 
-    a = ort.InferenceSession(str(full), providers=["CPUExecutionProvider"])
-    b = ort.InferenceSession(str(variant), providers=["CPUExecutionProvider"])
+    a = ort.InferenceSession(str(full), quiet(), providers=["CPUExecutionProvider"])
+    b = ort.InferenceSession(str(variant), quiet(), providers=["CPUExecutionProvider"])
     ref = run_network(a, feeds)
     got = run_network(b, feeds)
     names = list(got)

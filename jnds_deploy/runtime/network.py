@@ -6,14 +6,18 @@ convolution (``calibration.inputs``: input ``inputs``, u8 channels last) and end
 output block's u8 head (``calibration.head``: output ``head``). ``run_network`` takes the
 float ``current`` and ``history`` every graph's users have (the pipeline, calibration,
 validation) and returns the outputs by the float graph's names, so that each caller runs
-any graph the same way.
+any graph the same way. A graph cut at the output block (``calibration.block``) runs in two
+steps of its one session: up to the two u8 feature tensors the block is made from, the
+block's upsampling and concatenation in numba (``reformat.block_input``), then the output
+block from its second input ``block``.
 """
 from __future__ import annotations
 
 from ..errors import ArtifactError
 from ..layout import head_kind
 from .head import HEAD, LAYOUT_KEY, Head, HeadLayout
-from .reformat import INPUTS, INPUTS_KEY, InputsLayout, pack_inputs
+from .reformat import (BLOCK, BLOCK_KEY, DECODED, INPUTS, INPUTS_KEY, NATIVE, BlockLayout, InputsLayout, block_input,
+                       pack_inputs)
 
 
 class Edges:
@@ -21,21 +25,42 @@ class Edges:
 
     def __init__(self, sess):
         self.inputs = self.head = None
-        if any(i.name == INPUTS for i in sess.get_inputs()):
+        # a graph cut at the output block has two entries, each an input with a default (an
+        # overridable initializer), so that either can be run without feeding the other
+        names = {i.name for i in sess.get_inputs()} | {i.name for i in sess.get_overridable_initializers()}
+        if INPUTS in names:
             self.inputs = InputsLayout.of_session(sess)
             if self.inputs is None:
                 raise ArtifactError(f"network graph has an {INPUTS!r} input but no {INPUTS_KEY!r} metadata")
-        if any(o.name == HEAD for o in sess.get_outputs()):
+        outputs = [o.name for o in sess.get_outputs()]
+        if HEAD in outputs:
             layout = HeadLayout.of_session(sess)
             if layout is None:
                 raise ArtifactError(f"network graph has a {HEAD!r} output but no {LAYOUT_KEY!r} metadata")
             self.head = Head(layout)
+        self.block = BlockLayout.of_session(sess)
+        if self.block is not None and not ({BLOCK, INPUTS} <= names and {DECODED, NATIVE, HEAD} <= set(outputs)):
+            raise ArtifactError(f"network graph has {BLOCK_KEY!r} metadata but not the inputs {INPUTS!r}, "
+                                f"{BLOCK!r} and outputs {DECODED!r}, {NATIVE!r}, {HEAD!r}")
+        # what run returns: every output but the block's internal ones
+        self.outputs = [n for n in outputs if n not in (DECODED, NATIVE)] if self.block else outputs
 
     def feeds(self, feeds: dict) -> dict:
         """``feeds`` ({current, history}: float NCHW) as the graph takes them."""
         if self.inputs is None:
             return feeds
         return {INPUTS: pack_inputs(feeds["current"], feeds["history"], self.inputs)}
+
+    def run(self, sess, feeds: dict) -> dict:
+        """The graph on ``feeds`` as it takes them (``feeds``): {output: array} for
+        ``self.outputs``, through the block's two steps where it is cut."""
+        if self.block is None:
+            return dict(zip(self.outputs, sess.run(None, feeds)))
+        first = [n for n in self.outputs if n != HEAD] + [DECODED, NATIVE]
+        out = dict(zip(first, sess.run(first, feeds)))
+        block = block_input(out.pop(DECODED), out.pop(NATIVE), self.block)
+        out[HEAD] = sess.run([HEAD], {BLOCK: block})[0]
+        return out
 
 
 def edges(sess, cache: dict | None = None) -> Edges:
@@ -55,8 +80,7 @@ def run_network(sess, feeds: dict, cache: dict | None = None, coded: bool = Fals
     (C, H, W) parts, except the upsample block's features, which ONNX Runtime reads as
     float. ``cache`` keeps each session's ``Edges``."""
     e = edges(sess, cache)
-    names = [o.name for o in sess.get_outputs()]
-    out = dict(zip(names, sess.run(None, e.feeds(feeds))))
+    out = e.run(sess, e.feeds(feeds))
     if e.head is None:
         return out
     q = out.pop(HEAD)
@@ -67,8 +91,20 @@ def run_network(sess, feeds: dict, cache: dict | None = None, coded: bool = Fals
 
 def output_names(sess) -> list[str]:
     """The outputs ``run_network`` returns for ``sess``, in order."""
-    names = [o.name for o in sess.get_outputs()]
+    names = Edges(sess).outputs
     if HEAD not in names:
         return names
     layout = HeadLayout.of_session(sess)
     return [n for n in names if n != HEAD] + [n for n, _ in layout.parts]
+
+
+def quiet(opts=None):
+    """``opts`` (new ones if None) with ONNX Runtime's log at errors: a graph cut at the output
+    block has two inputs with defaults, and ONNX Runtime warns at every session it creates
+    that they are not constant, which is what they are for (``calibration.block``)."""
+    import onnxruntime as ort
+
+    opts = opts or ort.SessionOptions()
+    opts.log_severity_level = 3
+    return opts
+

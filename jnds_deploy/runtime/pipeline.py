@@ -34,7 +34,7 @@ from ..layout import CURRENT, HISTORY, INPUT_CHANNELS, RADIANCE, channels
 from . import filters as F
 from .head import Coded
 from .history import History, Warped, replace_nonfinite
-from .network import run_network
+from .network import quiet, run_network
 from .reformat import to_chw, to_hwc
 
 # albedo then normal: adjacent and at the same channels in the current inputs and the
@@ -204,7 +204,7 @@ class Pipeline:
         self.dtype = np.dtype(cfg.filter_dtype)
         if cfg.keep_freed_memory:
             keep_freed_memory()
-        opts = ort.SessionOptions()
+        opts = quiet()  # errors only: the int8 graph's two entries are warned about (runtime.network.quiet)
         opts.intra_op_num_threads = cfg.threads
         opts.inter_op_num_threads = 1
         # memory (docs/design-notes.md, "ONNX Runtime's memory"): every session of the

@@ -209,3 +209,90 @@ def pack_inputs(current: np.ndarray, history: np.ndarray, layout: InputsLayout) 
 @functools.lru_cache(maxsize=8)
 def _tables(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
     return _tonemap_codes(layout)
+
+
+BLOCK = "block"  # the second entry of an int8 network graph cut at the output block (calibration.block)
+BLOCK_KEY = "jnds.block"  # the cut's quantization, JSON in the ONNX model's metadata_props
+DECODED, NATIVE = "block.decoded", "block.native"  # the graph outputs it is made from
+
+
+@dataclass(frozen=True)
+class BlockLayout:
+    """An int8 network graph cut before the output block's upsampling and concatenation
+    (``calibration.block``): its outputs ``block.decoded`` (the U-Net's finest decoder
+    features, half resolution) and ``block.native`` (the input block's features), u8
+    channels last, become its input ``block`` = concat(bilinear 2x upsampling of decoded,
+    native), requantized. Each (scale, zero point): value = (q - zero_point) * scale."""
+
+    decoded: tuple[float, int]
+    native: tuple[float, int]
+    block: tuple[float, int]
+
+    def to_json(self) -> str:
+        return json.dumps({"decoded": list(self.decoded), "native": list(self.native), "block": list(self.block)})
+
+    @classmethod
+    def from_json(cls, text: str) -> "BlockLayout":
+        try:
+            d = json.loads(text)
+            layout = cls(*((float(d[k][0]), int(d[k][1])) for k in ("decoded", "native", "block")))
+        except (ValueError, KeyError, TypeError, IndexError) as exc:
+            raise ArtifactError(f"block metadata {BLOCK_KEY!r} malformed ({exc!r})") from exc
+        if not all(s > 0 and 0 <= z <= 255 for s, z in (layout.decoded, layout.native, layout.block)):
+            raise ArtifactError(f"block metadata {BLOCK_KEY!r}: {layout}")
+        return layout
+
+    @classmethod
+    def of_session(cls, sess) -> "BlockLayout | None":
+        """The layout of an ONNX Runtime session whose graph is cut at the output block, else None."""
+        text = sess.get_modelmeta().custom_metadata_map.get(BLOCK_KEY)
+        return None if text is None else cls.from_json(text)
+
+
+@njit(parallel=True, cache=True)
+def _upsample_concat(dec, nat, sd, zd, sn, zn, sb, zb, out):
+    # ONNX Resize's linear mode with half-pixel centres at 2x, taps clamped to the edge,
+    # computed from the u8 codes and rounded straight to the block's scale (ties to even,
+    # saturated, as QuantizeLinear): the float graph's DequantizeLinear, Resize,
+    # QuantizeLinear and concatenation in one pass (bit-equal to them on the shipped graph,
+    # experiments/output_block_split.py)
+    h, w, cd = dec.shape
+    H, W, cn = nat.shape
+    kd, kn = np.float32(sd / sb), np.float32(sn / sb)
+    zdf, znf, zbf = np.float32(zd), np.float32(zn), np.float32(zb)
+    lo, hi, one = np.float32(0), np.float32(255), np.float32(1)
+    xa, xb, fxs = np.empty(W, np.int64), np.empty(W, np.int64), np.empty(W, np.float32)
+    for x in range(W):
+        sx = (x + 0.5) * 0.5 - 0.5
+        x0 = int(np.floor(sx))
+        fxs[x] = np.float32(sx - x0)
+        xa[x], xb[x] = min(max(x0, 0), w - 1), min(max(x0 + 1, 0), w - 1)
+    for y in prange(H):
+        sy = (y + 0.5) * 0.5 - 0.5
+        y0 = int(np.floor(sy))
+        fy = np.float32(sy - y0)
+        ra, rb = dec[min(max(y0, 0), h - 1)], dec[min(max(y0 + 1, 0), h - 1)]
+        for x in range(W):
+            fx = fxs[x]
+            w00, w01, w10, w11 = (one - fy) * (one - fx), (one - fy) * fx, fy * (one - fx), fy * fx
+            a0, a1, b0, b1 = ra[xa[x]], ra[xb[x]], rb[xa[x]], rb[xb[x]]
+            o = out[0, y, x]
+            for c in range(cd):  # contiguous channels: vector loads across c
+                v = (w00 * (np.float32(a0[c]) - zdf) + w01 * (np.float32(a1[c]) - zdf)
+                     + w10 * (np.float32(b0[c]) - zdf) + w11 * (np.float32(b1[c]) - zdf))
+                o[c] = np.uint8(min(max(np.rint(v * kd) + zbf, lo), hi))
+            n = nat[y, x]
+            for c in range(cn):
+                o[cd + c] = np.uint8(min(max(np.rint((np.float32(n[c]) - znf) * kn) + zbf, lo), hi))
+
+
+def block_input(decoded: np.ndarray, native: np.ndarray, layout: BlockLayout) -> np.ndarray:
+    """The graph's ``block`` (1, H, W, Cd + Cn) u8 from its outputs ``block.decoded`` (1, H/2,
+    W/2, Cd) and ``block.native`` (1, H, W, Cn), u8 channels last."""
+    dec, nat = np.ascontiguousarray(decoded[0]), np.ascontiguousarray(native[0])
+    if dec.dtype != np.uint8 or nat.dtype != np.uint8 or dec.shape[:2] != (nat.shape[0] // 2, nat.shape[1] // 2):
+        raise ArtifactError(f"block: decoded {dec.dtype} {dec.shape} and native {nat.dtype} {nat.shape} do not fit")
+    out = np.empty((1, nat.shape[0], nat.shape[1], dec.shape[2] + nat.shape[2]), np.uint8)
+    (sd, zd), (sn, zn), (sb, zb) = layout.decoded, layout.native, layout.block
+    _upsample_concat(dec, nat, float(sd), zd, float(sn), zn, float(sb), zb, out)
+    return out
