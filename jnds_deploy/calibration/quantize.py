@@ -249,7 +249,8 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
             float_nodes=[n for n in cfg.float_nodes if not (head and n == HEAD_NODE)],
             ranges=f"calibration.{cfg.method}.json", variants=variants,
             head="u8, channels last, a range per channel (calibration.head)" if head else "float",
-            inputs="u8, channels last, preprocessed (calibration.inputs)" if head else "float")
+            inputs="u8, channels last, preprocessed (calibration.inputs)" if head else "float",
+            block="between two runs of the graph, u8 (calibration.block)" if head else "in the graph")
     write_json(root / f"calibration.{cfg.method}.json",
                {"method": cfg.method, "activation_type": cfg.activation_type,
                 "data": [str(d) for d in cfg.data], "frames_per_sequence": cfg.frames,

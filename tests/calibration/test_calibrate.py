@@ -73,6 +73,7 @@ def test_every_convolution_is_quantized(calibrated):
             defaults = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer if i.name in (INPUTS, BLOCK)}
             assert {k: v.dtype for k, v in defaults.items()} == {INPUTS: np.uint8, BLOCK: np.uint8}
             assert {DECODED, NATIVE} <= set(out) and BlockLayout.from_json(props[BLOCK_KEY])
+            assert g.int8["qat"].block.startswith("between two runs")
             assert not any(n.name.startswith("/network/output_block/") and n.op_type in ("Resize", "Concat")
                            for n in model.graph.node)
             assert InputsLayout.from_json(props[INPUTS_KEY]).channels % 8 == 0
