@@ -483,24 +483,46 @@ def _luminance_planes(current, history, out):
                 out[2 * s + 1, y, x] = history[c, y, x] * r + history[c + 1, y, x] * g + history[c + 2, y, x] * b
 
 
+@njit(inline="always")
+def _max3(row, out, skip_centre):
+    """out[x] = max of row[x - 1], row[x] and row[x + 1] (without row[x] if ``skip_centre``),
+    indices clamped to the row (a clamped index may bring row[x] back, as in
+    ``jnds_deploy.filters.clamp_fireflies``'s padding)."""
+    w = row.shape[0]
+    out[0] = max(row[0], row[min(1, w - 1)])
+    if w > 1:
+        out[w - 1] = max(row[w - 2], row[w - 1])
+    if skip_centre:
+        for x in range(1, w - 1):
+            out[x] = max(row[x - 1], row[x + 1])
+    else:
+        for x in range(1, w - 1):
+            out[x] = max(max(row[x - 1], row[x]), row[x + 1])
+
+
 @njit(parallel=True, cache=True)
 def _clamp_rows(current, lum, k, counts):
+    # the 3x3 maximum as maxima of three along each row (border columns apart: clamped
+    # indices in the loop kept it scalar) taken over the three rows; maxima are exact, so
+    # the bounds are the 3x3 loop's bit for bit (docs/design-notes.md)
     h, w = current.shape[1], current.shape[2]
     for y in prange(h):
+        ya, yc = max(y - 1, 0), min(y + 1, h - 1)
+        m = np.empty((6, w), np.float32)
         n = 0
         for s in range(2):
             c = _DIFFUSE if s == 0 else _SPECULAR
+            cur, his = lum[2 * s], lum[2 * s + 1]
+            _max3(cur[ya], m[0], False)
+            _max3(cur[y], m[1], True)  # the pixel itself is not its own bound
+            _max3(cur[yc], m[2], False)
+            _max3(his[ya], m[3], False)
+            _max3(his[y], m[4], False)
+            _max3(his[yc], m[5], False)
             for x in range(w):
-                bound = np.float32(0)
-                for i in range(9):
-                    yy = min(max(y + i // 3 - 1, 0), h - 1)
-                    xx = min(max(x + i % 3 - 1, 0), w - 1)
-                    m = lum[2 * s + 1, yy, xx]
-                    if i != 4:
-                        m = max(m, lum[2 * s, yy, xx])
-                    bound = max(bound, m)
-                bound = bound * k
-                v = lum[2 * s, y, x]
+                bound = max(max(max(m[0, x], m[1, x]), max(m[2, x], m[3, x])), max(m[4, x], m[5, x]))
+                bound = max(bound, np.float32(0)) * k
+                v = cur[y, x]
                 if v > bound:
                     f = bound / v
                     current[c, y, x] *= f
