@@ -331,39 +331,53 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, counts):
 
 
 @njit(inline="always")
-def _flushed(v, flush):
-    return v if abs(v) >= flush else np.float32(0)
+def _sanitized(v, flush):
+    """v with NaN and -Inf as 0, +Inf as HDR_MAX (``history.replace_nonfinite``'s values),
+    and magnitudes below ``flush`` as 0: selects, no branch (the loop vectorizes)."""
+    zero = np.float32(0)
+    v = zero if v != v or v == -np.inf else v
+    v = np.float32(HDR_MAX) if v == np.inf else v
+    return v if abs(v) >= flush else zero
 
 
 @njit(parallel=True, cache=True)
-def _interleave(a, b, d, e, out, flush):
+def _interleave(a, b, d, e, out, flush, nonfinite):
     """out[y, x, :] = a[:, y, x], b[:, y, x], d[:, y, x], e[:, y, x] (one pass over out),
-    values of magnitude below ``flush`` set to 0."""
+    sanitized (``_sanitized``); nonfinite[y]: how many of row y's values were not finite."""
     ca, cb, cd, ce = a.shape[0], b.shape[0], d.shape[0], e.shape[0]
     H, W, _ = out.shape
     for y in prange(H):
+        n = 0
         for x in range(W):
             for c in range(ca):
-                out[y, x, c] = _flushed(a[c, y, x], flush)
+                n += np.int64(not np.isfinite(a[c, y, x]))
+                out[y, x, c] = _sanitized(a[c, y, x], flush)
             for c in range(cb):
-                out[y, x, ca + c] = _flushed(b[c, y, x], flush)
+                n += np.int64(not np.isfinite(b[c, y, x]))
+                out[y, x, ca + c] = _sanitized(b[c, y, x], flush)
             for c in range(cd):
-                out[y, x, ca + cb + c] = _flushed(d[c, y, x], flush)
+                n += np.int64(not np.isfinite(d[c, y, x]))
+                out[y, x, ca + cb + c] = _sanitized(d[c, y, x], flush)
             for c in range(ce):
-                out[y, x, ca + cb + cd + c] = _flushed(e[c, y, x], flush)
+                n += np.int64(not np.isfinite(e[c, y, x]))
+                out[y, x, ca + cb + cd + c] = _sanitized(e[c, y, x], flush)
+        nonfinite[y] = n
 
 
-def channels_last(*arrays: np.ndarray, flush: float = 0.0) -> np.ndarray:
+def channels_last(*arrays: np.ndarray, flush: float = 0.0, counted: bool = False):
     """(H, W, sum C_i) float32 from up to 4 CHW arrays of one size, in one pass: the warp's
     input layout (the pipeline keeps its history so). Values of magnitude below ``flush``
-    become 0 (the history flushes what would decay into denormals, see HISTORY_FLUSH)."""
+    become 0 (the history flushes what would decay into denormals, see HISTORY_FLUSH);
+    NaN and -Inf 0, +Inf HDR_MAX. With ``counted``: (that array, how many values were not
+    finite)."""
     if not 1 <= len(arrays) <= 4:
         raise ValueError(f"channels_last takes 1 to 4 arrays, got {len(arrays)}")
     arrays = [np.ascontiguousarray(a, np.float32) for a in arrays]
     _, h, w = arrays[0].shape
     out = np.empty((h, w, sum(a.shape[0] for a in arrays)), np.float32)
-    _interleave(*arrays, *[arrays[0][:0]] * (4 - len(arrays)), out, np.float32(flush))
-    return out
+    nonfinite = np.empty(h, np.int64)
+    _interleave(*arrays, *[arrays[0][:0]] * (4 - len(arrays)), out, np.float32(flush), nonfinite)
+    return (out, int(nonfinite.sum())) if counted else out
 
 
 @njit(parallel=True, cache=True)

@@ -106,11 +106,12 @@ class History:
         """Keep the frame's filtered signals (CHW, padded size) as the next frame's history,
         radiance divided by ``radiance_scale`` (the float16 filter stage's); returns how
         many non-finite values were replaced (0 unless something upstream broke)."""
-        self.frame = F.channels_last(*[filtered[n] for n, _ in HISTORY], flush=HISTORY_FLUSH)
+        # non-finite values replaced and counted in the same pass (replace_nonfinite's values)
+        self.frame, bad = F.channels_last(*[filtered[n] for n, _ in HISTORY], flush=HISTORY_FLUSH, counted=True)
         if radiance_scale != 1:
             self.frame[..., :channels("specular").stop] /= radiance_scale
         self.size = size
-        return replace_nonfinite(self.frame)
+        return bad
 
 
 def replace_nonfinite(a: np.ndarray) -> int:

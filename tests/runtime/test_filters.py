@@ -5,6 +5,7 @@ import torch
 
 from jnds_deploy import filters as T
 from jnds_deploy.io import open_sequence
+from jnds_deploy.layout import HDR_MAX
 from jnds_deploy.runtime import filters as N
 
 from ..conftest import SAMPLE
@@ -71,6 +72,11 @@ def test_warp_clamps_and_handles_far_motion():
     assert got.min() >= -1 and got.max() <= 1
     tiny = np.array([[[1e-35, -1e-31, 2e-30, -1.0]]], np.float32).transpose(2, 0, 1)  # (4, 1, 1)
     np.testing.assert_array_equal(N.channels_last(tiny, flush=1e-30).ravel(), np.float32([0, 0, 2e-30, -1]))
+    # non-finite values: replaced as history.replace_nonfinite replaces them, and counted
+    bad = np.array([[[np.nan, np.inf, -np.inf, 3.0]]], np.float32).transpose(2, 0, 1)
+    got, n = N.channels_last(bad, x[:2, :1, :1], flush=1e-30, counted=True)
+    np.testing.assert_array_equal(got.ravel()[:4], np.float32([0, HDR_MAX, 0, 3]))
+    assert n == 3
 
 
 def _levels(h, w, n):
