@@ -19,7 +19,8 @@ cuts the graph there, in one file with two entries:
 Each entry is an input with a default (an overridable initializer), so that a run can feed
 one entry alone. ONNX Runtime runs every node of a graph on each run, whatever outputs it
 is asked for, so each default is a frame of the smallest size the network takes: the half
-a run does not need runs on it (a few hundredths of a millisecond at 8x8).
+a run does not need runs on it (both halves on their 8x8 defaults: 0.12 ms on the Zen 5 of
+stop 48).
 """
 from __future__ import annotations
 
