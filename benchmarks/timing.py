@@ -27,7 +27,7 @@ from jnds_deploy.io import open_sequence  # noqa: E402
 from jnds_deploy.model import ModelConfig, count_macs  # noqa: E402
 from jnds_deploy.runtime import Pipeline  # noqa: E402
 from jnds_deploy.runtime.network import Edges  # noqa: E402
-from jnds_deploy.runtime.reformat import DECODED, NATIVE, block_input  # noqa: E402
+from jnds_deploy.runtime.reformat import block_input  # noqa: E402
 from jnds_deploy.runtime.profile import STAGES, profile_stages  # noqa: E402
 
 ROWS = ("reformat", "warp", "firefly_clamp", "input_block", "feature_extractor", "output_block", "filter_diffuse",
@@ -46,13 +46,14 @@ def time_pipeline(pipe: Pipeline, frames, repeats: int, between=None) -> list[di
     return recorded
 
 
-def network_split(pipe: Pipeline, frames, threads: int) -> tuple[dict[str, float], dict, float, float]:
+def network_split(pipe: Pipeline, frames, threads: int) -> tuple[dict[str, float], dict, float, dict[str, float]]:
     """Shares of input block / feature extractor / output block in the network graph,
     ONNX Runtime's per-node times (``profile_stages``' ``by_node_ms``), and the ms of the
     network stage spent outside the graph, medians of 7 on the same frame: an int8 graph's
     input packing (``runtime.reformat.pack_inputs``: the input block's tonemap and
-    quantization, in numba) and the output block's upsampling and concatenation where the
-    graph is cut there (``runtime.reformat.block_input``); 0 where the graph has no such step."""
+    quantization, in numba), and per stage the passes of the upsamplings and concatenations
+    where the graph is cut at them (``runtime.reformat.block_input``); 0 and {} where the graph
+    has no such step."""
     feeds = {}
     pipe.on_feeds = lambda name, f: feeds.setdefault(name, f)
     pipe.reset()
@@ -65,29 +66,37 @@ def network_split(pipe: Pipeline, frames, threads: int) -> tuple[dict[str, float
     inside = sum(prof[s] for s in STAGES)
     edges = Edges(pipe.sessions["network"])
     pack = float(np.median([timed(edges.feeds, feeds["network"])[1] for _ in range(7)])) if edges.inputs else 0.0
-    glue = 0.0
-    if edges.block:
-        sess = pipe.sessions["network"]
-        dec, nat = sess.run([DECODED, NATIVE], edges.feeds(feeds["network"]))
-        glue = float(np.median([timed(block_input, dec, nat, edges.block)[1] for _ in range(7)]))
+    glue: dict[str, float] = {}
+    if edges.block:  # every cut's pass, on the tensors the graph gives it
+        sess, packed = pipe.sessions["network"], edges.feeds(feeds["network"])
+        made = {}
+        for entry, names in edges.block.segments:
+            cut = next((c for c in edges.block.cuts if c.entry == entry), None)
+            feed = packed if cut is None else {entry: block_input(made[cut.up], made[cut.skip], cut)}
+            made.update(zip(names, sess.run(list(names), feed)))
+        glue = {}
+        for c in edges.block.cuts:
+            ms = float(np.median([timed(block_input, made[c.up], made[c.skip], c)[1] for _ in range(7)]))
+            glue[c.stage] = glue.get(c.stage, 0.0) + ms
     return {s: prof[s] / inside for s in STAGES}, profile["by_node_ms"], pack, glue
 
 
 def summarize(recorded: list[dict], split: dict, macs: dict, peaks: dict, gemm: dict, pack_ms: float = 0.0,
-              glue_ms: float = 0.0) -> dict:
+              glue_ms: dict[str, float] | None = None) -> dict:
     """Per stage: spread of its time, share of the frame, and for the network stages and
     the upsample block GMAC, GMAC/s and the share of ``peaks`` ({stage: GMAC/s of this CPU
     at the precision the stage runs at}) and of ``gemm`` (the same, by ONNX Runtime on one
     large matrix product here, ``common.gemm_throughput``) reached. The network time less
     ``pack_ms`` and ``glue_ms`` (``network_split``) is split by ``split``; ``pack_ms`` goes to
     the input block, whose preprocessing it is (an fp32 graph runs it inside the input
-    block), ``glue_ms`` to the output block (the fp32 graph's upsampling and concatenation)."""
+    block), ``glue_ms`` to the stages whose upsampling and concatenation it is."""
     rows = {}
-    net = np.array([r["network"] for r in recorded]) - pack_ms - glue_ms
+    glue_ms = glue_ms or {}
+    net = np.array([r["network"] for r in recorded]) - pack_ms - sum(glue_ms.values())
     total = np.array([r["total"] for r in recorded])
     for k in ROWS:
         if k in STAGES:
-            v = net * split[k] + {"input_block": pack_ms, "output_block": glue_ms}.get(k, 0.0)
+            v = net * split[k] + (pack_ms if k == "input_block" else 0.0) + glue_ms.get(k, 0.0)
         elif k in recorded[0]:
             v = np.array([r[k] for r in recorded])
         else:
@@ -341,17 +350,17 @@ def main() -> int:
            "291.3, filter_auxiliary 305.5, upsample_filter 344.6, reformat 201.7 ms (int8, 1280x720; total "
            "2554.7 ms against OIDN balanced 1416.3 ms in that run).", ""]
     packing = {name: r["input_packing_ms"] for name, r in report["results"].items() if r["input_packing_ms"]}
-    glue = {name: r["block_glue_ms"] for name, r in report["results"].items() if r["block_glue_ms"]}
+    glue = {name: sum(r["block_glue_ms"].values()) for name, r in report["results"].items() if r["block_glue_ms"]}
     md += ["The input block / feature extractor / output block rows split the measured network time by the "
            "shares ONNX Runtime's profiler gives those stages on the same inputs. An int8 graph takes its "
            "input packed (`runtime.reformat.pack_inputs`: the input block's tonemap, quantization and channels-"
            "last layout, a numba loop, which the fp32 graph runs inside the input block): that time, measured "
            "apart on the same frame (median of 7), is taken out before the split and counted in the input block "
            "row (" + "; ".join(f"{name}: {ms:.1f} ms" for name, ms in packing.items()) + "). Where the int8 "
-           "graph is cut at the output block (`calibration.block`), the block's upsampling and concatenation "
-           "between its two runs (`runtime.reformat.block_input`, numba) is measured apart likewise and counted "
-           "in the output block row (" + "; ".join(f"{name}: {ms:.1f} ms" for name, ms in glue.items()) + "). "
-           "The feature extractor row is graph time only.", ""]
+           "graph is cut at its upsamplings and concatenations (`calibration.block`), their numba passes between "
+           "the graph's runs (`runtime.reformat.block_input`) are measured apart likewise and counted in the rows "
+           "of their stages, the feature extractor's and the output block's (" + "; ".join(
+               f"{name}: {ms:.1f} ms in all" for name, ms in glue.items()) + ").", ""]
     write_report(out, report, "\n".join(md))
     print("\n".join(md))
     return 0

@@ -85,8 +85,8 @@ class Int8Graph:
     variants: dict[str, Variant] = field(default_factory=dict)
     head: str = "float"  # the output block's head: float outputs, or one u8 tensor (runtime.head)
     inputs: str = "float"  # current and history float, or one u8 tensor preprocessed (runtime.reformat)
-    # the output block's upsampling and concatenation: in the graph, or between two runs of
-    # it (calibration.block, runtime.reformat.block_input)
+    # the upsamplings and concatenations (decoder blocks, output block): in the graph, or
+    # between runs of it (calibration.block, runtime.reformat.block_input)
     block: str = "in the graph"
 
 

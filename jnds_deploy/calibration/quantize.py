@@ -34,7 +34,7 @@ from onnx import numpy_helper
 from ..artifacts import MANIFEST, Int8Graph, Manifest, file_hash, write_json
 from ..errors import CalibrationError
 from ..export.prune import INT8_VARIANT_TOL, validate_variant, write_variants
-from .block import cut_block
+from .block import cut_blocks
 from .head import HEAD_NODE, STOPS, channel_ranges, quantize_head, raw_ranges
 from .inputs import quantize_inputs
 from .reader import FeedReader, collect_feeds
@@ -239,7 +239,7 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
             for f in [file] + [v.file for v in variants.values()]:
                 quantize_head(root / f, root / f, head)
                 quantize_inputs(root / f, root / f)
-                cut_block(root / f, root / f, manifest.pad_multiple)
+                cut_blocks(root / f, root / f, manifest.pad_multiple)
         for v in variants.values():
             vrows += validate_variant(root / file, root / v.file, feeds[name][0], *INT8_VARIANT_TOL)
             v.sha256 = file_hash(root / v.file)
@@ -250,7 +250,7 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
             ranges=f"calibration.{cfg.method}.json", variants=variants,
             head="u8, channels last, a range per channel (calibration.head)" if head else "float",
             inputs="u8, channels last, preprocessed (calibration.inputs)" if head else "float",
-            block="between two runs of the graph, u8 (calibration.block)" if head else "in the graph")
+            block="between the graph's runs, u8 (calibration.block)" if head else "in the graph")
     write_json(root / f"calibration.{cfg.method}.json",
                {"method": cfg.method, "activation_type": cfg.activation_type,
                 "data": [str(d) for d in cfg.data], "frames_per_sequence": cfg.frames,

@@ -6,18 +6,17 @@ convolution (``calibration.inputs``: input ``inputs``, u8 channels last) and end
 output block's u8 head (``calibration.head``: output ``head``). ``run_network`` takes the
 float ``current`` and ``history`` every graph's users have (the pipeline, calibration,
 validation) and returns the outputs by the float graph's names, so that each caller runs
-any graph the same way. A graph cut at the output block (``calibration.block``) runs in two
-steps of its one session: up to the two u8 feature tensors the block is made from, the
-block's upsampling and concatenation in numba (``reformat.block_input``), then the output
-block from its second input ``block``.
+any graph the same way. A graph cut at its upsamplings and concatenations
+(``calibration.block``) runs in segments of its one session, one run each: each cut's
+upsampling and concatenation in numba (``reformat.block_input``) between the run that made
+its two u8 tensors and the run it feeds.
 """
 from __future__ import annotations
 
 from ..errors import ArtifactError
 from ..layout import head_kind
 from .head import HEAD, LAYOUT_KEY, Head, HeadLayout
-from .reformat import (BLOCK, BLOCK_KEY, DECODED, INPUTS, INPUTS_KEY, NATIVE, BlockLayout, InputsLayout, block_input,
-                       pack_inputs)
+from .reformat import BLOCK_KEY, INPUTS, INPUTS_KEY, BlockLayout, InputsLayout, block_input, pack_inputs
 
 
 class Edges:
@@ -25,8 +24,8 @@ class Edges:
 
     def __init__(self, sess):
         self.inputs = self.head = None
-        # a graph cut at the output block has two entries, each an input with a default (an
-        # overridable initializer), so that either can be run without feeding the other
+        # a cut graph has an entry per segment, each an input with a default (an overridable
+        # initializer), so that each can be run without feeding the others
         names = {i.name for i in sess.get_inputs()} | {i.name for i in sess.get_overridable_initializers()}
         if INPUTS in names:
             self.inputs = InputsLayout.of_session(sess)
@@ -39,11 +38,13 @@ class Edges:
                 raise ArtifactError(f"network graph has a {HEAD!r} output but no {LAYOUT_KEY!r} metadata")
             self.head = Head(layout)
         self.block = BlockLayout.of_session(sess)
-        if self.block is not None and not ({BLOCK, INPUTS} <= names and {DECODED, NATIVE, HEAD} <= set(outputs)):
-            raise ArtifactError(f"network graph has {BLOCK_KEY!r} metadata but not the inputs {INPUTS!r}, "
-                                f"{BLOCK!r} and outputs {DECODED!r}, {NATIVE!r}, {HEAD!r}")
-        # what run returns: every output but the block's internal ones
-        self.outputs = [n for n in outputs if n not in (DECODED, NATIVE)] if self.block else outputs
+        if self.block is not None:
+            made = [n for _, o in self.block.segments for n in o]
+            if {e for e, _ in self.block.segments} - names or sorted(made) != sorted(outputs):
+                raise ArtifactError(f"network graph's {BLOCK_KEY!r} metadata does not match its inputs "
+                                    f"{sorted(names)} and outputs {outputs}")
+        # what run returns: every output but the ones the cuts are made from
+        self.outputs = [n for n in outputs if n not in self.block.internal] if self.block else outputs
 
     def feeds(self, feeds: dict) -> dict:
         """``feeds`` ({current, history}: float NCHW) as the graph takes them."""
@@ -56,10 +57,15 @@ class Edges:
         ``self.outputs``, through the block's two steps where it is cut."""
         if self.block is None:
             return dict(zip(self.outputs, sess.run(None, feeds)))
-        first = [n for n in self.outputs if n != HEAD] + [DECODED, NATIVE]
-        out = dict(zip(first, sess.run(first, feeds)))
-        block = block_input(out.pop(DECODED), out.pop(NATIVE), self.block)
-        out[HEAD] = sess.run([HEAD], {BLOCK: block})[0]
+        cuts = {c.entry: c for c in self.block.cuts}
+        out: dict = {}
+        for entry, names in self.block.segments:
+            if entry == INPUTS:
+                feed = feeds
+            else:
+                c = cuts[entry]
+                feed = {entry: block_input(out.pop(c.up), out.pop(c.skip), c)}
+            out.update(zip(names, sess.run(list(names), feed)))
         return out
 
 

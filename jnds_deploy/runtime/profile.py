@@ -49,10 +49,10 @@ def profile_stages(onnx_path: str | Path, feeds: dict[str, np.ndarray], runs: in
         for _ in range(runs + 1):  # the first a warm-up, dropped below
             edges.run(sess, feeds)
         events = json.loads(Path(sess.end_profiling()).read_text())
-    # a graph cut at the output block runs twice a frame (runtime.network): one run's
-    # events span both; the block between them (numba) is not ONNX Runtime's to time
+    # a cut graph runs once per segment a frame (runtime.network): one run's events span
+    # them all; the cuts' passes between them (numba) are not ONNX Runtime's to time
     calls = [ev for ev in events if ev.get("cat") == "Session" and ev.get("name") == "model_run"]
-    per = 2 if edges.block else 1
+    per = len(edges.block.segments) if edges.block else 1
     events = [ev for ev in events if not (ev.get("cat") == "Session" and ev.get("name") == "model_run")] + [
         {"cat": "Session", "name": "model_run", "ts": calls[i]["ts"],
          "dur": calls[i + per - 1]["ts"] + calls[i + per - 1]["dur"] - calls[i]["ts"],
@@ -78,8 +78,8 @@ def profile_stages(onnx_path: str | Path, feeds: dict[str, np.ndarray], runs: in
                 op = ev.get("args", {}).get("op_name", "?")
                 ops.setdefault(op, []).append(ev["dur"] / 1000)
                 node = ev["name"][:-len("_kernel_time")]
-                # summed per run: a graph cut at the output block runs every node twice a
-                # frame, once on the small default of the entry it was not fed
+                # summed per run: a cut graph runs every node once per segment a frame,
+                # on the small defaults of the entries a run is not fed
                 r["_nodes"][node] = r["_nodes"].get(node, 0.0) + ev["dur"] / 1000
                 node_op[node] = op
     for r in runs_ms:

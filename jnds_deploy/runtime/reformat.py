@@ -211,42 +211,68 @@ def _tables(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
     return _tonemap_codes(layout)
 
 
-BLOCK = "block"  # the second entry of an int8 network graph cut at the output block (calibration.block)
-BLOCK_KEY = "jnds.block"  # the cut's quantization, JSON in the ONNX model's metadata_props
-DECODED, NATIVE = "block.decoded", "block.native"  # the graph outputs it is made from
+BLOCK_KEY = "jnds.block"  # the cuts and the segments, JSON in the ONNX model's metadata_props
+
+
+@dataclass(frozen=True)
+class Cut:
+    """One concatenation of a 2x upsampling with a skip connection cut out of the graph:
+    its outputs ``up`` (the features to upsample) and ``skip`` (u8, channels last) become
+    its input ``entry``, concat(bilinear 2x upsampling of up, skip), requantized. Each
+    (scale, zero point): value = (q - zero_point) * scale."""
+
+    entry: str
+    up: str
+    skip: str
+    up_q: tuple[float, int]
+    skip_q: tuple[float, int]
+    entry_q: tuple[float, int]
+    stage: str = ""  # the paper's stage it belongs to (runtime.profile.STAGES)
 
 
 @dataclass(frozen=True)
 class BlockLayout:
-    """An int8 network graph cut before the output block's upsampling and concatenation
-    (``calibration.block``): its outputs ``block.decoded`` (the U-Net's finest decoder
-    features, half resolution) and ``block.native`` (the input block's features), u8
-    channels last, become its input ``block`` = concat(bilinear 2x upsampling of decoded,
-    native), requantized. Each (scale, zero point): value = (q - zero_point) * scale."""
+    """An int8 network graph cut at each upsampling and concatenation of the U-Net's
+    decoder and the output block (``calibration.block``): ``segments`` in the order they run,
+    each (the input it is fed, the graph outputs it computes), ``cuts`` by their entry."""
 
-    decoded: tuple[float, int]
-    native: tuple[float, int]
-    block: tuple[float, int]
+    cuts: tuple[Cut, ...]
+    segments: tuple[tuple[str, tuple[str, ...]], ...]
 
     def to_json(self) -> str:
-        return json.dumps({"decoded": list(self.decoded), "native": list(self.native), "block": list(self.block)})
+        return json.dumps({"cuts": [{"entry": c.entry, "up": c.up, "skip": c.skip, "up_q": list(c.up_q),
+                                     "skip_q": list(c.skip_q), "entry_q": list(c.entry_q), "stage": c.stage}
+                                    for c in self.cuts],
+                           "segments": [[e, list(o)] for e, o in self.segments]})
 
     @classmethod
     def from_json(cls, text: str) -> "BlockLayout":
         try:
             d = json.loads(text)
-            layout = cls(*((float(d[k][0]), int(d[k][1])) for k in ("decoded", "native", "block")))
+            cuts = tuple(Cut(str(c["entry"]), str(c["up"]), str(c["skip"]),
+                             *((float(c[k][0]), int(c[k][1])) for k in ("up_q", "skip_q", "entry_q")),
+                             str(c.get("stage", ""))) for c in d["cuts"])
+            layout = cls(cuts, tuple((str(e), tuple(str(n) for n in o)) for e, o in d["segments"]))
         except (ValueError, KeyError, TypeError, IndexError) as exc:
             raise ArtifactError(f"block metadata {BLOCK_KEY!r} malformed ({exc!r})") from exc
-        if not all(s > 0 and 0 <= z <= 255 for s, z in (layout.decoded, layout.native, layout.block)):
+        entries = [e for e, _ in layout.segments]
+        made = {n for _, o in layout.segments for n in o}
+        if (entries[:1] != [INPUTS] or sorted(entries[1:]) != sorted(c.entry for c in layout.cuts)
+                or not all({c.up, c.skip} <= made for c in layout.cuts)
+                or not all(s > 0 and 0 <= z <= 255 for c in layout.cuts for s, z in (c.up_q, c.skip_q, c.entry_q))):
             raise ArtifactError(f"block metadata {BLOCK_KEY!r}: {layout}")
         return layout
 
     @classmethod
     def of_session(cls, sess) -> "BlockLayout | None":
-        """The layout of an ONNX Runtime session whose graph is cut at the output block, else None."""
+        """The layout of an ONNX Runtime session whose graph is cut, else None."""
         text = sess.get_modelmeta().custom_metadata_map.get(BLOCK_KEY)
         return None if text is None else cls.from_json(text)
+
+    @property
+    def internal(self) -> set[str]:
+        """The outputs the cuts are made from (not the network's)."""
+        return {n for c in self.cuts for n in (c.up, c.skip)}
 
 
 @njit(parallel=True, cache=True)
@@ -286,13 +312,14 @@ def _upsample_concat(dec, nat, sd, zd, sn, zn, sb, zb, out):
                 o[cd + c] = np.uint8(min(max(np.rint((np.float32(n[c]) - znf) * kn) + zbf, lo), hi))
 
 
-def block_input(decoded: np.ndarray, native: np.ndarray, layout: BlockLayout) -> np.ndarray:
-    """The graph's ``block`` (1, H, W, Cd + Cn) u8 from its outputs ``block.decoded`` (1, H/2,
-    W/2, Cd) and ``block.native`` (1, H, W, Cn), u8 channels last."""
-    dec, nat = np.ascontiguousarray(decoded[0]), np.ascontiguousarray(native[0])
+def block_input(up: np.ndarray, skip: np.ndarray, cut: Cut) -> np.ndarray:
+    """A cut's ``entry`` (1, H, W, Cu + Cs) u8 from its outputs ``up`` (1, H/2, W/2, Cu) and
+    ``skip`` (1, H, W, Cs), u8 channels last."""
+    dec, nat = np.ascontiguousarray(up[0]), np.ascontiguousarray(skip[0])
     if dec.dtype != np.uint8 or nat.dtype != np.uint8 or dec.shape[:2] != (nat.shape[0] // 2, nat.shape[1] // 2):
-        raise ArtifactError(f"block: decoded {dec.dtype} {dec.shape} and native {nat.dtype} {nat.shape} do not fit")
+        raise ArtifactError(f"{cut.entry}: {cut.up} {dec.dtype} {dec.shape} and {cut.skip} {nat.dtype} {nat.shape} "
+                            "do not fit")
     out = np.empty((1, nat.shape[0], nat.shape[1], dec.shape[2] + nat.shape[2]), np.uint8)
-    (sd, zd), (sn, zn), (sb, zb) = layout.decoded, layout.native, layout.block
+    (sd, zd), (sn, zn), (sb, zb) = cut.up_q, cut.skip_q, cut.entry_q
     _upsample_concat(dec, nat, float(sd), zd, float(sn), zn, float(sb), zb, out)
     return out

@@ -20,7 +20,7 @@ from jnds_deploy.io import open_sequence
 from jnds_deploy.layout import head_kind
 from jnds_deploy.metrics import psnr
 from jnds_deploy.runtime.head import HEAD, LAYOUT_KEY, HeadLayout
-from jnds_deploy.runtime.reformat import BLOCK, BLOCK_KEY, DECODED, INPUTS, INPUTS_KEY, NATIVE, BlockLayout, InputsLayout
+from jnds_deploy.runtime.reformat import BLOCK_KEY, INPUTS, INPUTS_KEY, BlockLayout, InputsLayout
 from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
 
 from ..conftest import SAMPLE
@@ -68,13 +68,17 @@ def test_every_convolution_is_quantized(calibrated):
             props = {p.key: p.value for p in model.metadata_props}
             assert HeadLayout.from_json(props[LAYOUT_KEY]).channels % 16 == 0
             # its input: the u8 packed preprocessing, channels last, a multiple of 8
-            # and a second entry, the output block's (calibration.block), with u8 defaults
-            assert [i.name for i in model.graph.input] == [INPUTS, BLOCK] and g.int8["qat"].inputs.startswith("u8")
-            defaults = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer if i.name in (INPUTS, BLOCK)}
-            assert {k: v.dtype for k, v in defaults.items()} == {INPUTS: np.uint8, BLOCK: np.uint8}
-            assert {DECODED, NATIVE} <= set(out) and BlockLayout.from_json(props[BLOCK_KEY])
-            assert g.int8["qat"].block.startswith("between two runs")
-            assert not any(n.name.startswith("/network/output_block/") and n.op_type in ("Resize", "Concat")
+            # and an entry per cut at an upsampling + concatenation (calibration.block), with
+            # u8 defaults: the output block's
+            layout = BlockLayout.from_json(props[BLOCK_KEY])
+            entries = [e for e, _ in layout.segments]
+            assert [i.name for i in model.graph.input] == entries and entries[0] == INPUTS and len(entries) == 2
+            assert [c.stage for c in layout.cuts] == ["output_block"]
+            defaults = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer if i.name in entries}
+            assert {k: v.dtype for k, v in defaults.items()} == {e: np.uint8 for e in entries}
+            assert layout.internal <= set(out) and HEAD in dict(layout.segments)[entries[-1]]
+            assert g.int8["qat"].block.startswith("between the graph's runs")
+            assert not any(n.op_type in ("Resize", "Concat") and n.name.startswith("/network/output_block/")
                            for n in model.graph.node)
             assert InputsLayout.from_json(props[INPUTS_KEY]).channels % 8 == 0
             project = next(n for n in model.graph.node if n.name == PROJECT)
@@ -270,31 +274,31 @@ def test_int8_pipeline_skips_with_the_u8_head(calibrated):
         assert np.isfinite(c).all() and psnr(c, a) > 30.0
 
 
-def test_the_output_block_cut_computes_what_the_whole_graph_did(calibrated, tmp_path, monkeypatch):
-    """calibration.block cuts the int8 network graph before the output block's upsampling
-    and concatenation; the numba pass between its two runs (reformat.block_input) gives the
-    head the whole graph gave, and every other output the same. A graph already cut has no
-    resize left to cut at."""
+def test_the_cut_graph_computes_what_the_whole_graph_did(calibrated, tmp_path, monkeypatch):
+    """calibration.block cuts the int8 network graph at every upsampling + concatenation;
+    the numba passes between its runs (reformat.block_input) give the head the whole graph
+    gave, and every other output the same. A graph already cut has nothing left to cut."""
     import shutil
 
     import onnxruntime as ort
 
     import jnds_deploy.calibration.quantize as quantize
-    from jnds_deploy.calibration.block import cut_block
+    from jnds_deploy.calibration.block import cut_blocks
     from jnds_deploy.runtime.network import Edges, quiet
 
     d, manifest, _ = calibrated
     whole = tmp_path / "whole"
     shutil.copytree(d, whole)
-    monkeypatch.setattr(quantize, "cut_block", lambda src, dst, multiple: None)
+    monkeypatch.setattr(quantize, "cut_blocks", lambda src, dst, multiple: None)
     calibrate(CalibrateConfig(artifacts=str(whole), data=(str(SAMPLE),), method="qat", frames=3), log=lambda s: None)
     file = manifest.graphs["network"].int8["qat"].file
     cut, ref = (ort.InferenceSession(str(p / file), quiet(), providers=["CPUExecutionProvider"]) for p in (d, whole))
     e_cut, e_ref = Edges(cut), Edges(ref)
-    assert e_cut.block is not None and e_ref.block is None and e_cut.outputs == e_ref.outputs
+    assert e_cut.block is not None and e_ref.block is None and sorted(e_cut.outputs) == sorted(e_ref.outputs)
     for feeds in collect_feeds(d, [SAMPLE], frames=2)["network"]:
         packed = e_ref.feeds(feeds)
         got, want = e_cut.run(cut, packed), e_ref.run(ref, packed)
+        assert sorted(got) == sorted(want)
         for name in want:
             if name == HEAD:  # rounding the same value two ways may move a rare code by one
                 diff = np.abs(got[name].astype(int) - want[name])
@@ -302,4 +306,4 @@ def test_the_output_block_cut_computes_what_the_whole_graph_did(calibrated, tmp_
             else:
                 np.testing.assert_array_equal(got[name], want[name], err_msg=name)
     with pytest.raises(CalibrationError, match="Resize"):
-        cut_block(d / file, tmp_path / "again.onnx", manifest.pad_multiple)
+        cut_blocks(d / file, tmp_path / "again.onnx", manifest.pad_multiple)
