@@ -54,7 +54,7 @@ class Edges:
 
     def run(self, sess, feeds: dict) -> dict:
         """The graph on ``feeds`` as it takes them (``feeds``): {output: array} for
-        ``self.outputs``, through the block's two steps where it is cut."""
+        ``self.outputs``, segment by segment where the graph is cut."""
         if self.block is None:
             return dict(zip(self.outputs, sess.run(None, feeds)))
         cuts = {c.entry: c for c in self.block.cuts}
@@ -105,9 +105,9 @@ def output_names(sess) -> list[str]:
 
 
 def quiet(opts=None):
-    """``opts`` (new ones if None) with ONNX Runtime's log at errors: a graph cut at the output
-    block has two inputs with defaults, and ONNX Runtime warns at every session it creates
-    that they are not constant, which is what they are for (``calibration.block``)."""
+    """``opts`` (new ones if None) with ONNX Runtime's log at errors: a cut graph has inputs
+    with defaults, and ONNX Runtime warns at every session it creates that they are not
+    constant, which is what they are for (``calibration.block``)."""
     import onnxruntime as ort
 
     opts = opts or ort.SessionOptions()
