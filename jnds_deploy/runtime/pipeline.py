@@ -204,7 +204,7 @@ class Pipeline:
         self.dtype = np.dtype(cfg.filter_dtype)
         if cfg.keep_freed_memory:
             keep_freed_memory()
-        opts = quiet()  # errors only: the int8 graph's two entries are warned about (runtime.network.quiet)
+        opts = quiet()  # errors only: a cut int8 graph's entries are warned about (runtime.network.quiet)
         opts.intra_op_num_threads = cfg.threads
         opts.inter_op_num_threads = 1
         # memory (docs/design-notes.md, "ONNX Runtime's memory"): every session of the
