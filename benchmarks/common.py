@@ -165,7 +165,9 @@ def gemm_throughput(threads: int, n: int = 2048, runs: int = 10) -> dict:
             [helper.make_node(op, ["a", "b"], ["y"])], name,
             [helper.make_tensor_value_info("a", helper.np_dtype_to_tensor_dtype(a.dtype), [n, n])],
             [helper.make_tensor_value_info("y", result, [n, n])], [onnx.numpy_helper.from_array(b, "b")])
-        model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+        # the exported graphs' IR version: make_model writes the onnx package's newest, which
+        # an older ONNX Runtime refuses (1.30 takes at most 13; onnx 1.23 writes 14)
+        model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8)
         so = ort.SessionOptions()
         so.intra_op_num_threads = threads
         sess = ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
