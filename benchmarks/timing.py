@@ -68,12 +68,7 @@ def network_split(pipe: Pipeline, frames, threads: int) -> tuple[dict[str, float
     pack = float(np.median([timed(edges.feeds, feeds["network"])[1] for _ in range(7)])) if edges.inputs else 0.0
     glue: dict[str, float] = {}
     if edges.block:  # every cut's pass, on the tensors the graph gives it
-        sess, packed = pipe.sessions["network"], edges.feeds(feeds["network"])
-        made = {}
-        for entry, names in edges.block.segments:
-            cut = next((c for c in edges.block.cuts if c.entry == entry), None)
-            feed = packed if cut is None else {entry: block_input(made[cut.up], made[cut.skip], cut)}
-            made.update(zip(names, sess.run(list(names), feed)))
+        made = edges.run(pipe.sessions["network"], edges.feeds(feeds["network"]), internal=True)
         glue = {}
         for c in edges.block.cuts:
             ms = float(np.median([timed(block_input, made[c.up], made[c.skip], c)[1] for _ in range(7)]))

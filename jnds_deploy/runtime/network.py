@@ -52,9 +52,10 @@ class Edges:
             return feeds
         return {INPUTS: pack_inputs(feeds["current"], feeds["history"], self.inputs)}
 
-    def run(self, sess, feeds: dict) -> dict:
+    def run(self, sess, feeds: dict, internal: bool = False) -> dict:
         """The graph on ``feeds`` as it takes them (``feeds``): {output: array} for
-        ``self.outputs``, segment by segment where the graph is cut."""
+        ``self.outputs``, segment by segment where the graph is cut (with ``internal``, the
+        tensors the cuts are made from kept too)."""
         if self.block is None:
             return dict(zip(self.outputs, sess.run(None, feeds)))
         cuts = {c.entry: c for c in self.block.cuts}
@@ -64,7 +65,8 @@ class Edges:
                 feed = feeds
             else:
                 c = cuts[entry]
-                feed = {entry: block_input(out.pop(c.up), out.pop(c.skip), c)}
+                up, skip = (out[c.up], out[c.skip]) if internal else (out.pop(c.up), out.pop(c.skip))
+                feed = {entry: block_input(up, skip, c)}
             out.update(zip(names, sess.run(list(names), feed)))
         return out
 

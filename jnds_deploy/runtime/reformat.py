@@ -232,9 +232,9 @@ class Cut:
 
 @dataclass(frozen=True)
 class BlockLayout:
-    """An int8 network graph cut at each upsampling and concatenation of the U-Net's
-    decoder and the output block (``calibration.block``): ``segments`` in the order they run,
-    each (the input it is fed, the graph outputs it computes), ``cuts`` by their entry."""
+    """An int8 network graph cut at upsamplings and concatenations (``calibration.block``,
+    its ``CUT_AT``): ``segments`` in the order they run, each (the input it is fed, the graph
+    outputs it computes), and the ``cuts``."""
 
     cuts: tuple[Cut, ...]
     segments: tuple[tuple[str, tuple[str, ...]], ...]
