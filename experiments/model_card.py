@@ -32,6 +32,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
@@ -98,6 +99,7 @@ def main() -> None:
                            f"temporal error {m['temporal'] - o['temporal']:+.5f} "
                            f"({'beats' if m['psnr'] > o['psnr'] and m['flip'] < o['flip'] else 'does not beat'} it "
                            f"in PSNR and FLIP; temporal error {'lower' if m['temporal'] < o['temporal'] else 'higher'})")
+    verdict += _renderer_verdict(sets, model_key)
     verdict = "\n".join(verdict)
     steps = sum(t["steps"] for t in training)
     hours = sum(t["hours"] for t in training)
@@ -266,6 +268,29 @@ def _feature_net_line(tcfg: dict) -> str:
     return (f"\n- Feature-loss network (Eq. 6, `jnds_deploy.training.feature_loss`): `{tcfg['feature_net']}`, "
             f"`jnds train-feature-net`, {f['config']['steps']} steps predicting the G-buffer from converged "
             f"renders of data/train, final L1 {f['final_l1']:.4f}.")
+
+
+def _renderer_verdict(sets: dict, model_key: str, baseline: str = "oidn-balanced") -> list[str]:
+    """Verdict lines against ``baseline`` for each renderer's sequences apart, in the sets
+    that hold both: the test set's Cycles half is made of scene kinds no training
+    generator makes, its Mitsuba half of new seeds of the training generators, and a
+    mean over both can hide a loss on the first (issue 24)."""
+    lines = []
+    for set_name, rep in sets.items():
+        if baseline not in rep:
+            continue
+        names = list(rep[model_key]["sequences"])
+        halves = {"Cycles": [n for n in names if n.startswith("cycles-")],
+                  "Mitsuba": [n for n in names if not n.startswith("cycles-")]}
+        if not all(halves.values()):
+            continue
+        for renderer, part in halves.items():
+            m, o = ({q: float(np.mean([rep[k]["sequences"][n][q] for n in part])) for q in ("psnr", "flip", "temporal")}
+                    for k in (model_key, baseline))
+            lines.append(f"- {set_name}, {renderer} sequences only ({len(part)}), vs {baseline}: "
+                         f"PSNR {m['psnr'] - o['psnr']:+.2f} dB, FLIP {m['flip'] - o['flip']:+.4f}, "
+                         f"temporal error {m['temporal'] / o['temporal']:.2f}x")
+    return lines
 
 
 def _compare_table(runs: list[str], report: dict) -> str:
