@@ -86,7 +86,10 @@ def cmd_dataset(args) -> int:
                           address=args.address, progress=not args.quiet, moving_sequences=args.moving_sequences,
                           extra_sequences=_extra_sequences(args))
     for path, times in done:
-        print(f"{path}: inputs {times['inputs']:.2f} s/frame, reference {times['reference']:.2f} s/frame")
+        # None: every frame of that kind was rendered before a resume (the medians are of this run's)
+        rates = ", ".join(f"{k} " + ("none rendered in this run" if v is None else f"{v:.2f} s/frame")
+                          for k, v in times.items())
+        print(f"{path}: {rates}")
     print(f"{len(done)} sequence(s) rendered in {time.perf_counter() - t0:.0f} s")
     return 0
 

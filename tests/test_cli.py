@@ -46,3 +46,16 @@ def test_batch_without_sequences_is_a_one_line_error(tiny_artifacts, tmp_path, c
                      "--output", str(tmp_path / "o"), "--quiet"]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("jnds batch: error: ") and str(tmp_path / root) in err[0], err
+
+
+def test_dataset_reports_a_resumed_sequence(tmp_path, capsys, monkeypatch):
+    """A sequence whose frames were all rendered before a resume has no timings of this run
+    (None): the summary says so instead of failing after the work is done (stop 49)."""
+    import jnds_deploy.render.dataset as dataset
+
+    seq = tmp_path / "train" / "a"
+    monkeypatch.setattr(dataset, "render_dataset",
+                        lambda *a, **k: [(seq, {"inputs": None, "reference": 12.5})])
+    assert main(["dataset", "--out", str(tmp_path), "--split", "train", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert f"{seq}: inputs none rendered in this run, reference 12.50 s/frame" in out
