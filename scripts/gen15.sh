@@ -3,8 +3,9 @@
 # resumes or is skipped when done, so on a fresh machine (after `make setup`) or after the
 # session that ran it ended, the same command goes on. In order: the rest of gen14's
 # training set (Mitsuba then Cycles), the feature-loss network, gen15's training from the
-# shipped gen14, then the test and holdout splits, and the evaluation of gen14 against
-# gen15 that the choice is made from (on validation). The validation split is rendered first.
+# shipped gen14, then the test and holdout splits, and gen14 against gen15 on val, test and
+# holdout (the choice is made on validation: a tie in stop 49, gen15 not shipped,
+# docs/training.md). The validation split is rendered first.
 # Run it in its own session, niced, e.g.
 #   setsid nohup bash scripts/gen15.sh > runs/gen15.log 2>&1 &
 # and pause it (SIGSTOP to its session) during timings.
