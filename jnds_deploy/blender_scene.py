@@ -34,8 +34,9 @@ CYCLES_TRAIN_KINDS = ("sunroom", "darkroom", "metals", "textures")
 # open ground, light rig, materials), for variety rather than another fixed layout; ``lights``
 # (``--lights-sequences``) does the same with every sort of light Blender has: spot lights,
 # area lights of each shape and emissive meshes other than small spheres besides mixed's;
-# ``interior`` (``--interior-sequences``, stop 46) is a closed room lit mostly by bounced light
-CYCLES_EXTRA_KINDS = ("mixed", "lights", "interior")
+# ``interior`` (``--interior-sequences``, stop 46) is a closed room lit mostly by bounced light;
+# ``detail`` (``--detail-sequences``, stop 50) bump-mapped surfaces and dense, curved shapes
+CYCLES_EXTRA_KINDS = ("mixed", "lights", "interior", "detail")
 # kinds only the test set is made of (render.dataset): built apart from the training kinds,
 # so that the test measures scenes the model never saw the like of. gallery: a long hall
 # under strip lights, a polished floor, finely textured panels, sculptures; night: an
@@ -105,6 +106,11 @@ def _texture(nodes, kind, rng):
         t = nodes.new("ShaderNodeTexNoise")
         t.inputs["Scale"].default_value = scale
         t.inputs["Detail"].default_value = rng.uniform(2, 12)
+    elif kind == "wave":  # bands or rings, distorted: wood grain, ripples, corrugation
+        t = nodes.new("ShaderNodeTexWave")
+        t.wave_type = rng.choice(("BANDS", "RINGS"))
+        t.inputs["Scale"].default_value = scale / 2
+        t.inputs["Distortion"].default_value = rng.uniform(0.0, 8.0)
     else:
         t = nodes.new("ShaderNodeTexVoronoi")
         t.inputs["Scale"].default_value = scale
@@ -326,6 +332,8 @@ def build(cfg: dict):
         moving, target, radius, height = _mixed(scene, rng, frames, RIGS + LIGHTS_RIGS, (2, 4))
     elif kind == "interior":
         moving, target, radius, height = _interior(scene, rng, frames)
+    elif kind == "detail":
+        moving, target, radius, height = _detail(scene, rng, frames)
     elif kind == "gallery":
         _world(scene, rng, "dark")
         _room(rng, 6.0, 4.0, window=False, texture_walls=False)
@@ -374,6 +382,8 @@ def build(cfg: dict):
             for k in fc.keyframe_points:
                 k.interpolation = "LINEAR"
     cuts = _camera(scene, rng, cfg["camera"], frames, target, radius, height)
+    if kind == "detail":  # close-ups and wide views both (drawn last: the other kinds' draws are unchanged)
+        scene.camera.data.lens = rng.uniform(18, 55)
     return scene, cuts
 
 
@@ -387,8 +397,6 @@ def _mixed(scene, rng, frames, rigs=RIGS, count=(1, 3)):
     ``count`` light rigs drawn from ``rigs`` (mixed: the training kinds' sorts, a sun, an
     area light, point lights, small emissive icospheres), props with random shares of metal
     and texture. Returns (moving props, camera target, radius, height)."""
-    import bpy
-
     world = rng.choice(("sky", "dark", "color"))
     _world(scene, rng, world)
     half = rng.uniform(4.0, 7.0)
@@ -402,28 +410,7 @@ def _mixed(scene, rng, frames, rigs=RIGS, count=(1, 3)):
     if world == "dark" and rigs == ["sun"]:
         rigs.append("emitters")  # a sun alone in a closed dark room may light nothing seen
     for rig in rigs:
-        if rig == "sun":
-            bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(20, 70)), 0,
-                                                           math.radians(rng.uniform(0, 360))))
-            bpy.context.object.data.energy = rng.uniform(2.0, 8.0)
-            bpy.context.object.data.angle = math.radians(rng.uniform(0.5, 5))
-        elif rig == "area":
-            bpy.ops.object.light_add(type="AREA", location=(rng.uniform(-2, 2), rng.uniform(-2, 2), 2.5))
-            bpy.context.object.data.energy = rng.uniform(100, 600)
-            bpy.context.object.data.size = rng.uniform(0.3, 2.5)
-        elif rig == "points":
-            for i in range(rng.randint(1, 3)):
-                bpy.ops.object.light_add(type="POINT", location=(rng.uniform(-3, 3), rng.uniform(-3, 3),
-                                                                 rng.uniform(0.5, 2.5)))
-                bpy.context.object.data.energy = rng.uniform(50, 400)
-                bpy.context.object.data.shadow_soft_size = rng.uniform(0.02, 0.5)
-        elif rig == "emitters":
-            for i in range(rng.randint(1, 4)):
-                em = _material(f"em{i}", rng, emission=rng.uniform(5.0, 60.0), rough=0.5)
-                _emitter(f"lamp{i}", rng.uniform(0.05, 0.4),
-                         (rng.uniform(-3.5, 3.5), rng.uniform(-3.5, 3.5), rng.uniform(0.1, 2.5)), em)
-        else:
-            _lights_rig(rig, rng)
+        _mixed_rig(rig, rng)
     moving = _objects(rng, rng.randint(4, 10), 3.5, rng.uniform(0.1, 0.7), rng.uniform(0.2, 0.9), frames)
     target, radius, height = (0, 0, rng.uniform(0.4, 1.0)), rng.uniform(3.5, 6.0), rng.uniform(1.0, 3.0)
     if room:
@@ -433,6 +420,34 @@ def _mixed(scene, rng, frames, rigs=RIGS, count=(1, 3)):
         # and every scene whose camera stayed inside, are as rendered before.
         radius = min(radius, half - 0.15)
     return moving, target, radius, height
+
+
+def _mixed_rig(rig, rng):
+    """One light rig of the ``mixed`` kind (``RIGS``) or of the ``lights`` kind (``LIGHTS_RIGS``)."""
+    import bpy
+
+    if rig == "sun":
+        bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(20, 70)), 0,
+                                                       math.radians(rng.uniform(0, 360))))
+        bpy.context.object.data.energy = rng.uniform(2.0, 8.0)
+        bpy.context.object.data.angle = math.radians(rng.uniform(0.5, 5))
+    elif rig == "area":
+        bpy.ops.object.light_add(type="AREA", location=(rng.uniform(-2, 2), rng.uniform(-2, 2), 2.5))
+        bpy.context.object.data.energy = rng.uniform(100, 600)
+        bpy.context.object.data.size = rng.uniform(0.3, 2.5)
+    elif rig == "points":
+        for i in range(rng.randint(1, 3)):
+            bpy.ops.object.light_add(type="POINT", location=(rng.uniform(-3, 3), rng.uniform(-3, 3),
+                                                             rng.uniform(0.5, 2.5)))
+            bpy.context.object.data.energy = rng.uniform(50, 400)
+            bpy.context.object.data.shadow_soft_size = rng.uniform(0.02, 0.5)
+    elif rig == "emitters":
+        for i in range(rng.randint(1, 4)):
+            em = _material(f"em{i}", rng, emission=rng.uniform(5.0, 60.0), rough=0.5)
+            _emitter(f"lamp{i}", rng.uniform(0.05, 0.4),
+                     (rng.uniform(-3.5, 3.5), rng.uniform(-3.5, 3.5), rng.uniform(0.1, 2.5)), em)
+    else:
+        _lights_rig(rig, rng)
 
 
 def _lights_rig(rig, rng):
@@ -553,6 +568,142 @@ def _interior(scene, rng, frames):
         _props(f"t{i}", rng, rng.randint(4, 12), (tx, ty, th + 0.02), (tw * 0.45, td * 0.45), 0.03, 0.2)
     moving = _objects(rng, rng.randint(2, 5), 0.5 * half, rng.uniform(0.1, 0.5), rng.uniform(0.2, 0.7), frames)
     return moving, (0, 0, rng.uniform(0.6, 1.1)), radius, rng.uniform(1.2, min(2.2, height - 0.3))
+
+
+# the ``detail`` kind's textures (``wave`` is drawn by no other kind) and shapes
+DETAIL_TEXTURES = TEXTURES + ("wave",)
+DETAIL_SHAPES = ("monkey", "rock", "slats", "stairs", "pebbles", "terrain")
+
+
+def _relief(name, rng, world_coords=False, **kwargs):
+    """``_material`` with, on most draws, a relief: a Bump node on the shading normal driven by
+    a texture of its own, as nearly every surface of a real asset has (a normal or bump map).
+    It changes the shading per pixel, and the normal pass with it, where the geometry is flat.
+    ``world_coords``: textures follow world position at 0.3 x their scale in metres (a large
+    still surface: the ground, walls), instead of the object's own box."""
+    m = _material(name, rng, **kwargs)
+    nodes, links = m.node_tree.nodes, m.node_tree.links
+    if rng.random() < 0.75:
+        tex = _texture(nodes, rng.choice(DETAIL_TEXTURES), rng)
+        bump = nodes.new("ShaderNodeBump")
+        bump.inputs["Strength"].default_value = rng.uniform(0.1, 1.0)
+        bump.inputs["Distance"].default_value = rng.uniform(0.005, 0.05)
+        links.new(tex.outputs["Fac"] if "Fac" in tex.outputs else tex.outputs[0], bump.inputs["Height"])
+        links.new(bump.outputs["Normal"], nodes["Principled BSDF"].inputs["Normal"])
+    if world_coords:
+        where = nodes.new("ShaderNodeNewGeometry")
+        scale = nodes.new("ShaderNodeVectorMath")
+        scale.operation = "SCALE"
+        scale.inputs["Scale"].default_value = 0.3
+        links.new(where.outputs["Position"], scale.inputs[0])
+        for node in list(nodes):
+            if node.bl_idname.startswith("ShaderNodeTex"):
+                links.new(scale.outputs["Vector"], node.inputs["Vector"])
+    return m
+
+
+def _detail(scene, rng, frames):
+    """The ``detail`` training kind (stop 50): the surface and geometric detail of real assets,
+    which the other kinds' flat primitives lack. Surfaces with bump-mapped relief (``_relief``)
+    and a wave texture besides the others; curved and dense shapes (``DETAIL_SHAPES``): a
+    subdivided monkey head, rocks (icospheres displaced by noise), rows of slats a few pixels
+    apart (blinds, fences, radiators), stairs, beds of pebbles a pixel or two across, a patch of
+    displaced terrain; a close camera with a wide range of focal lengths; the light rigs of
+    ``mixed`` and ``lights``; some shapes turning, the usual props moving.
+    Returns (moving objects, camera target, radius, height)."""
+    import bpy
+
+    world = rng.choice(("sky", "dusk", "dark", "color"))
+    _world(scene, rng, world)
+    # the camera circles the centre at ``radius``; the shapes stand within 1.6 m of it, the
+    # walls beyond the camera's circle
+    radius, metal, textured = rng.uniform(2.4, 3.8), rng.uniform(0.1, 0.5), rng.uniform(0.3, 0.9)
+    ground = _relief("ground", rng, world_coords=True, rough=rng.uniform(0.05, 0.9),
+                     texture=rng.choice(DETAIL_TEXTURES))
+    _box("ground", (40, 40, 0.1), (0, 0, -0.05), ground)
+    if rng.random() < 0.6:  # a corner of two walls, open to the world on the other sides
+        wall = _relief("wall", rng, world_coords=True, rough=rng.uniform(0.3, 1.0),
+                       texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.7 else None)
+        h, d = rng.uniform(2.0, 4.0), radius + rng.uniform(0.4, 1.5)
+        _box("wall_a", (0.1, 2 * d, h), (-d, 0, h / 2), wall)
+        _box("wall_b", (2 * d, 0.1, h), (0, -d, h / 2), wall)
+    rigs = rng.sample(RIGS + LIGHTS_RIGS, rng.randint(1, 3))
+    if world == "dark" and rigs == ["sun"]:
+        rigs.append("emitters")
+    for rig in rigs:
+        _mixed_rig(rig, rng)
+
+    def material(i):
+        r = rng.random()
+        return _relief(f"d{i}", rng, metal=r < metal, glass=metal <= r < metal + 0.08,
+                       texture=rng.choice(DETAIL_TEXTURES) if rng.random() < textured else None)
+
+    moving = []
+    for i in range(rng.randint(4, 8)):
+        shape = rng.choice(DETAIL_SHAPES)
+        a, r = rng.uniform(0, 2 * math.pi), rng.uniform(0, 1.6)
+        x, y, s = r * math.cos(a), r * math.sin(a), rng.uniform(0.25, 0.8)
+        if shape == "monkey":
+            bpy.ops.mesh.primitive_monkey_add(size=s, location=(x, y, s / 2),
+                                              rotation=(rng.uniform(-0.3, 0.3), 0, rng.uniform(0, 2 * math.pi)))
+            bpy.ops.object.modifier_add(type="SUBSURF")
+            bpy.context.object.modifiers[-1].render_levels = 2
+            bpy.ops.object.shade_smooth()
+        elif shape == "rock":
+            bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=5, radius=s / 2, location=(x, y, s * 0.35))
+            tex = bpy.data.textures.new(f"rock{i}", type="CLOUDS")
+            tex.noise_scale = rng.uniform(0.1, 0.5)
+            bpy.ops.object.modifier_add(type="DISPLACE")
+            bpy.context.object.modifiers[-1].texture = tex
+            bpy.context.object.modifiers[-1].strength = rng.uniform(0.1, 0.4) * s
+            bpy.ops.object.shade_smooth()
+        elif shape == "slats":  # n slats 0.5-3 cm thick, 2-15 cm apart, upright or lying
+            n, gap, t, span = rng.randint(8, 24), rng.uniform(0.02, 0.12), rng.uniform(0.005, 0.03), rng.uniform(0.5, 1.5)
+            mat, a = material(i), rng.uniform(0, math.pi)
+            upright = rng.random() < 0.5
+            for k in range(n):
+                o = (k - n / 2) * gap
+                if upright:
+                    _box(f"slat{i}_{k}", (t, t * 3, span), (x + o * math.cos(a), y + o * math.sin(a), span / 2), mat,
+                         (0, 0, a))
+                else:
+                    _box(f"slat{i}_{k}", (span, t * 3, t), (x, y, 0.1 + k * gap), mat, (0, 0, a))
+            continue
+        elif shape == "stairs":
+            n, rise, run, width = rng.randint(3, 7), rng.uniform(0.08, 0.18), rng.uniform(0.15, 0.3), rng.uniform(0.5, 1.2)
+            mat, a = material(i), rng.uniform(0, 2 * math.pi)
+            for k in range(n):
+                r = k * run
+                _box(f"step{i}_{k}", (run, width, rise * (k + 1)),
+                     (x + r * math.cos(a), y + r * math.sin(a), rise * (k + 1) / 2), mat, (0, 0, a))
+            continue
+        elif shape == "pebbles":  # a bed of 60-200 stones 1-5 cm across
+            mat = material(i)
+            for k in range(rng.randint(60, 200)):
+                r = rng.uniform(0.005, 0.025)
+                bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=1, radius=r,
+                                                      location=(x + rng.gauss(0, 0.25), y + rng.gauss(0, 0.25), r * 0.6))
+                bpy.context.object.data.materials.append(mat)
+            continue
+        else:  # terrain: a patch of ground displaced by noise
+            bpy.ops.mesh.primitive_grid_add(x_subdivisions=96, y_subdivisions=96, size=rng.uniform(1.5, 3.0),
+                                            location=(x, y, 0.01))
+            tex = bpy.data.textures.new(f"terrain{i}", type="CLOUDS")
+            tex.noise_scale = rng.uniform(0.1, 0.4)
+            bpy.ops.object.modifier_add(type="DISPLACE")
+            bpy.context.object.modifiers[-1].texture = tex
+            bpy.context.object.modifiers[-1].strength = rng.uniform(0.05, 0.3)
+            bpy.ops.object.shade_smooth()
+        obj = bpy.context.object
+        obj.data.materials.append(material(i))
+        if rng.random() < 0.3:  # turns on the spot
+            spin = rng.uniform(-1.5, 1.5)
+            for f, t in ((0, 0.0), (frames + 1, 1.0)):
+                obj.rotation_euler[2] = spin * t
+                obj.keyframe_insert("rotation_euler", frame=f)
+            moving.append(obj)
+    moving += _objects(rng, rng.randint(2, 4), 1.5, metal, textured, frames)
+    return moving, (0, 0, rng.uniform(0.2, 0.6)), radius, rng.uniform(0.7, 2.0)
 
 
 def _props(name, rng, n, base, extent, smallest, largest):

@@ -153,14 +153,13 @@ def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has
     holdout = {cfg.scene for _, cfg in dataset_specs("holdout", engine="cycles")}
     seen = {cfg.scene for split in ("train", "val")
             for _, cfg in dataset_specs(split, 200, engine="cycles", extra_sequences=dict.fromkeys(
-                                            ("mixed", "lights", "interior"), 20))}
-    assert test == set(CYCLES_TEST_KINDS) and not test & seen and {"mixed", "lights", "interior"} <= seen
+                                            CYCLES_EXTRA_KINDS, 20))}
+    assert test == set(CYCLES_TEST_KINDS) and not test & seen and set(CYCLES_EXTRA_KINDS) <= seen
     assert holdout == set(CYCLES_HOLDOUT_KINDS) and not holdout & (seen | test)
     holdout2 = {cfg.scene for _, cfg in dataset_specs("holdout2", engine="cycles")}
     assert holdout2 == set(CYCLES_HOLDOUT2_KINDS) and not holdout2 & (seen | test | holdout)
     seeds = {split: {cfg.seed for _, cfg in dataset_specs(split, 200, engine="cycles",
-                                                          extra_sequences={"mixed": 20, "lights": 20,
-                                                                           "interior": 20})}
+                                                          extra_sequences=dict.fromkeys(CYCLES_EXTRA_KINDS, 20))}
              for split in ("train", "val", "test", "holdout", "holdout2")}
     assert not seeds["holdout"] & (seeds["train"] | seeds["val"] | seeds["test"])
     assert not seeds["holdout2"] & (seeds["train"] | seeds["val"] | seeds["test"] | seeds["holdout"])
