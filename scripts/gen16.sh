@@ -2,7 +2,8 @@
 # The gen16 run from wherever it stopped (docs/training.md, "gen16"), unattended; every step
 # resumes or is skipped when done. gen14's training set (scripts/gen15.sh renders it) grown by
 # 16 sequences of the Cycles `detail` kind, gen14 fine-tuned on it with gen14's recipe, the
-# choice made on validation; then the test split and the holdout, and both models scored there.
+# choice made on validation (stop 50: worse there, not shipped; docs/training.md, "gen16"); then
+# the test split and the holdout, and both models scored there, for the record.
 # Run it in its own session, niced, e.g.
 #   setsid nohup nice bash scripts/gen16.sh > runs/gen16.log 2>&1 &
 # and pause it (SIGSTOP to its session) during timings.
