@@ -602,6 +602,17 @@ def _relief(name, rng, world_coords=False, **kwargs):
     return m
 
 
+def _displace(name, noise_scale, strength):
+    """The selected mesh displaced along its normals by a clouds (noise) texture, smooth-shaded."""
+    import bpy
+
+    tex = bpy.data.textures.new(name, type="CLOUDS")
+    tex.noise_scale = noise_scale
+    bpy.ops.object.modifier_add(type="DISPLACE")
+    bpy.context.object.modifiers[-1].texture = tex
+    bpy.context.object.modifiers[-1].strength = strength
+    bpy.ops.object.shade_smooth()
+
 def _detail(scene, rng, frames):
     """The ``detail`` training kind (stop 50): the surface and geometric detail of real assets,
     which the other kinds' flat primitives lack. Surfaces with bump-mapped relief (``_relief``)
@@ -651,13 +662,8 @@ def _detail(scene, rng, frames):
             bpy.ops.object.shade_smooth()
         elif shape == "rock":
             bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=5, radius=s / 2, location=(x, y, s * 0.35))
-            tex = bpy.data.textures.new(f"rock{i}", type="CLOUDS")
-            tex.noise_scale = rng.uniform(0.1, 0.5)
-            bpy.ops.object.modifier_add(type="DISPLACE")
-            bpy.context.object.modifiers[-1].texture = tex
-            bpy.context.object.modifiers[-1].strength = rng.uniform(0.1, 0.4) * s
-            bpy.ops.object.shade_smooth()
-        elif shape == "slats":  # n slats 0.5-3 cm thick, 2-15 cm apart, upright or lying
+            _displace(f"rock{i}", rng.uniform(0.1, 0.5), rng.uniform(0.1, 0.4) * s)
+        elif shape == "slats":  # n slats 0.5-3 cm thick, 2-12 cm apart, upright or lying
             n, gap, t, span = rng.randint(8, 24), rng.uniform(0.02, 0.12), rng.uniform(0.005, 0.03), rng.uniform(0.5, 1.5)
             mat, a = material(i), rng.uniform(0, math.pi)
             upright = rng.random() < 0.5
@@ -688,12 +694,7 @@ def _detail(scene, rng, frames):
         else:  # terrain: a patch of ground displaced by noise
             bpy.ops.mesh.primitive_grid_add(x_subdivisions=96, y_subdivisions=96, size=rng.uniform(1.5, 3.0),
                                             location=(x, y, 0.01))
-            tex = bpy.data.textures.new(f"terrain{i}", type="CLOUDS")
-            tex.noise_scale = rng.uniform(0.1, 0.4)
-            bpy.ops.object.modifier_add(type="DISPLACE")
-            bpy.context.object.modifiers[-1].texture = tex
-            bpy.context.object.modifiers[-1].strength = rng.uniform(0.05, 0.3)
-            bpy.ops.object.shade_smooth()
+            _displace(f"terrain{i}", rng.uniform(0.1, 0.4), rng.uniform(0.05, 0.3))
         obj = bpy.context.object
         obj.data.materials.append(material(i))
         if rng.random() < 0.3:  # turns on the spot
