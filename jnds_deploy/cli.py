@@ -109,7 +109,7 @@ def cmd_train(args) -> int:
                       channels_last=not args.no_channels_last,
                       fixed_upsample=args.fixed_upsample, cross_cuts=args.cross_cuts,
                       balance_renderers=args.balance_renderers, burn_in=args.burn_in,
-                      clean_references=args.clean_references)
+                      clean_references=args.clean_references, lowfreq_loss=args.lowfreq_loss)
     ckpt = train(cfg, progress=not args.quiet)
     print(f"checkpoint: {ckpt}")
     return 0
@@ -318,6 +318,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "optimizer moments otherwise move every weight by a full step at once)")
     t.add_argument("--spatial-loss", default="l1", choices=("l1", "feature", "l1+feature"))
     t.add_argument("--feature-net", default=None, help="feature-loss network checkpoint")
+    t.add_argument("--lowfreq-loss", type=float, default=0.0, metavar="W",
+                   help="add W x the L1 of 4-, 8- and 16-pixel box averages (target pixels) of output and "
+                        "reference to each radiance task's spatial loss (0: the paper's loss)")
     t.add_argument("--init", default=None,
                    help="start a new run from this checkpoint's weights (e.g. the shipped one) to fine-tune it")
     t.add_argument("--deepen-blend", type=float, default=-4.0, metavar="LOGIT",

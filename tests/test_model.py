@@ -422,6 +422,27 @@ def test_l1_plus_feature_spatial_loss_is_the_sum_of_both(tmp_path):
         TrainConfig(spatial_loss="l2")
 
 
+def test_lowfreq_loss_sees_a_level_shift_more_than_noise():
+    """The low-frequency term: zero-mean pixel noise of the reference mostly averages out of
+    it, a level shift of the same per-pixel L1 does not; native tasks box in native pixels."""
+    from jnds_deploy.training.config import TrainConfig
+    from jnds_deploy.training.losses import LOWFREQ_SCALES, lowfreq
+    torch.manual_seed(0)
+    o = torch.rand(2, 3, 32, 32)
+    noisy = o + 0.1 * torch.sign(torch.randn_like(o))  # per-pixel L1 0.1
+    shifted = o + 0.1  # per-pixel L1 0.1
+    assert float(lowfreq(o, shifted, 1)) == pytest.approx(0.1 * len(LOWFREQ_SCALES), rel=1e-4)
+    assert float(lowfreq(o, noisy, 1)) < 0.25 * float(lowfreq(o, shifted, 1))
+    # a native-resolution task (2 target pixels a pixel) boxes 2, 4 and 8 of its pixels
+    pool = torch.nn.functional.avg_pool2d
+    expected = sum(float((pool(o, k) - pool(noisy, k)).abs().mean()) for k in (2, 4, 8))
+    assert float(lowfreq(o, noisy, 2)) == pytest.approx(expected, rel=1e-5)
+    # a box larger than the patch is left out
+    assert float(lowfreq(o[..., :8, :8], shifted[..., :8, :8], 1)) == pytest.approx(0.2, rel=1e-4)
+    with pytest.raises(ValueError, match="lowfreq_loss must be >= 0"):
+        TrainConfig(lowfreq_loss=-1)
+
+
 def test_checkpoints_hold_host_tensors_and_load_on_the_cpu(tmp_path):
     """A run trained on a GPU must load where no GPU is: weights are saved on the host."""
     from jnds_deploy.checkpoint import load_model

@@ -33,6 +33,10 @@ class TrainConfig:
     w_spatial: float = 0.2
     spatial_loss: str = "l1"  # l1 | feature | l1+feature (the sum of both)
     feature_net: str | None = None  # checkpoint of the feature-loss network
+    # weight of the low-frequency term added to each radiance task's L_spatial: L1 of the
+    # tonemapped output and reference box-averaged over LOWFREQ_SCALES target pixels
+    # (training.losses.lowfreq; 0: off, the paper's loss)
+    lowfreq_loss: float = 0.0
     init: str | None = None  # start a new run from this checkpoint's weights (fine-tuning)
     deepen_blend: float = -4.0  # an init one U-Net level shallower: the new level's blend logit (train._deepened)
     observe_batches: int = 8  # batches to observe activation ranges before QAT
@@ -75,6 +79,8 @@ class TrainConfig:
             self.exposure = tuple(float(v) for v in self.exposure)  # a list when read from config.json
             if len(self.exposure) != 2 or not self.exposure[0] <= self.exposure[1]:
                 raise ConfigError(f"exposure must be (lo, hi) stops with lo <= hi, got {self.exposure}")
+        if not self.lowfreq_loss >= 0:
+            raise ConfigError(f"lowfreq_loss must be >= 0, got {self.lowfreq_loss}")
         if self.clean_references not in (None, "oidn"):
             raise ConfigError(f"clean_references must be None or 'oidn', got {self.clean_references!r}")
         if not 0 <= self.warmup_steps <= self.fp32_steps:

@@ -2,7 +2,11 @@
 upsample -- ``w_spatial * L_spatial + (1 - w_spatial) * L_temporal`` with w_spatial = 0.2,
 all task weights 1. Native-resolution tasks compare with the 2x2-box-downsampled
 reference component; all radiance is compared after the tonemap of Eq. 1. L_temporal is
-Eq. 5. L_spatial is L1, the feature loss of ``training.feature_loss``, or their sum."""
+Eq. 5. L_spatial is L1, the feature loss of ``training.feature_loss``, or their sum; with
+``TrainConfig.lowfreq_loss`` > 0 the radiance tasks' L_spatial also holds ``lowfreq``, the
+L1 of box averages over 4 to 16 target pixels (not in the paper: on scene kinds it was not
+trained on, the shipped model's excess error over OIDN lies in blotches of 2 to 64+ target
+pixels, docs/model-gap.md, "Where in scale the error lies")."""
 from __future__ import annotations
 
 import torch
@@ -19,6 +23,24 @@ def loss_tonemap(x: torch.Tensor) -> torch.Tensor:
     return (torch.log1p(x.clamp(0.0, filters.HDR_MAX)) + 1e-3).pow(1.0 / 2.2)
 
 
+# box sizes of ``lowfreq``, in target pixels (a native-resolution task uses them / scale)
+LOWFREQ_SCALES = (4, 8, 16)
+
+
+def lowfreq(o: torch.Tensor, r: torch.Tensor, pixel: int) -> torch.Tensor:
+    """Sum over LOWFREQ_SCALES of the L1 between o and r (N, C, H, W) box-averaged over
+    that many target pixels (``pixel``: target pixels per pixel of o); sizes the patch
+    cannot hold are left out. Per-pixel L1 against a noisy reference is mostly the
+    reference's own noise; averaged over a box, the noise falls away and what stays is the
+    blotches and level shifts the box's size."""
+    total = o.new_zeros(())
+    for s in LOWFREQ_SCALES:
+        k = s // pixel
+        if k >= 1 and min(o.shape[-2:]) >= k:
+            total = total + l1(F.avg_pool2d(o, k), F.avg_pool2d(r, k))
+    return total
+
+
 def _upsampled_motion(motion: torch.Tensor, scale: int) -> torch.Tensor:
     return F.interpolate(motion, scale_factor=scale, mode="nearest") * scale if scale > 1 else motion
 
@@ -28,6 +50,7 @@ class Loss:
 
     def __init__(self, cfg: TrainConfig, scale: int):
         self.w = cfg.w_spatial
+        self.w_lowfreq = cfg.lowfreq_loss
         self.scale = scale
         self.feature_net = None
         self.with_l1 = cfg.spatial_loss != "feature"
@@ -57,12 +80,15 @@ class Loss:
             "auxiliary": ([o.albedo for o in outs], F.avg_pool2d(batch["albedo"].flatten(0, 1), s), False),
             "upsample": ([tm(o.output) for o in outs], tm(batch["color"].flatten(0, 1)), True),
         }
+        radiance = ("diffuse", "specular", "upsample")
         T, N = batch["current"].shape[:2]
         total, parts = 0.0, {}
         for name, (o_list, r_flat, target_res) in tasks.items():
             r = r_flat.view(T, N, *r_flat.shape[1:])
             o = torch.stack(o_list)
             l_sp = self.spatial(o.flatten(0, 1), r.flatten(0, 1))
+            if self.w_lowfreq and name in radiance:
+                l_sp = l_sp + self.w_lowfreq * lowfreq(o.flatten(0, 1), r.flatten(0, 1), 1 if target_res else s)
             l_t = o.new_zeros(())
             if T > 1:
                 mv = batch["motion"][1:].flatten(0, 1)
