@@ -29,23 +29,39 @@ LIMITS: dict[str, tuple[float, float, bool]] = {layer.name: (layer.lo, layer.hi,
                                                 for layer in LAYERS}
 
 
+@njit(inline="always")
+def _clean(v, lo, hi):
+    """NaN as 0, then clamped into [lo, hi] (selects: the loops stay branch-free)."""
+    v = np.float32(0) if v != v else v
+    return min(max(v, lo), hi)
+
+
 @njit(parallel=True, cache=True)
 def _hwc_into_chw(src, out, c0, h, w, lo, hi, renormalize, nonfinite):
-    # channel by channel along the row, without branches in the column loop (it
-    # vectorizes: docs/design-notes.md); padding columns and rows replicate the last ones
+    # along the row without branches in the column loop (it vectorizes:
+    # docs/design-notes.md): a 3-channel layer's pixel in one go (its three values are
+    # adjacent), others channel by channel; padding columns and rows replicate the last ones
     lo32, hi32, zero = np.float32(lo), np.float32(hi), np.float32(0)
     C = src.shape[2]
     W = out.shape[2]
     for y in prange(out.shape[1]):
         sy = min(np.int64(y), h - 1)
         bad = 0
+        if C == 3:
+            s, r0, r1, r2 = src[sy], out[c0, y], out[c0 + 1, y], out[c0 + 2, y]
+            for i in range(w):
+                v0, v1, v2 = s[i, 0], s[i, 1], s[i, 2]
+                bad += np.int64(not np.isfinite(v0)) + np.int64(not np.isfinite(v1)) + np.int64(not np.isfinite(v2))
+                r0[i], r1[i], r2[i] = _clean(v0, lo32, hi32), _clean(v1, lo32, hi32), _clean(v2, lo32, hi32)
+        else:
+            for c in range(C):
+                row = out[c0 + c, y]
+                for i in range(w):
+                    v = src[sy, i, c]
+                    bad += np.int64(not np.isfinite(v))
+                    row[i] = _clean(v, lo32, hi32)
         for c in range(C):
             row = out[c0 + c, y]
-            for i in range(w):
-                v = src[sy, i, c]
-                bad += np.int64(not np.isfinite(v))
-                v = zero if v != v else v
-                row[i] = min(max(v, lo32), hi32)
             for i in range(w, W):
                 row[i] = row[w - 1]
         nonfinite[y] = bad if y < h else 0
@@ -188,9 +204,22 @@ def _pack(current, history, kinds, scale, zero_point, first, at, out):
         for c in range(kinds.shape[0], C):
             for i in range(w):
                 codes[c, i] = np.uint8(zero_point)
-        for i in range(w):
-            for c in range(C):
-                out[0, y, i, c] = codes[c, i]
+        if C % 8 == 0:
+            # eight channels of a pixel gathered into one 64-bit word, one store for eight
+            # bytes (x86 is little-endian: channel c is byte c % 8 of its word)
+            words, G = out[0, y].reshape(w * C).view(np.uint64), C // 8
+            for g in range(G):
+                c = 8 * g
+                for i in range(w):
+                    words[i * G + g] = (
+                        np.uint64(codes[c, i]) | (np.uint64(codes[c + 1, i]) << np.uint64(8))
+                        | (np.uint64(codes[c + 2, i]) << np.uint64(16)) | (np.uint64(codes[c + 3, i]) << np.uint64(24))
+                        | (np.uint64(codes[c + 4, i]) << np.uint64(32)) | (np.uint64(codes[c + 5, i]) << np.uint64(40))
+                        | (np.uint64(codes[c + 6, i]) << np.uint64(48)) | (np.uint64(codes[c + 7, i]) << np.uint64(56)))
+        else:
+            for i in range(w):
+                for c in range(C):
+                    out[0, y, i, c] = codes[c, i]
 
 
 def pack_inputs(current: np.ndarray, history: np.ndarray, layout: InputsLayout) -> np.ndarray:

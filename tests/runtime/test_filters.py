@@ -79,6 +79,18 @@ def test_warp_clamps_and_handles_far_motion():
     assert n == 3
 
 
+def test_channels_last_of_four_3_channel_layers_is_the_general_loops():
+    """The history's four 3-channel layers take their own unrolled loop: the same values
+    and counts as the general loop, which a 4 + 2 + 3 + 3 split takes."""
+    x = RNG.random((12, 7, 9), dtype=np.float32) * 4 - 2
+    x[0, 1, 2], x[4, 3, 3], x[7, 0, 0], x[11, 6, 8] = np.nan, np.inf, -np.inf, 1e-35
+    fast, n_fast = N.channels_last(x[:3], x[3:6], x[6:9], x[9:], flush=1e-30, counted=True)
+    general, n_general = N.channels_last(x[:4], x[4:6], x[6:9], x[9:], flush=1e-30, counted=True)
+    np.testing.assert_array_equal(fast, general)
+    assert n_fast == n_general == 3
+    assert fast[1, 2, 0] == 0 and fast[3, 3, 4] == HDR_MAX and fast[0, 0, 7] == 0 and fast[6, 8, 11] == 0
+
+
 def _levels(h, w, n):
     levels = []
     for k in range(1, n + 1):

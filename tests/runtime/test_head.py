@@ -111,3 +111,5 @@ def test_pack_inputs_is_the_input_blocks_preprocessing_quantized(scale, zero_poi
     assert got.shape == (1, h, w, 32) and got.dtype == np.uint8
     assert d.max() <= 1 and (d > 0).mean() < 1e-3
     assert (got[0, :, :, 25:] == zero_point).all()
+    # channel counts that are not a multiple of 8 take the byte loop, 8 and more the word stores
+    np.testing.assert_array_equal(pack_inputs(cur, hist, InputsLayout(scale, zero_point, 28)), got[..., :28])

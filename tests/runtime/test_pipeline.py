@@ -185,6 +185,34 @@ def test_nonfinite_inputs_are_replaced_and_counted(artifacts, layer):
         assert np.isfinite(pipe.history.frame).all()
 
 
+def test_to_chw_stacks_sanitizes_pads_and_renormalizes():
+    """reformat.to_chw against numpy: NaN as 0, every value clamped into its layer's range,
+    non-finite values counted per layer, the padding replicating the last row and column,
+    normals renormalized (3-channel layers take a loop of their own, the others the
+    channel loop)."""
+    from jnds_deploy.layout import CURRENT
+    from jnds_deploy.runtime.reformat import LIMITS, to_chw
+    rng = np.random.default_rng(3)
+    h, w, pad = 5, 7, (8, 16)
+    layers = {n: (rng.normal(size=(h, w, c)) * 3).astype(np.float32) for n, c in CURRENT + (("motion", 2),)}
+    layers["diffuse"][1, 2, 0], layers["albedo"][0, 0, 2], layers["normal"][4, 6, 1] = np.nan, np.inf, -np.inf
+    layers["roughness"][2, 3, 0], layers["motion"][3, 1, 1] = np.nan, np.inf
+    for names in ([n for n, _ in CURRENT], ["motion"]):
+        counts = {}
+        got = to_chw(layers, names, pad, counts)
+        want = []
+        for n in names:
+            lo, hi, unit = LIMITS[n]
+            v = np.clip(np.nan_to_num(layers[n], nan=0.0, posinf=np.inf, neginf=-np.inf), lo, hi)
+            v = np.pad(v, ((0, pad[0] - h), (0, pad[1] - w), (0, 0)), mode="edge")
+            if unit:
+                norm = np.sqrt((v * v).sum(-1, keepdims=True))
+                v = np.where(norm > 0, v / np.where(norm > 0, norm, 1), v)
+            want.append(v.transpose(2, 0, 1))
+        np.testing.assert_allclose(got, np.concatenate(want), rtol=1e-6, atol=0)
+        assert counts == {n: int((~np.isfinite(layers[n])).sum()) for n in names if not np.isfinite(layers[n]).all()}
+
+
 def test_frame_errors_name_the_layer(artifacts):
     path, _ = artifacts
     layers = open_sequence(SAMPLE).inputs(0)
