@@ -804,13 +804,33 @@ def _upsample2_fixed_hwc(r, k, squarings, out):
     return bad.sum()
 
 
+@njit(parallel=True, cache=True)
+def _floored_roots(x, floor, halvings, out):
+    """out = max(x, floor) (NaN kept, as np.maximum keeps it) through ``halvings`` square
+    roots: ``_roots`` of ``np.maximum(x, floor)``, bit for bit, in one pass on all threads."""
+    C, H, W = x.shape
+    for y in prange(H):
+        for c in range(C):
+            src, dst = x[c, y], out[c, y]
+            for i in range(W):
+                v = src[i]
+                dst[i] = floor if v < floor else v
+            for _ in range(halvings):  # a pass along the row each: a loop inside kept it scalar
+                for i in range(W):
+                    dst[i] = np.sqrt(dst[i])
+
+
 def upsample_fixed_hwc(color: np.ndarray, kernel, root: int, h: int, w: int) -> tuple[np.ndarray, int]:
     """``upsample_fixed`` at factor 2 and ``reformat.to_hwc`` of its top-left (2h, 2w) in one
     pass (written here: the upsampled image is never stored whole, nor the channels-first
     result), non-finite values replaced as ``history.replace_nonfinite`` does: (output
-    (2h, 2w, 3) float32, how many were replaced)."""
-    src = np.maximum(color, ROOT_FLOOR, dtype=np.float32) if root > 1 else color.astype(np.float32)
-    src = np.ascontiguousarray(_roots(src, root))
+    (2h, 2w, 3) float32, how many were replaced). The roots before it are one pass of their
+    own on all threads (numpy's maximum and square roots made three on one)."""
+    if root > 1:
+        src = np.empty(color.shape, np.float32)
+        _floored_roots(np.ascontiguousarray(color, np.float32), np.float32(ROOT_FLOOR), root.bit_length() - 1, src)
+    else:
+        src = np.ascontiguousarray(color, np.float32)
     out = np.empty((2 * h, 2 * w, color.shape[0]), np.float32)
     bad = _upsample2_fixed_hwc(src, np.asarray(kernel, np.float32).reshape(9), root.bit_length() - 1, out)
     return out, int(bad)
