@@ -229,7 +229,7 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str, 
 - Steps: {step} ({tcfg["fp32_steps"]} fp32, then up to {tcfg["qat_steps"]} QAT; phase at save:
   {ckpt["state"]["phase"]}); batch {tcfg["batch"]} x unroll {tcfg["unroll"]} frames x {tcfg["patch"]}^2 native patches;
   AdamW, lr {tcfg["lr"]} (QAT {tcfg["qat_lr"]}) decaying x{tcfg["lr_decay"]} per phase.
-- Loss: Eq. 3-5, w_spatial {tcfg["w_spatial"]}, spatial loss `{tcfg["spatial_loss"]}`.{_feature_net_line(tcfg)}{data_line}
+- Loss: Eq. 3-5, w_spatial {tcfg["w_spatial"]}, spatial loss `{tcfg["spatial_loss"]}`{_lowfreq(tcfg)}.{_feature_net_line(tcfg)}{data_line}
 - Time: {hours:.2f} h on {where}.
 - Command: `{cmd}`"""
     vals = [r for r in log if r.get("event") == "val"]
@@ -259,6 +259,13 @@ def _data_line(names: list[str] | None, command: str | None = None) -> str:
     which = f"seeds {seeds[0]}-{seeds[-1]}" if len(seeds) == len(names) else ", ".join(names)
     return (f"\n- Data: {len(names)} sequences of data/train ({which}; "
             f"`jnds dataset --out data --split train --train-sequences {len(names)}` renders seeds 1000 on).")
+
+
+def _lowfreq(tcfg: dict) -> str:
+    """The low-frequency term of the spatial loss, where the run had one (not in the paper)."""
+    w = tcfg.get("lowfreq_loss", 0.0)
+    return (f" plus {w:g} x the L1 of 4-, 8- and 16-pixel box averages on the radiance tasks "
+            "(`--lowfreq-loss`, `training.losses.lowfreq`)") if w else ""
 
 
 def _feature_net_line(tcfg: dict) -> str:
