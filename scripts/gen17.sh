@@ -3,7 +3,8 @@
 # resumes or is skipped when done. gen16's recipe, data and seed (scripts/gen16.sh) with one
 # change: the low-frequency loss term (--lowfreq-loss, training.losses.lowfreq), so that gen16
 # is its paired control. Then gen14 (shipped), gen16 and gen17 scored on the first holdout, the
-# selection set for unseen kinds (docs/model-gap.md, "Since gen14"), and on validation.
+# selection set for unseen kinds (docs/model-gap.md, "Since gen14"), and on validation. Stop 51:
+# chosen there and shipped (docs/training.md, "gen17"), then scored once on holdout2 (docs/model-gap.md).
 # Run it in its own session, niced, e.g.
 #   setsid nohup nice bash scripts/gen17.sh > runs/gen17.log 2>&1 &
 # and pause it (SIGSTOP to its session) during timings.
