@@ -25,14 +25,16 @@ def loss_tonemap(x: torch.Tensor) -> torch.Tensor:
 
 # box sizes of ``lowfreq``, in target pixels (a native-resolution task uses them / scale)
 LOWFREQ_SCALES = (4, 8, 16)
+RADIANCE_TASKS = ("diffuse", "specular", "upsample")  # the tasks ``lowfreq`` joins
 
 
 def lowfreq(o: torch.Tensor, r: torch.Tensor, pixel: int) -> torch.Tensor:
     """Sum over LOWFREQ_SCALES of the L1 between o and r (N, C, H, W) box-averaged over
     that many target pixels (``pixel``: target pixels per pixel of o); sizes the patch
-    cannot hold are left out. Per-pixel L1 against a noisy reference is mostly the
-    reference's own noise; averaged over a box, the noise falls away and what stays is the
-    blotches and level shifts the box's size."""
+    cannot hold are left out. Per-pixel L1 weighs fine grain (the reference's own noise
+    among it) as much as blotches; averaged over a box, grain falls away and what stays is
+    the blotches and level shifts of the box's size (on `gen14`'s training outputs each
+    scale still held about 0.6x the per-pixel L1: docs/training.md, "gen17")."""
     total = o.new_zeros(())
     for s in LOWFREQ_SCALES:
         k = s // pixel
@@ -80,14 +82,13 @@ class Loss:
             "auxiliary": ([o.albedo for o in outs], F.avg_pool2d(batch["albedo"].flatten(0, 1), s), False),
             "upsample": ([tm(o.output) for o in outs], tm(batch["color"].flatten(0, 1)), True),
         }
-        radiance = ("diffuse", "specular", "upsample")
         T, N = batch["current"].shape[:2]
         total, parts = 0.0, {}
         for name, (o_list, r_flat, target_res) in tasks.items():
             r = r_flat.view(T, N, *r_flat.shape[1:])
             o = torch.stack(o_list)
             l_sp = self.spatial(o.flatten(0, 1), r.flatten(0, 1))
-            if self.w_lowfreq and name in radiance:
+            if self.w_lowfreq and name in RADIANCE_TASKS:
                 l_sp = l_sp + self.w_lowfreq * lowfreq(o.flatten(0, 1), r.flatten(0, 1), 1 if target_res else s)
             l_t = o.new_zeros(())
             if T > 1:
