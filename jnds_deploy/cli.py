@@ -158,11 +158,24 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_run(args) -> int:
-    from .io import exr_threads
-    from .runtime import PipelineConfig, tune_numba
-    from .runtime.run import run_sequence, stage_table
+    # the cold start (docs/performance.md, "Speed", stop 52): while this thread imports,
+    # another faults in the heap that frame 0 will take; no garbage collection passes over
+    # what the imports build (numba's and ONNX Runtime's objects, kept to the end), which
+    # is then frozen out of later collections
+    gc.disable()
+    try:
+        from .heap import FIRST_FRAME_HEAP_PER_PIXEL, pretouch
+        from .io import exr_threads, open_sequence
 
-    tune_numba()
+        w, h = open_sequence(args.input).native_size
+        pretouch(FIRST_FRAME_HEAP_PER_PIXEL * w * h)
+        from .runtime import PipelineConfig, tune_numba
+        from .runtime.run import run_sequence, stage_table
+
+        tune_numba()
+    finally:
+        gc.freeze()
+        gc.enable()
     exr_threads(args.threads)
     cfg = PipelineConfig(artifacts=args.artifacts, precision=args.precision,
                          filter_dtype=args.filter_dtype, threads=args.threads, adaptive=not args.no_adaptive,

@@ -17,9 +17,7 @@ replicate) to the network's multiple and cropped back.
 from __future__ import annotations
 
 import copy
-import ctypes
 import functools
-import os
 import threading
 import time
 from contextlib import contextmanager
@@ -30,6 +28,7 @@ import numpy as np
 
 from ..artifacts import Manifest, variant_key
 from ..errors import ConfigError, FrameError
+from ..heap import keep_freed_memory
 from ..layout import CURRENT, HISTORY, INPUT_CHANNELS, RADIANCE, channels
 from . import filters as F
 from .head import Coded
@@ -127,33 +126,6 @@ class FrameResult:
     disoccluded: int = 0  # history pixels replaced by the current inputs (filters.disoccluded)
     rejected: int = 0  # history tiles restarted from the current frame (history.reject_history)
     clamped: int = 0  # current diffuse/specular pixel values clamped as fireflies (filters.clamp_fireflies)
-
-
-@functools.cache
-def keep_freed_memory() -> bool:
-    """Have glibc's malloc keep freed blocks for reuse instead of handing them back to the
-    kernel (process-wide; returns False where there is no glibc). By default a block over
-    ~32 MB is always a fresh mmap and smaller ones are trimmed when freed, so every frame's
-    large arrays come back as new pages that the kernel faults in and zeroes on first
-    write (docs/design-notes.md). The price: the process keeps its peak memory.
-
-    Also stops numpy from advising the kernel to back its large arrays with transparent
-    huge pages (unless the user set ``NUMPY_MADVISE_HUGEPAGE``): where the kernel compacts
-    memory to find them (THP ``defrag`` "madvise", the Debian default), the first touch of
-    each new array stalled in the kernel, and a cold `jnds run` spent more time there than
-    the huge pages saved; frames that reuse their memory run as fast either way
-    (docs/design-notes.md, "Huge pages")."""
-    if "NUMPY_MADVISE_HUGEPAGE" not in os.environ:
-        try:
-            np._core.multiarray._set_madvise_hugepage(False)
-        except AttributeError:  # a numpy without the switch
-            pass
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-        m_trim_threshold, m_mmap_threshold = -1, -3
-        return bool(libc.mallopt(m_mmap_threshold, 1 << 30) and libc.mallopt(m_trim_threshold, 1 << 31))
-    except (OSError, AttributeError):
-        return False
 
 
 @functools.cache

@@ -119,26 +119,6 @@ def test_jnds_run_skips_numbas_blas_probe_and_leaves_scipy_importable(artifacts,
     assert proc.returncode == 0, proc.stderr[-2000:]
 
 
-@pytest.mark.parametrize("env", [None, "1"])
-def test_keep_freed_memory_turns_numpys_huge_page_advice_off_unless_the_user_set_it(env):
-    """``keep_freed_memory`` (what `jnds run` and `jnds serve` turn on) stops numpy from
-    advising huge pages for its arrays (their first touch stalled a cold run in the
-    kernel's compaction); a ``NUMPY_MADVISE_HUGEPAGE`` the user set is kept."""
-    import os
-    import subprocess
-    import sys
-    code = ("import numpy._core.multiarray as m\n"
-            "from jnds_deploy.runtime.pipeline import keep_freed_memory\n"
-            "assert keep_freed_memory()\n"
-            "print(m._set_madvise_hugepage(True))\n")
-    environ = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
-    if env is not None:
-        environ["NUMPY_MADVISE_HUGEPAGE"] = env
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environ)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert proc.stdout.strip() == ("False" if env is None else "True")
-
-
 def test_jnds_run_writes_frames_and_report(artifacts, tmp_path):
     import json
     import subprocess
