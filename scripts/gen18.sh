@@ -3,9 +3,9 @@
 # done. gen17's recipe, data and seed (scripts/gen17.sh) with the low-frequency loss term at
 # twice the weight (--lowfreq-loss 1.0): gen16 (no term), gen17 (0.5) and gen18 (1.0) are the
 # same batches in the same order, a dose-response of the term (`jnds` in its evaluations is
-# the shipped gen17). Started at the end of stop 51
-# (docs/training.md, "gen17"); nothing is chosen yet, and how to choose is open: the first
-# holdout alone chose gen17 and holdout2 then went the other way (docs/model-gap.md).
+# the shipped gen17). Started at the end of stop 51 and run again from gen14 in stop 52; chosen
+# there on both holdouts together and shipped (docs/training.md, "gen18 and soups";
+# scripts/soups52.sh scored the candidates).
 # Run it in its own session, niced, e.g.
 #   setsid nohup nice bash scripts/gen18.sh > runs/gen18.log 2>&1 &
 # and pause it (SIGSTOP to its session) during timings.
