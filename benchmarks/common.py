@@ -208,7 +208,7 @@ def tune_process() -> None:
     (``PipelineConfig.keep_freed_memory``). Call it first in ``main``, before anything
     compiles or runs a numba loop."""
     from jnds_deploy.runtime import tune_numba
-    from jnds_deploy.runtime.pipeline import keep_freed_memory
+    from jnds_deploy.heap import keep_freed_memory
 
     tune_numba()
     keep_freed_memory()
