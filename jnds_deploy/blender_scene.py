@@ -35,8 +35,10 @@ CYCLES_TRAIN_KINDS = ("sunroom", "darkroom", "metals", "textures")
 # (``--lights-sequences``) does the same with every sort of light Blender has: spot lights,
 # area lights of each shape and emissive meshes other than small spheres besides mixed's;
 # ``interior`` (``--interior-sequences``, stop 46) is a closed room lit mostly by bounced light;
-# ``detail`` (``--detail-sequences``, stop 50) bump-mapped surfaces and dense, curved shapes
-CYCLES_EXTRA_KINDS = ("mixed", "lights", "interior", "detail")
+# ``detail`` (``--detail-sequences``, stop 50) bump-mapped surfaces and dense, curved shapes;
+# ``layers`` (``--layers-sequences``, stop 53) the Principled BSDF's other layers (sheen, coat,
+# subsurface, anisotropy, thin film, transmission) mixed on smooth shapes, and meshes of struts
+CYCLES_EXTRA_KINDS = ("mixed", "lights", "interior", "detail", "layers")
 # kinds only the test set is made of (render.dataset): built apart from the training kinds,
 # so that the test measures scenes the model never saw the like of. gallery: a long hall
 # under strip lights, a polished floor, finely textured panels, sculptures; night: an
@@ -334,6 +336,8 @@ def build(cfg: dict):
         moving, target, radius, height = _interior(scene, rng, frames)
     elif kind == "detail":
         moving, target, radius, height = _detail(scene, rng, frames)
+    elif kind == "layers":
+        moving, target, radius, height = _layers(scene, rng, frames)
     elif kind == "gallery":
         _world(scene, rng, "dark")
         _room(rng, 6.0, 4.0, window=False, texture_walls=False)
@@ -382,7 +386,7 @@ def build(cfg: dict):
             for k in fc.keyframe_points:
                 k.interpolation = "LINEAR"
     cuts = _camera(scene, rng, cfg["camera"], frames, target, radius, height)
-    if kind == "detail":  # close-ups and wide views both (drawn last: the other kinds' draws are unchanged)
+    if kind in ("detail", "layers"):  # close-ups and wide views both (drawn last: the other kinds' draws are unchanged)
         scene.camera.data.lens = rng.uniform(18, 55)
     return scene, cuts
 
@@ -705,6 +709,129 @@ def _detail(scene, rng, frames):
             moving.append(obj)
     moving += _objects(rng, rng.randint(2, 4), 1.5, metal, textured, frames)
     return moving, (0, 0, rng.uniform(0.2, 0.6)), radius, rng.uniform(0.7, 2.0)
+
+
+def _layered_material(name, rng):
+    """A Principled BSDF with its other layers drawn independently, each on in some draws and
+    at any weight when on: sheen (cloth), coat (lacquer, car paint), subsurface (wax, skin,
+    marble), anisotropy (brushed metal), thin film (oil, soap), transmission (frosted glass);
+    base roughness and specular level over their whole range. Real assets mix them; every
+    other training kind's materials are base colour, roughness, metal or clear glass."""
+    m = _material(name, rng, metal=rng.random() < 0.3, rough=rng.uniform(0.0, 1.0),
+                  texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.35 else None)
+    b = m.node_tree.nodes["Principled BSDF"].inputs
+    b["Specular IOR Level"].default_value = rng.uniform(0.2, 1.0)
+    if rng.random() < 0.45:
+        b["Sheen Weight"].default_value = rng.uniform(0.3, 1.0)
+        b["Sheen Roughness"].default_value = rng.uniform(0.1, 1.0)
+        b["Sheen Tint"].default_value = (*[rng.uniform(0.5, 1.0) for _ in range(3)], 1.0)
+    if rng.random() < 0.4:
+        b["Coat Weight"].default_value = rng.uniform(0.3, 1.0)
+        b["Coat Roughness"].default_value = rng.uniform(0.0, 0.3)
+        b["Coat Tint"].default_value = (*[rng.uniform(0.6, 1.0) for _ in range(3)], 1.0)
+    if rng.random() < 0.3:
+        b["Subsurface Weight"].default_value = rng.uniform(0.5, 1.0)
+        b["Subsurface Radius"].default_value = [rng.uniform(0.1, 1.0) for _ in range(3)]
+        b["Subsurface Scale"].default_value = rng.uniform(0.01, 0.3)
+    if rng.random() < 0.3:
+        b["Anisotropic"].default_value = rng.uniform(0.3, 1.0)
+        b["Anisotropic Rotation"].default_value = rng.uniform(0.0, 1.0)
+    if rng.random() < 0.25:
+        b["Thin Film Thickness"].default_value = rng.uniform(100, 1000)
+        b["Thin Film IOR"].default_value = rng.uniform(1.2, 1.8)
+    if rng.random() < 0.12:
+        b["Transmission Weight"].default_value = 1.0
+        b["IOR"].default_value = rng.uniform(1.1, 1.8)
+    return m
+
+
+def _struts(name, rng, location, size, cells, thickness, rotation):
+    """A mesh of struts: a grid turned into wire by Blender's wireframe modifier (a fence, a
+    screen, a grille; ``cells`` (x, y) may be 1 along one side: parallel bars)."""
+    import bpy
+
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=cells[0], y_subdivisions=cells[1], size=size,
+                                    location=location, rotation=rotation)
+    bpy.ops.object.modifier_add(type="WIREFRAME")
+    bpy.context.object.modifiers[-1].thickness = thickness
+    bpy.context.object.data.materials.append(
+        _material(name, rng, metal=rng.random() < 0.6, rough=rng.uniform(0.05, 0.8)))
+    return bpy.context.object
+
+
+LAYERS_SHAPES = ("torus", "sphere", "monkey", "capsule", "cloth")
+
+
+def _layers(scene, rng, frames):
+    """The ``layers`` training kind (stop 53): smooth curved shapes in layered materials
+    (``_layered_material``) and one to three meshes of struts 1-8 cm apart, a tenth to a third of that thick,
+    standing, tilted or hanging, some moving; ground with relief, sometimes a corner of walls;
+    the light rigs of ``mixed`` and ``lights``. Returns (moving objects, camera target, radius,
+    height)."""
+    import bpy
+
+    _world(scene, rng, rng.choice(("sky", "dusk", "dark", "color")))
+    radius = rng.uniform(2.4, 4.0)
+    ground = _relief("ground", rng, world_coords=True, rough=rng.uniform(0.05, 0.9),
+                     texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.7 else None)
+    _box("ground", (40, 40, 0.1), (0, 0, -0.05), ground)
+    if rng.random() < 0.5:
+        wall = _relief("wall", rng, world_coords=True, rough=rng.uniform(0.3, 1.0))
+        h, d = rng.uniform(2.0, 4.0), radius + rng.uniform(0.4, 1.5)
+        _box("wall_a", (0.1, 2 * d, h), (-d, 0, h / 2), wall)
+        _box("wall_b", (2 * d, 0.1, h), (0, -d, h / 2), wall)
+    for rig in rng.sample(RIGS + LIGHTS_RIGS, rng.randint(1, 3)):
+        _mixed_rig(rig, rng)
+    moving = []
+
+    def moves(obj, p):
+        if rng.random() < p:  # slides and turns on its own
+            d, spin, z = (rng.uniform(-0.8, 0.8), rng.uniform(-0.8, 0.8)), rng.uniform(-1.5, 1.5), obj.rotation_euler[2]
+            x0, y0 = obj.location[0], obj.location[1]
+            for f, t in ((0, 0.0), (frames + 1, 1.0)):
+                obj.location[0], obj.location[1] = x0 + d[0] * t, y0 + d[1] * t
+                obj.rotation_euler[2] = z + spin * t
+                obj.keyframe_insert("location", frame=f)
+                obj.keyframe_insert("rotation_euler", frame=f)
+            moving.append(obj)
+
+    for i in range(rng.randint(4, 8)):
+        shape, a, r, s = rng.choice(LAYERS_SHAPES), rng.uniform(0, 2 * math.pi), rng.uniform(0, 1.6), rng.uniform(0.25, 0.8)
+        x, y = r * math.cos(a), r * math.sin(a)
+        if shape == "torus":
+            bpy.ops.mesh.primitive_torus_add(major_radius=s / 2, minor_radius=s * rng.uniform(0.08, 0.25),
+                                             major_segments=64, minor_segments=24, location=(x, y, s / 2),
+                                             rotation=(rng.uniform(0, math.pi), 0, rng.uniform(0, math.pi)))
+        elif shape == "sphere":
+            bpy.ops.mesh.primitive_uv_sphere_add(radius=s / 2, segments=64, ring_count=32, location=(x, y, s / 2))
+        elif shape == "monkey":
+            bpy.ops.mesh.primitive_monkey_add(size=s, location=(x, y, s / 2), rotation=(0, 0, rng.uniform(0, 2 * math.pi)))
+            bpy.ops.object.modifier_add(type="SUBSURF")
+            bpy.context.object.modifiers[-1].render_levels = 2
+        elif shape == "capsule":  # a cylinder with rounded ends: bottles, handles, limbs
+            bpy.ops.mesh.primitive_cylinder_add(vertices=48, radius=s / 4, depth=s, location=(x, y, s / 2),
+                                                rotation=(rng.uniform(0, 1.5), 0, rng.uniform(0, math.pi)))
+            bpy.ops.object.modifier_add(type="BEVEL")
+            bpy.context.object.modifiers[-1].width, bpy.context.object.modifiers[-1].segments = s / 8, 6
+        else:  # cloth: a plane folded by noise, draped near the ground
+            bpy.ops.mesh.primitive_grid_add(x_subdivisions=64, y_subdivisions=64, size=s * 2, location=(x, y, s / 3),
+                                            rotation=(rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4), 0))
+            _displace(f"cloth{i}", rng.uniform(0.2, 0.6), rng.uniform(0.05, 0.25))
+        bpy.ops.object.shade_smooth()
+        bpy.context.object.data.materials.append(_layered_material(f"l{i}", rng))
+        moves(bpy.context.object, 0.35)
+    for i in range(rng.randint(1, 3)):
+        a, r, size = rng.uniform(0, 2 * math.pi), rng.uniform(0.3, 2.0), rng.uniform(0.6, 2.2)
+        pitch = rng.uniform(0.01, 0.08)
+        cells = max(2, int(size / pitch))
+        cells = (cells, 1) if rng.random() < 0.25 else (cells, max(2, int(cells * rng.uniform(0.5, 1.5))))
+        tilt = rng.choice((math.pi / 2, math.pi / 2 + rng.uniform(-0.6, 0.6), rng.uniform(0, 0.3)))
+        z = size / 2 if tilt > 0.5 else rng.uniform(1.2, 2.5)  # standing, or hanging overhead
+        # struts a tenth to a third of the pitch thick: thicker, a fine mesh reads as a panel
+        thickness = max(0.0015, pitch * rng.uniform(0.1, 0.35))
+        moves(_struts(f"struts{i}", rng, (r * math.cos(a), r * math.sin(a), z), size, cells,
+                      thickness, (tilt, 0, rng.uniform(0, math.pi))), 0.3)
+    return moving, (0, 0, rng.uniform(0.3, 0.8)), radius, rng.uniform(0.7, 2.0)
 
 
 def _props(name, rng, n, base, extent, smallest, largest):
