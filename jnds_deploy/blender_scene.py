@@ -57,8 +57,14 @@ CYCLES_HOLDOUT_KINDS = ("atrium", "workshop")
 # softboxes, a turntable, materials no other kind uses (subsurface, sheen, coat,
 # anisotropic metal, thin-film) and a wire mesh
 CYCLES_HOLDOUT2_KINDS = ("street", "studio")
+# kinds of the third holdout split (render.dataset), written at stop 53 after holdout2's
+# studio had been looked at to choose training data (the ``layers`` kind): built apart from
+# every kind above, with what none of them has. grove: trees of leaf cards in a translucent
+# material, grass of thin blades, dappled sun through swaying crowns; haze: a closed hall
+# filled with a scattering volume, spot lights and daylight drawing beams through it
+CYCLES_HOLDOUT3_KINDS = ("grove", "haze")
 CYCLES_SCENE_KINDS = (CYCLES_TRAIN_KINDS + CYCLES_EXTRA_KINDS + CYCLES_TEST_KINDS + CYCLES_HOLDOUT_KINDS
-                      + CYCLES_HOLDOUT2_KINDS)
+                      + CYCLES_HOLDOUT2_KINDS + CYCLES_HOLDOUT3_KINDS)
 TEXTURES = ("brick", "checker", "noise", "voronoi")
 
 
@@ -379,6 +385,10 @@ def build(cfg: dict):
         moving, target, radius, height = _street(scene, rng, frames)
     elif kind == "studio":
         moving, target, radius, height = _studio(scene, rng, frames)
+    elif kind == "grove":
+        moving, target, radius, height = _grove(scene, rng, frames)
+    elif kind == "haze":
+        moving, target, radius, height = _haze(scene, rng, frames)
     else:
         raise ConfigError(f"unknown Cycles scene {kind!r}, expected one of {', '.join(CYCLES_SCENE_KINDS)}")
     for obj in moving:
@@ -1221,6 +1231,192 @@ def _studio(scene, rng, frames):
     bpy.context.object.modifiers[-1].thickness = rng.uniform(0.004, 0.012)
     bpy.context.object.data.materials.append(_material("wire", rng, metal=True, rough=rng.uniform(0.2, 0.5)))
     return [spin], (0, 0, 0.6), rng.uniform(2.6, 4.0), rng.uniform(1.0, 2.2)
+
+
+def _cards(name, rng, n, centre, extent, size, material):
+    """One mesh of ``n`` small quads (leaf cards) at random points of an ellipsoid
+    (``extent``: its half axes) about ``centre``, each at a random angle."""
+    import bpy
+
+    verts, faces = [], []
+    for k in range(n):
+        while True:
+            u = [rng.uniform(-1, 1) for _ in range(3)]
+            if sum(x * x for x in u) <= 1:
+                break
+        c = [centre[j] + u[j] * extent[j] for j in range(3)]
+        a, b = rng.uniform(0, 2 * math.pi), rng.uniform(0, math.pi)
+        # two unit vectors spanning the card: one in the horizontal plane, one tilted by b
+        e1 = (math.cos(a), math.sin(a), 0.0)
+        e2 = (-math.sin(a) * math.cos(b), math.cos(a) * math.cos(b), math.sin(b))
+        s1, s2 = size * rng.uniform(0.6, 1.4), size * rng.uniform(0.3, 0.7)
+        base = len(verts)
+        for p, q in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+            verts.append(tuple(c[j] + p * s1 / 2 * e1[j] + q * s2 / 2 * e2[j] for j in range(3)))
+        faces.append((base, base + 1, base + 2, base + 3))
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(verts, [], faces)
+    mesh.materials.append(material)
+    obj = bpy.data.objects.new(name, mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def _leaf_material(name, rng):
+    """Foliage: a diffuse-glossy leaf mixed with a translucent closure (light through the leaf)."""
+    import bpy
+
+    m = bpy.data.materials.new(name)
+    m.use_nodes = True
+    nodes, links = m.node_tree.nodes, m.node_tree.links
+    green = (rng.uniform(0.03, 0.25), rng.uniform(0.15, 0.5), rng.uniform(0.02, 0.12), 1.0)
+    bsdf = nodes["Principled BSDF"]
+    bsdf.inputs["Base Color"].default_value = green
+    bsdf.inputs["Roughness"].default_value = rng.uniform(0.3, 0.7)
+    tl = nodes.new("ShaderNodeBsdfTranslucent")
+    tl.inputs["Color"].default_value = (green[0] * 1.5, green[1] * 1.5, green[2], 1.0)
+    mix = nodes.new("ShaderNodeMixShader")
+    mix.inputs["Fac"].default_value = rng.uniform(0.2, 0.5)
+    links.new(bsdf.outputs[0], mix.inputs[1])
+    links.new(tl.outputs[0], mix.inputs[2])
+    links.new(mix.outputs[0], nodes["Material Output"].inputs["Surface"])
+    return m
+
+
+def _grove(scene, rng, frames):
+    """The ``grove`` third-holdout kind: three to six trees (a tapering trunk, a few branches,
+    one or two crowns of 300-900 leaf cards that sway), grass of thin blades, a low sun through
+    the crowns casting dappled light, a sky. Returns (moving objects, camera target, radius,
+    height)."""
+    import bpy
+
+    _world(scene, rng, "sky")
+    bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(30, 65)), 0,
+                                                   math.radians(rng.uniform(0, 360))))
+    bpy.context.object.data.energy = rng.uniform(3.0, 6.0)
+    bpy.context.object.data.angle = math.radians(rng.uniform(0.3, 1.5))
+    soil = _material("soil", rng, rough=0.9, color=(rng.uniform(0.1, 0.25), rng.uniform(0.08, 0.18), 0.05),
+                     texture="noise")
+    _box("soil", (40, 40, 0.1), (0, 0, -0.05), soil)
+    bark = _material("bark", rng, rough=0.8, color=(rng.uniform(0.1, 0.3), rng.uniform(0.07, 0.2), 0.05),
+                     texture="voronoi")
+    moving = []
+    for i in range(rng.randint(3, 6)):
+        a, r = rng.uniform(0, 2 * math.pi), rng.uniform(1.0, 3.5)
+        x, y, h = r * math.cos(a), r * math.sin(a), rng.uniform(2.0, 4.0)
+        bpy.ops.mesh.primitive_cone_add(vertices=24, radius1=rng.uniform(0.06, 0.15), radius2=0.02, depth=h,
+                                        location=(x, y, h / 2))
+        bpy.context.object.data.materials.append(bark)
+        for k in range(rng.randint(2, 5)):  # branches: thin cylinders leaning out of the trunk
+            z, ang, ln = rng.uniform(0.4, 0.85) * h, rng.uniform(0, 2 * math.pi), rng.uniform(0.4, 1.2)
+            bpy.ops.mesh.primitive_cylinder_add(vertices=12, radius=rng.uniform(0.01, 0.03), depth=ln,
+                                                location=(x + 0.4 * ln * math.cos(ang), y + 0.4 * ln * math.sin(ang),
+                                                          z + 0.2 * ln),
+                                                rotation=(0, rng.uniform(0.6, 1.2), ang))
+            bpy.context.object.data.materials.append(bark)
+        leaves = _leaf_material(f"leaf{i}", rng)
+        for k in range(rng.randint(1, 2)):
+            e = (rng.uniform(0.6, 1.3), rng.uniform(0.6, 1.3), rng.uniform(0.5, 1.0))
+            crown = _cards(f"crown{i}_{k}", rng, rng.randint(300, 900),
+                           (x + rng.uniform(-0.3, 0.3), y + rng.uniform(-0.3, 0.3), h * rng.uniform(0.75, 0.95)),
+                           e, rng.uniform(0.05, 0.14), leaves)
+            # swaying in the wind: a small tilt back and forth about the crown's own centre
+            bpy.context.view_layer.objects.active = crown
+            crown.select_set(True)
+            bpy.ops.object.origin_set(type="ORIGIN_GEOMETRY", center="BOUNDS")
+            crown.select_set(False)
+            amp, period = rng.uniform(0.01, 0.05), rng.uniform(4, 10)
+            for f in range(0, frames + 2):
+                crown.rotation_euler[0] = amp * math.sin(2 * math.pi * f / period)
+                crown.rotation_euler[1] = amp * math.cos(2 * math.pi * f / period)
+                crown.keyframe_insert("rotation_euler", frame=f)
+            moving.append(crown)
+    blades = _leaf_material("grass", rng)
+    for k in range(rng.randint(3, 6)):  # tufts of grass: thin upright cards
+        gx, gy = rng.uniform(-3, 3), rng.uniform(-3, 3)
+        verts, faces = [], []
+        for j in range(rng.randint(150, 400)):
+            px, py, ht, wd, a = gx + rng.gauss(0, 0.4), gy + rng.gauss(0, 0.4), rng.uniform(0.1, 0.4), 0.006, rng.uniform(0, math.pi)
+            lean = (rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1))
+            b = len(verts)
+            verts += [(px - wd * math.cos(a), py - wd * math.sin(a), 0), (px + wd * math.cos(a), py + wd * math.sin(a), 0),
+                      (px + lean[0], py + lean[1], ht)]
+            faces.append((b, b + 1, b + 2))
+        mesh = bpy.data.meshes.new(f"tuft{k}")
+        mesh.from_pydata(verts, [], faces)
+        mesh.materials.append(blades)
+        scene.collection.objects.link(bpy.data.objects.new(f"tuft{k}", mesh))
+    return moving, (0, 0, rng.uniform(0.8, 1.8)), rng.uniform(4.0, 6.0), rng.uniform(1.0, 2.2)
+
+
+def _haze(scene, rng, frames):
+    """The ``haze`` third-holdout kind: a closed hall filled with a homogeneous scattering volume
+    (density 0.02-0.12 per metre, forward scattering), lit by spot lights hung high and aimed down
+    and by the sun through one or two openings in the roof, so that beams stand in the air; two
+    rows of columns along the walls, crates in the middle, a few of them sliding. Returns (moving objects, camera target, radius, height)."""
+    import bpy
+
+    _world(scene, rng, "sky")
+    half, height = rng.uniform(4.0, 6.0), rng.uniform(4.0, 6.0)
+    wall = _material("hall", rng, rough=rng.uniform(0.6, 1.0), color=[rng.uniform(0.3, 0.7)] * 3)
+    floor = _material("hall_floor", rng, rough=rng.uniform(0.3, 0.9), texture=rng.choice(("brick", "noise")))
+    t = 0.2
+    _box("floor", (2 * half, 2 * half, t), (0, 0, -t / 2), floor)
+    _box("wall_w", (t, 2 * half, height), (-half, 0, height / 2), wall)
+    _box("wall_e", (t, 2 * half, height), (half, 0, height / 2), wall)
+    _box("wall_s", (2 * half, t, height), (0, -half, height / 2), wall)
+    _box("wall_n", (2 * half, t, height), (0, half, height / 2), wall)
+    # a roof with one or two openings along x: the sun comes in through them
+    gaps = sorted(rng.sample([-0.5, -0.1, 0.3], rng.randint(1, 2)))
+    edges = [-half] + [e for g in gaps for e in (g * half, g * half + 0.8)] + [half]
+    for k in range(0, len(edges), 2):
+        _box(f"roof{k}", (2 * half, edges[k + 1] - edges[k], t), (0, (edges[k] + edges[k + 1]) / 2, height + t / 2), wall)
+    bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(10, 35)), 0, math.radians(rng.uniform(-30, 30))))
+    bpy.context.object.data.energy = rng.uniform(8.0, 16.0)
+    bpy.context.object.data.angle = math.radians(0.5)
+    for i in range(rng.randint(1, 3)):
+        bpy.ops.object.light_add(type="SPOT", location=(rng.uniform(-half + 1, half - 1), rng.uniform(-half + 1, half - 1),
+                                                        height - 0.3),
+                                 rotation=(rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4), 0))
+        light = bpy.context.object.data
+        light.energy, light.spot_size = rng.uniform(2000, 8000), math.radians(rng.uniform(15, 40))
+        light.spot_blend, light.shadow_soft_size = rng.uniform(0.05, 0.3), rng.uniform(0.02, 0.1)
+        light.color = [rng.uniform(0.7, 1.0) for _ in range(3)]
+    # the air: a box just inside the hall with a Principled Volume
+    air = bpy.data.materials.new("air")
+    air.use_nodes = True
+    nodes = air.node_tree.nodes
+    nodes.remove(nodes["Principled BSDF"])
+    vol = nodes.new("ShaderNodeVolumePrincipled")
+    vol.inputs["Density"].default_value = rng.uniform(0.02, 0.12)
+    vol.inputs["Anisotropy"].default_value = rng.uniform(0.2, 0.7)
+    vol.inputs["Color"].default_value = (*[rng.uniform(0.8, 1.0) for _ in range(3)], 1.0)
+    air.node_tree.links.new(vol.outputs[0], nodes["Material Output"].inputs["Volume"])
+    bpy.ops.mesh.primitive_cube_add(size=1, location=(0, 0, height / 2))
+    bpy.context.object.scale = (2 * half - 0.25, 2 * half - 0.25, height - 0.05)
+    bpy.context.object.data.materials.append(air)
+    col = _material("column", rng, rough=rng.uniform(0.3, 0.8))
+    n = rng.randint(2, 4)
+    for i in range(2 * n):  # two rows of columns along the long walls, the middle left clear
+        x, y = -half + (i // 2 + 0.5) * 2 * half / n, (half - 0.7) * (1 if i % 2 else -1)
+        bpy.ops.mesh.primitive_cylinder_add(vertices=32, radius=rng.uniform(0.15, 0.3), depth=height,
+                                            location=(x, y, height / 2))
+        bpy.context.object.data.materials.append(col)
+    moving = []
+    for i in range(rng.randint(4, 9)):
+        s = rng.uniform(0.3, 0.9)
+        x, y = rng.uniform(-1.6, 1.6), rng.uniform(-1.6, 1.6)  # inside the camera's circle
+        crate = _box(f"crate{i}", (s, s * rng.uniform(0.7, 1.4), s), (x, y, s / 2),
+                     _material(f"crate{i}", rng, metal=rng.random() < 0.3, texture=rng.choice(TEXTURES)),
+                     (0, 0, rng.uniform(0, math.pi)))
+        if rng.random() < 0.35:
+            d = (rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0))
+            for f, tt in ((0, 0.0), (frames + 1, 1.0)):
+                crate.location = (x + d[0] * tt, y + d[1] * tt, s / 2)
+                crate.keyframe_insert("location", frame=f)
+            moving.append(crate)
+    # the camera circles between the crates and the rows of columns
+    return moving, (0, 0, rng.uniform(1.0, 2.0)), min(rng.uniform(2.6, 3.6), half - 1.3), rng.uniform(1.2, 2.5)
 
 
 def _all_fcurves(obj):

@@ -12,7 +12,8 @@ from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 
-from ..blender_scene import CYCLES_HOLDOUT2_KINDS, CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS, CYCLES_TRAIN_KINDS
+from ..blender_scene import (CYCLES_HOLDOUT2_KINDS, CYCLES_HOLDOUT3_KINDS, CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS,
+                             CYCLES_TRAIN_KINDS)
 from ..errors import ConfigError
 from .camera import CAMERA_PATHS
 from .sequence import ENGINES, RenderConfig
@@ -37,6 +38,8 @@ def _specs(split: str, seeds: range, frames: int, spp: int, engine: str = "mitsu
                 scene = CYCLES_HOLDOUT_KINDS[k % len(CYCLES_HOLDOUT_KINDS)]
             elif split == "holdout2":
                 scene = CYCLES_HOLDOUT2_KINDS[k % len(CYCLES_HOLDOUT2_KINDS)]
+            elif split == "holdout3":
+                scene = CYCLES_HOLDOUT3_KINDS[k % len(CYCLES_HOLDOUT3_KINDS)]
             else:
                 scene = CYCLES_TRAIN_KINDS[(k // len(CAMERA_PATHS) + k) % len(CYCLES_TRAIN_KINDS)]
             name = f"cycles-{scene}"
@@ -56,6 +59,7 @@ MOVING_SEEDS = 4000  # Mitsuba training sequences of scene kind ``moving`` (obje
 EXTRA_SEEDS = {"mixed": 9000, "lights": 10000, "interior": 11000, "detail": 12000, "layers": 13000}
 HOLDOUT_SEEDS = 7100  # the Cycles holdout split: scene kinds built after the test set was looked at
 HOLDOUT2_SEEDS = 7200  # the second: scene kinds built after the first holdout was looked at
+HOLDOUT3_SEEDS = 7300  # the third: built after holdout2's studio was looked at to choose training data
 
 
 def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
@@ -76,7 +80,8 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     only, seeds 7100+) is the same for two more scene kinds, written after the test set's
     failures had been read to choose training data (``blender_scene.CYCLES_HOLDOUT_KINDS``);
     holdout2 (seeds 7200+) for two more, written after the first holdout had been looked at
-    (``blender_scene.CYCLES_HOLDOUT2_KINDS``).
+    (``blender_scene.CYCLES_HOLDOUT2_KINDS``); holdout3 (seeds 7300+) for two more, written after
+    holdout2 had been looked at to choose training data (``blender_scene.CYCLES_HOLDOUT3_KINDS``).
     """
     if not 1 <= train_sequences <= 1000:
         raise ConfigError(f"train_sequences must be in 1..1000, got {train_sequences}")
@@ -105,12 +110,14 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
                                   engine=engine)
         specs["holdout2"] = _specs("holdout2", range(HOLDOUT2_SEEDS, HOLDOUT2_SEEDS + 6), frames=12, spp=128,
                                    engine=engine)
-    elif split in ("holdout", "holdout2"):
+        specs["holdout3"] = _specs("holdout3", range(HOLDOUT3_SEEDS, HOLDOUT3_SEEDS + 6), frames=12, spp=128,
+                                   engine=engine)
+    elif split in ("holdout", "holdout2", "holdout3"):
         raise ConfigError(f"the {split} split is rendered with Cycles only (--engine cycles)")
     if split == "all":
         return specs["train"] + specs["val"]
     if split not in specs:
-        raise ConfigError(f"unknown split {split!r}, expected train, val, all, test, holdout or holdout2")
+        raise ConfigError(f"unknown split {split!r}, expected train, val, all, test, holdout, holdout2 or holdout3")
     return specs[split]
 
 

@@ -145,8 +145,8 @@ def test_every_cycles_scene_kind_renders_a_lit_valid_frame(kind, tmp_path):
 
 
 def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has():
-    from jnds_deploy.blender_scene import (CYCLES_EXTRA_KINDS, CYCLES_HOLDOUT2_KINDS, CYCLES_HOLDOUT_KINDS,
-                                           CYCLES_TEST_KINDS)
+    from jnds_deploy.blender_scene import (CYCLES_EXTRA_KINDS, CYCLES_HOLDOUT2_KINDS, CYCLES_HOLDOUT3_KINDS,
+                                           CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS)
     from jnds_deploy.render.dataset import EXTRA_SEEDS, dataset_specs
     assert set(EXTRA_SEEDS) == set(CYCLES_EXTRA_KINDS)  # every training-only kind has its seeds
     test = {cfg.scene for _, cfg in dataset_specs("test", engine="cycles")}
@@ -158,11 +158,15 @@ def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has
     assert holdout == set(CYCLES_HOLDOUT_KINDS) and not holdout & (seen | test)
     holdout2 = {cfg.scene for _, cfg in dataset_specs("holdout2", engine="cycles")}
     assert holdout2 == set(CYCLES_HOLDOUT2_KINDS) and not holdout2 & (seen | test | holdout)
+    holdout3 = {cfg.scene for _, cfg in dataset_specs("holdout3", engine="cycles")}
+    assert holdout3 == set(CYCLES_HOLDOUT3_KINDS) and not holdout3 & (seen | test | holdout | holdout2)
     seeds = {split: {cfg.seed for _, cfg in dataset_specs(split, 200, engine="cycles",
                                                           extra_sequences=dict.fromkeys(CYCLES_EXTRA_KINDS, 20))}
-             for split in ("train", "val", "test", "holdout", "holdout2")}
+             for split in ("train", "val", "test", "holdout", "holdout2", "holdout3")}
     assert not seeds["holdout"] & (seeds["train"] | seeds["val"] | seeds["test"])
     assert not seeds["holdout2"] & (seeds["train"] | seeds["val"] | seeds["test"] | seeds["holdout"])
+    assert not seeds["holdout3"] & (seeds["train"] | seeds["val"] | seeds["test"] | seeds["holdout"]
+                                    | seeds["holdout2"])
 
 
 def test_procedural_cameras_stay_inside_their_rooms():
