@@ -37,8 +37,10 @@ CYCLES_TRAIN_KINDS = ("sunroom", "darkroom", "metals", "textures")
 # ``interior`` (``--interior-sequences``, stop 46) is a closed room lit mostly by bounced light;
 # ``detail`` (``--detail-sequences``, stop 50) bump-mapped surfaces and dense, curved shapes;
 # ``layers`` (``--layers-sequences``, stop 53) the Principled BSDF's other layers (sheen, coat,
-# subsurface, anisotropy, thin film, transmission) mixed on smooth shapes, and meshes of struts
-CYCLES_EXTRA_KINDS = ("mixed", "lights", "interior", "detail", "layers")
+# subsurface, anisotropy, thin film, transmission) mixed on smooth shapes, and meshes of struts;
+# ``glass`` (``--glass-sequences``, stop 53) thin-walled, solid, frosted and tinted glass and
+# water, caustics; ``print`` (``--print-sequences``, stop 53) lettering and signs of every size
+CYCLES_EXTRA_KINDS = ("mixed", "lights", "interior", "detail", "layers", "glass", "print")
 # kinds only the test set is made of (render.dataset): built apart from the training kinds,
 # so that the test measures scenes the model never saw the like of. gallery: a long hall
 # under strip lights, a polished floor, finely textured panels, sculptures; night: an
@@ -344,6 +346,10 @@ def build(cfg: dict):
         moving, target, radius, height = _detail(scene, rng, frames)
     elif kind == "layers":
         moving, target, radius, height = _layers(scene, rng, frames)
+    elif kind == "glass":
+        moving, target, radius, height = _glass(scene, rng, frames)
+    elif kind == "print":
+        moving, target, radius, height = _print(scene, rng, frames)
     elif kind == "gallery":
         _world(scene, rng, "dark")
         _room(rng, 6.0, 4.0, window=False, texture_walls=False)
@@ -396,7 +402,7 @@ def build(cfg: dict):
             for k in fc.keyframe_points:
                 k.interpolation = "LINEAR"
     cuts = _camera(scene, rng, cfg["camera"], frames, target, radius, height)
-    if kind in ("detail", "layers"):  # close-ups and wide views both (drawn last: the other kinds' draws are unchanged)
+    if kind in ("detail", "layers", "glass", "print"):  # close-ups and wide views both (drawn last: the other kinds' draws are unchanged)
         scene.camera.data.lens = rng.uniform(18, 55)
     return scene, cuts
 
@@ -842,6 +848,155 @@ def _layers(scene, rng, frames):
         moves(_struts(f"struts{i}", rng, (r * math.cos(a), r * math.sin(a), z), size, cells,
                       thickness, (tilt, 0, rng.uniform(0, math.pi))), 0.3)
     return moving, (0, 0, rng.uniform(0.3, 0.8)), radius, rng.uniform(0.7, 2.0)
+
+
+def _glass_material(name, rng):
+    """Glass or water: clear, frosted (rough transmission) or tinted, IOR 1.2-1.8."""
+    tint = [rng.uniform(0.3, 1.0) for _ in range(3)] if rng.random() < 0.4 else [1.0, 1.0, 1.0]
+    m = _material(name, rng, glass=True, color=tint, rough=rng.choice((0.0, 0.0, rng.uniform(0.02, 0.4))))
+    m.node_tree.nodes["Principled BSDF"].inputs["IOR"].default_value = rng.uniform(1.2, 1.8)
+    return m
+
+
+GLASS_SHAPES = ("tumbler", "bottle", "ball", "pane", "tank")
+
+
+def _glass(scene, rng, frames):
+    """The ``glass`` training kind (stop 53): glassware on a table or the ground: thin-walled
+    tumblers and bottles (open cylinders given a wall by Blender's solidify modifier), solid
+    balls, upright panes, a tank of water; clear, frosted or tinted; a sun, spot or area lights
+    casting caustics; some pieces sliding or turning. Returns (moving objects, camera target,
+    radius, height)."""
+    import bpy
+
+    _world(scene, rng, rng.choice(("sky", "dusk", "color", "dark")))
+    radius = rng.uniform(2.2, 3.6)
+    ground = _relief("ground", rng, world_coords=True, rough=rng.uniform(0.1, 0.9),
+                     texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.7 else None)
+    _box("ground", (40, 40, 0.1), (0, 0, -0.05), ground)
+    top = 0.0
+    if rng.random() < 0.5:  # a table under the glassware
+        top = rng.uniform(0.4, 0.8)
+        _box("table", (rng.uniform(1.6, 2.6), rng.uniform(1.0, 1.8), 0.05), (0, 0, top - 0.025),
+             _material("table", rng, rough=rng.uniform(0.05, 0.6), texture=rng.choice(TEXTURES)))
+    rigs = rng.sample(("sun", "spots", "area", "shaped_area", "points"), rng.randint(1, 2))
+    if "sun" not in rigs and rng.random() < 0.5:
+        rigs.append("sun")
+    for rig in rigs:
+        _mixed_rig(rig, rng)
+    moving = []
+    for i in range(rng.randint(5, 10)):
+        shape, s = rng.choice(GLASS_SHAPES), rng.uniform(0.08, 0.35)
+        x, y = rng.uniform(-0.8, 0.8), rng.uniform(-0.5, 0.5)
+        mat = _glass_material(f"g{i}", rng)
+        if shape in ("tumbler", "bottle"):
+            h = s * (1.2 if shape == "tumbler" else 2.5)
+            bpy.ops.mesh.primitive_cylinder_add(vertices=48, radius=s / 2 if shape == "tumbler" else s / 3, depth=h,
+                                                end_fill_type="NOTHING", location=(x, y, top + h / 2))
+            bpy.ops.object.modifier_add(type="SOLIDIFY")
+            bpy.context.object.modifiers[-1].thickness = rng.uniform(0.002, 0.008)
+            bpy.ops.object.shade_smooth()
+        elif shape == "ball":
+            bpy.ops.mesh.primitive_uv_sphere_add(segments=48, ring_count=24, radius=s / 2, location=(x, y, top + s / 2))
+            bpy.ops.object.shade_smooth()
+        elif shape == "pane":
+            _box(f"pane{i}", (s * 3, 0.006, s * 2.5), (x, y, top + s * 1.25), mat, (0, 0, rng.uniform(0, math.pi)))
+        else:  # a glass tank holding water
+            w = s * 2
+            _box(f"tank{i}", (w, w * 0.6, w * 0.8), (x, y, top + w * 0.4), mat)
+            water = _material(f"water{i}", rng, glass=True, rough=0.0, color=[0.85, 0.95, 1.0])
+            water.node_tree.nodes["Principled BSDF"].inputs["IOR"].default_value = 1.33
+            _box(f"water{i}", (w * 0.97, w * 0.57, w * 0.55), (x, y, top + w * 0.29), water)
+            continue
+        obj = bpy.context.object
+        if shape != "pane":
+            obj.data.materials.append(mat)
+        if rng.random() < 0.3:  # slides and turns
+            d, spin = (rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4)), rng.uniform(-1.5, 1.5)
+            x0, y0 = obj.location[0], obj.location[1]
+            for f, t in ((0, 0.0), (frames + 1, 1.0)):
+                obj.location[0], obj.location[1], obj.rotation_euler[2] = x0 + d[0] * t, y0 + d[1] * t, spin * t
+                obj.keyframe_insert("location", frame=f)
+                obj.keyframe_insert("rotation_euler", frame=f)
+            moving.append(obj)
+    moving += _objects(rng, rng.randint(1, 3), 2.0, 0.3, 0.5, frames)
+    return moving, (0, 0, top + rng.uniform(0.1, 0.3)), radius, top + rng.uniform(0.4, 1.5)
+
+
+PRINT_CHARS = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789 .,:-/#&"
+
+
+def _print(scene, rng, frames):
+    """The ``print`` training kind (stop 53): lettering, the fine high-contrast detail of signs,
+    labels, posters and screens: 16-40 lines of random text 3-40 cm tall (strokes of under a pixel
+    to a few pixels at the camera's distance) on panels, walls and boxes, extruded or flat, some glowing
+    (signs, screens), some on moving boxes; Blender's magic texture (fine interference patterns)
+    on some panels. Returns (moving objects, camera target, radius, height)."""
+    import bpy
+
+    world = rng.choice(("sky", "dusk", "dark", "color"))
+    _world(scene, rng, world)
+    radius = rng.uniform(2.2, 3.8)
+    ground = _relief("ground", rng, world_coords=True, rough=rng.uniform(0.1, 0.9),
+                     texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.5 else None)
+    _box("ground", (40, 40, 0.1), (0, 0, -0.05), ground)
+    d = radius + rng.uniform(0.3, 1.2)
+    walls = rng.random() < 0.6
+    if walls:
+        wall = _material("wall", rng, rough=rng.uniform(0.3, 1.0))
+        _box("wall_a", (0.1, 2 * d, 3.0), (-d, 0, 1.5), wall)
+        _box("wall_b", (2 * d, 0.1, 3.0), (0, -d, 1.5), wall)
+    rigs = rng.sample(RIGS + LIGHTS_RIGS, rng.randint(1, 3))
+    if world == "dark" and rigs == ["sun"]:
+        rigs.append("emitters")
+    for rig in rigs:
+        _mixed_rig(rig, rng)
+    moving, holders = [], []
+    for i in range(rng.randint(2, 5)):  # panels (signs, posters, screens) and boxes facing the centre
+        a, r = rng.uniform(0, 2 * math.pi), rng.uniform(0.4, 1.6)
+        w, h = rng.uniform(0.4, 1.4), rng.uniform(0.3, 1.0)
+        face = _material(f"panel{i}", rng, rough=rng.uniform(0.1, 0.9))
+        if rng.random() < 0.3:  # fine interference patterns
+            nodes, links = face.node_tree.nodes, face.node_tree.links
+            magic = nodes.new("ShaderNodeTexMagic")
+            magic.inputs["Scale"].default_value = rng.uniform(5, 40)
+            magic.turbulence_depth = rng.randint(2, 5)
+            links.new(magic.outputs["Color"], nodes["Principled BSDF"].inputs["Base Color"])
+        z = rng.uniform(0.2, 1.2) + h / 2
+        holders.append(_box(f"panel{i}", (w, 0.04, h), (r * math.cos(a), r * math.sin(a), z), face,
+                            (0, 0, a + math.pi / 2 + rng.uniform(-0.5, 0.5))))
+    for i in range(rng.randint(16, 40)):
+        text = "".join(rng.choice(PRINT_CHARS) for _ in range(rng.randint(3, 16)))
+        size = math.exp(rng.uniform(math.log(0.03), math.log(0.4)))
+        glow = rng.random() < 0.25
+        mat = (_material(f"ink{i}", rng, emission=rng.uniform(2.0, 30.0), rough=0.5) if glow else
+               _material(f"ink{i}", rng, metal=rng.random() < 0.2, rough=rng.uniform(0.05, 0.9)))
+        bpy.ops.object.text_add()
+        obj = bpy.context.object
+        obj.data.body, obj.data.size = text, size
+        obj.data.extrude = rng.choice((0.0, size * rng.uniform(0.02, 0.2)))
+        obj.data.align_x = "CENTER"
+        obj.data.materials.append(mat)
+        if holders and rng.random() < 0.7:  # on a panel's face (its local front, -y), parented to it
+            p = rng.choice(holders)
+            obj.parent = p
+            obj.location = (rng.uniform(-0.4, 0.4), -0.6, rng.uniform(-0.4, 0.4))  # in the panel's scaled frame
+            obj.rotation_euler = (math.pi / 2, 0, 0)
+            # undoes the panel's scale as seen through the 90-degree turn (local y is the panel's z)
+            obj.scale = (1 / p.scale[0], 1 / p.scale[2], 1 / p.scale[1])
+        else:  # standing free or lying on the ground
+            a, r = rng.uniform(0, 2 * math.pi), rng.uniform(0, 1.8)
+            standing = rng.random() < 0.5
+            obj.location = (r * math.cos(a), r * math.sin(a), rng.uniform(0.05, 1.5) if standing else 0.002)
+            obj.rotation_euler = (math.pi / 2 if standing else 0, 0, a + math.pi / 2)
+    for p in holders:
+        if rng.random() < 0.25:  # a sign that turns on its post (its lettering with it)
+            for f, t in ((0, 0.0), (frames + 1, 1.0)):
+                p.rotation_euler[2] += rng.uniform(-0.6, 0.6) * t
+                p.keyframe_insert("rotation_euler", frame=f)
+            moving.append(p)
+    moving += _objects(rng, rng.randint(1, 3), 2.0, 0.3, 0.5, frames)
+    return moving, (0, 0, rng.uniform(0.4, 1.0)), radius, rng.uniform(0.6, 1.8)
 
 
 def _props(name, rng, n, base, extent, smallest, largest):

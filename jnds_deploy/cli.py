@@ -64,7 +64,7 @@ def cmd_import_cycles(args) -> int:
 
 
 def _extra_sequences(args) -> dict[str, int]:
-    """{kind: N} of the training-only Cycles kinds from --mixed/--lights/--interior/--detail/--layers-sequences."""
+    """{kind: N} of the training-only Cycles kinds from --<kind>-sequences."""
     from .blender_scene import CYCLES_EXTRA_KINDS
 
     return {kind: getattr(args, f"{kind}_sequences") for kind in CYCLES_EXTRA_KINDS
@@ -299,6 +299,12 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--layers-sequences", type=int, default=0,
                    help="Cycles training sequences of scene kind layers (sheen, coat, subsurface, anisotropic, "
                         "thin-film and frosted materials on smooth shapes, meshes of thin struts; seeds 13000, ...)")
+    d.add_argument("--glass-sequences", type=int, default=0,
+                   help="Cycles training sequences of scene kind glass (thin-walled, solid, frosted and tinted "
+                        "glass, water, caustics; seeds 14000, ...)")
+    d.add_argument("--print-sequences", type=int, default=0,
+                   help="Cycles training sequences of scene kind print (lettering and signs of every size; "
+                        "seeds 15000, ...)")
     d.add_argument("--jobs", type=int, default=1, help="sequences rendered at once, in separate processes")
     d.add_argument("--variant", default=None, help="Mitsuba variant, e.g. cuda_ad_rgb on a GPU machine")
     d.add_argument("--engine", default="mitsuba", choices=ENGINES,

@@ -56,7 +56,8 @@ TRAIN_SEQUENCES = 24  # the training set's default size; seeds 1000, 1001, ...
 SEEDS = {"mitsuba": (1000, 2000, 8000), "cycles": (5000, 6000, 7000)}
 MOVING_SEEDS = 4000  # Mitsuba training sequences of scene kind ``moving`` (objects that move)
 # first seeds of the Cycles training-only kinds (blender_scene.CYCLES_EXTRA_KINDS), added on request
-EXTRA_SEEDS = {"mixed": 9000, "lights": 10000, "interior": 11000, "detail": 12000, "layers": 13000}
+EXTRA_SEEDS = {"mixed": 9000, "lights": 10000, "interior": 11000, "detail": 12000, "layers": 13000,
+               "glass": 14000, "print": 15000}
 HOLDOUT_SEEDS = 7100  # the Cycles holdout split: scene kinds built after the test set was looked at
 HOLDOUT2_SEEDS = 7200  # the second: scene kinds built after the first holdout was looked at
 HOLDOUT3_SEEDS = 7300  # the third: built after holdout2's studio was looked at to choose training data
@@ -73,8 +74,8 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     ``moving_sequences`` adds Mitsuba training sequences whose objects move (scene kind
     ``moving``, seeds 4000+, ``train/moving-*``); ``extra_sequences`` ({kind: N}) N Cycles
     training sequences of each training-only kind (``EXTRA_SEEDS``: ``mixed`` 9000+,
-    ``lights`` 10000+, ``interior`` 11000+, ``detail`` 12000+, ``layers`` 13000+;
-    ``train/cycles-<kind>-*``).
+    ``lights`` 10000+, ``interior`` 11000+, ``detail`` 12000+, ``layers`` 13000+, ``glass`` 14000+,
+    ``print`` 15000+; ``train/cycles-<kind>-*``).
     The test split (8000+; Cycles: 7000+) is rendered only when asked for: it is never
     trained on, and no checkpoint or setting is chosen by it. The holdout split (Cycles
     only, seeds 7100+) is the same for two more scene kinds, written after the test set's
