@@ -63,6 +63,19 @@ def cmd_import_cycles(args) -> int:
     return 0
 
 
+# the training-only Cycles kinds (blender_scene.CYCLES_EXTRA_KINDS), for --<kind>-sequences' help
+EXTRA_KIND_HELP = {
+    "mixed": "random combinations of the training kinds' ingredients",
+    "lights": "mixed with spot, shaped area and emissive bar lights",
+    "interior": "closed rooms lit mostly by bounced light",
+    "detail": "bump-mapped surfaces, dense and curved shapes",
+    "layers": "sheen, coat, subsurface, anisotropic, thin-film and frosted materials on smooth shapes, meshes of "
+              "thin struts",
+    "glass": "thin-walled, solid, frosted and tinted glass, water, caustics",
+    "print": "lettering and signs of every size",
+}
+
+
 def _extra_sequences(args) -> dict[str, int]:
     """{kind: N} of the training-only Cycles kinds from --<kind>-sequences."""
     from .blender_scene import CYCLES_EXTRA_KINDS
@@ -234,7 +247,7 @@ def cmd_serve(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from .blender_scene import CYCLES_SCENE_KINDS
     from .render.camera import CAMERA_PATHS
-    from .render.dataset import TRAIN_SEQUENCES
+    from .render.dataset import EXTRA_SEEDS, TRAIN_SEQUENCES
     from .render.scene import SCENE_KINDS
     from .render.sequence import ENGINES
 
@@ -285,26 +298,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="training sequences (seeds 1000, 1001, ...; the first 24 are the default set)")
     d.add_argument("--moving-sequences", type=int, default=0,
                    help="Mitsuba training sequences whose objects move (scene kind moving, seeds 4000, ...)")
-    d.add_argument("--mixed-sequences", type=int, default=0,
-                   help="Cycles training sequences of scene kind mixed (random combinations, seeds 9000, ...)")
-    d.add_argument("--lights-sequences", type=int, default=0,
-                   help="Cycles training sequences of scene kind lights (mixed with spot, shaped area and "
-                        "emissive bar lights; seeds 10000, ...)")
-    d.add_argument("--interior-sequences", type=int, default=0,
-                   help="Cycles training sequences of scene kind interior (closed rooms lit mostly by bounced "
-                        "light; seeds 11000, ...)")
-    d.add_argument("--detail-sequences", type=int, default=0,
-                   help="Cycles training sequences of scene kind detail (bump-mapped surfaces, dense and curved "
-                        "shapes; seeds 12000, ...)")
-    d.add_argument("--layers-sequences", type=int, default=0,
-                   help="Cycles training sequences of scene kind layers (sheen, coat, subsurface, anisotropic, "
-                        "thin-film and frosted materials on smooth shapes, meshes of thin struts; seeds 13000, ...)")
-    d.add_argument("--glass-sequences", type=int, default=0,
-                   help="Cycles training sequences of scene kind glass (thin-walled, solid, frosted and tinted "
-                        "glass, water, caustics; seeds 14000, ...)")
-    d.add_argument("--print-sequences", type=int, default=0,
-                   help="Cycles training sequences of scene kind print (lettering and signs of every size; "
-                        "seeds 15000, ...)")
+    for kind, what in EXTRA_KIND_HELP.items():
+        d.add_argument(f"--{kind}-sequences", type=int, default=0,
+                       help=f"Cycles training sequences of scene kind {kind} ({what}; seeds {EXTRA_SEEDS[kind]}, ...)")
     d.add_argument("--jobs", type=int, default=1, help="sequences rendered at once, in separate processes")
     d.add_argument("--variant", default=None, help="Mitsuba variant, e.g. cuda_ad_rgb on a GPU machine")
     d.add_argument("--engine", default="mitsuba", choices=ENGINES,

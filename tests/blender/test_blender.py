@@ -149,6 +149,8 @@ def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has
                                            CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS)
     from jnds_deploy.render.dataset import EXTRA_SEEDS, dataset_specs
     assert set(EXTRA_SEEDS) == set(CYCLES_EXTRA_KINDS)  # every training-only kind has its seeds
+    from jnds_deploy.cli import EXTRA_KIND_HELP
+    assert set(EXTRA_KIND_HELP) == set(CYCLES_EXTRA_KINDS)  # and its --<kind>-sequences
     test = {cfg.scene for _, cfg in dataset_specs("test", engine="cycles")}
     holdout = {cfg.scene for _, cfg in dataset_specs("holdout", engine="cycles")}
     seen = {cfg.scene for split in ("train", "val")
