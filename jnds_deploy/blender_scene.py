@@ -727,6 +727,22 @@ def _detail(scene, rng, frames):
     return moving, (0, 0, rng.uniform(0.2, 0.6)), radius, rng.uniform(0.7, 2.0)
 
 
+def _slides(obj, rng, frames, p, reach):
+    """With probability ``p``, ``obj`` slides up to ``reach`` metres along x and y and turns up to
+    1.5 radians about its vertical axis over the sequence, keyed at its two ends (made linear by
+    ``build``); returns whether it moves."""
+    if rng.random() >= p:
+        return False
+    d, spin = (rng.uniform(-reach, reach), rng.uniform(-reach, reach)), rng.uniform(-1.5, 1.5)
+    x0, y0, z0 = obj.location[0], obj.location[1], obj.rotation_euler[2]
+    for f, t in ((0, 0.0), (frames + 1, 1.0)):
+        obj.location[0], obj.location[1] = x0 + d[0] * t, y0 + d[1] * t
+        obj.rotation_euler[2] = z0 + spin * t
+        obj.keyframe_insert("location", frame=f)
+        obj.keyframe_insert("rotation_euler", frame=f)
+    return True
+
+
 def _layered_material(name, rng):
     """A Principled BSDF with its other layers drawn independently, each on in some draws and
     at any weight when on: sheen (cloth), coat (lacquer, car paint), subsurface (wax, skin,
@@ -801,14 +817,7 @@ def _layers(scene, rng, frames):
     moving = []
 
     def moves(obj, p):
-        if rng.random() < p:  # slides and turns on its own
-            d, spin, z = (rng.uniform(-0.8, 0.8), rng.uniform(-0.8, 0.8)), rng.uniform(-1.5, 1.5), obj.rotation_euler[2]
-            x0, y0 = obj.location[0], obj.location[1]
-            for f, t in ((0, 0.0), (frames + 1, 1.0)):
-                obj.location[0], obj.location[1] = x0 + d[0] * t, y0 + d[1] * t
-                obj.rotation_euler[2] = z + spin * t
-                obj.keyframe_insert("location", frame=f)
-                obj.keyframe_insert("rotation_euler", frame=f)
+        if _slides(obj, rng, frames, p, 0.8):
             moving.append(obj)
 
     for i in range(rng.randint(4, 8)):
@@ -911,13 +920,7 @@ def _glass(scene, rng, frames):
         obj = bpy.context.object
         if shape != "pane":
             obj.data.materials.append(mat)
-        if rng.random() < 0.3:  # slides and turns
-            d, spin = (rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4)), rng.uniform(-1.5, 1.5)
-            x0, y0 = obj.location[0], obj.location[1]
-            for f, t in ((0, 0.0), (frames + 1, 1.0)):
-                obj.location[0], obj.location[1], obj.rotation_euler[2] = x0 + d[0] * t, y0 + d[1] * t, spin * t
-                obj.keyframe_insert("location", frame=f)
-                obj.keyframe_insert("rotation_euler", frame=f)
+        if _slides(obj, rng, frames, 0.3, 0.4):
             moving.append(obj)
     moving += _objects(rng, rng.randint(1, 3), 2.0, 0.3, 0.5, frames)
     return moving, (0, 0, top + rng.uniform(0.1, 0.3)), radius, top + rng.uniform(0.4, 1.5)
