@@ -402,7 +402,8 @@ def build(cfg: dict):
             for k in fc.keyframe_points:
                 k.interpolation = "LINEAR"
     cuts = _camera(scene, rng, cfg["camera"], frames, target, radius, height)
-    if kind in ("detail", "layers", "glass", "print"):  # close-ups and wide views both (drawn last: the other kinds' draws are unchanged)
+    # close-ups and wide views both (drawn last: the other kinds' draws are unchanged)
+    if kind in ("detail", "layers", "glass", "print"):
         scene.camera.data.lens = rng.uniform(18, 55)
     return scene, cuts
 
@@ -1494,7 +1495,8 @@ def _grove(scene, rng, frames):
         gx, gy = rng.uniform(-3, 3), rng.uniform(-3, 3)
         verts, faces = [], []
         for j in range(rng.randint(150, 400)):
-            px, py, ht, wd, a = gx + rng.gauss(0, 0.4), gy + rng.gauss(0, 0.4), rng.uniform(0.1, 0.4), 0.006, rng.uniform(0, math.pi)
+            px, py = gx + rng.gauss(0, 0.4), gy + rng.gauss(0, 0.4)
+            ht, wd, a = rng.uniform(0.1, 0.4), 0.006, rng.uniform(0, math.pi)
             lean = (rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1))
             b = len(verts)
             verts += [(px - wd * math.cos(a), py - wd * math.sin(a), 0), (px + wd * math.cos(a), py + wd * math.sin(a), 0),
@@ -1511,7 +1513,8 @@ def _haze(scene, rng, frames):
     """The ``haze`` third-holdout kind: a closed hall filled with a homogeneous scattering volume
     (density 0.02-0.12 per metre, forward scattering), lit by spot lights hung high and aimed down
     and by the sun through one or two openings in the roof, so that beams stand in the air; two
-    rows of columns along the walls, crates in the middle, a few of them sliding. Returns (moving objects, camera target, radius, height)."""
+    rows of columns along the walls, crates in the middle, a few of them sliding. Returns (moving
+    objects, camera target, radius, height)."""
     import bpy
 
     _world(scene, rng, "sky")
