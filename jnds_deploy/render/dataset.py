@@ -19,6 +19,9 @@ from .camera import CAMERA_PATHS
 from .sequence import ENGINES, RenderConfig
 
 SIZE = (192, 108)
+# the Cycles splits made of kinds no training or validation sequence has (blender_scene)
+UNSEEN_KINDS = {"test": CYCLES_TEST_KINDS, "holdout": CYCLES_HOLDOUT_KINDS, "holdout2": CYCLES_HOLDOUT2_KINDS,
+                "holdout3": CYCLES_HOLDOUT3_KINDS}
 
 
 def _specs(split: str, seeds: range, frames: int, spp: int, engine: str = "mitsuba",
@@ -31,15 +34,9 @@ def _specs(split: str, seeds: range, frames: int, spp: int, engine: str = "mitsu
             scene = kind
             name = f"cycles-{scene}" if engine == "cycles" else scene
         elif engine == "cycles":
-            # the test set is made of scene kinds the training and validation sets never have
-            if split == "test":
-                scene = CYCLES_TEST_KINDS[k % len(CYCLES_TEST_KINDS)]
-            elif split == "holdout":
-                scene = CYCLES_HOLDOUT_KINDS[k % len(CYCLES_HOLDOUT_KINDS)]
-            elif split == "holdout2":
-                scene = CYCLES_HOLDOUT2_KINDS[k % len(CYCLES_HOLDOUT2_KINDS)]
-            elif split == "holdout3":
-                scene = CYCLES_HOLDOUT3_KINDS[k % len(CYCLES_HOLDOUT3_KINDS)]
+            # the test and holdout splits are made of scene kinds the training and validation sets never have
+            if split in UNSEEN_KINDS:
+                scene = UNSEEN_KINDS[split][k % len(UNSEEN_KINDS[split])]
             else:
                 scene = CYCLES_TRAIN_KINDS[(k // len(CAMERA_PATHS) + k) % len(CYCLES_TRAIN_KINDS)]
             name = f"cycles-{scene}"
@@ -58,9 +55,10 @@ MOVING_SEEDS = 4000  # Mitsuba training sequences of scene kind ``moving`` (obje
 # first seeds of the Cycles training-only kinds (blender_scene.CYCLES_EXTRA_KINDS), added on request
 EXTRA_SEEDS = {"mixed": 9000, "lights": 10000, "interior": 11000, "detail": 12000, "layers": 13000,
                "glass": 14000, "print": 15000}
-HOLDOUT_SEEDS = 7100  # the Cycles holdout split: scene kinds built after the test set was looked at
-HOLDOUT2_SEEDS = 7200  # the second: scene kinds built after the first holdout was looked at
-HOLDOUT3_SEEDS = 7300  # the third: built after holdout2's studio was looked at to choose training data
+# the Cycles holdout splits' first seeds: holdout's kinds built after the test set was looked at,
+# holdout2's after the first holdout was, holdout3's after holdout2's studio was looked at to
+# choose training data
+HOLDOUT_SEEDS = {"holdout": 7100, "holdout2": 7200, "holdout3": 7300}
 
 
 def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
@@ -107,13 +105,9 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
         "test": _specs("test", range(test0, test0 + 6), frames=12, spp=128, engine=engine),
     }
     if engine == "cycles":
-        specs["holdout"] = _specs("holdout", range(HOLDOUT_SEEDS, HOLDOUT_SEEDS + 6), frames=12, spp=128,
-                                  engine=engine)
-        specs["holdout2"] = _specs("holdout2", range(HOLDOUT2_SEEDS, HOLDOUT2_SEEDS + 6), frames=12, spp=128,
-                                   engine=engine)
-        specs["holdout3"] = _specs("holdout3", range(HOLDOUT3_SEEDS, HOLDOUT3_SEEDS + 6), frames=12, spp=128,
-                                   engine=engine)
-    elif split in ("holdout", "holdout2", "holdout3"):
+        for name, first in HOLDOUT_SEEDS.items():
+            specs[name] = _specs(name, range(first, first + 6), frames=12, spp=128, engine=engine)
+    elif split in HOLDOUT_SEEDS:
         raise ConfigError(f"the {split} split is rendered with Cycles only (--engine cycles)")
     if split == "all":
         return specs["train"] + specs["val"]
