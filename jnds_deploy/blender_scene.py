@@ -39,8 +39,9 @@ CYCLES_TRAIN_KINDS = ("sunroom", "darkroom", "metals", "textures")
 # ``layers`` (``--layers-sequences``, stop 53) the Principled BSDF's other layers (sheen, coat,
 # subsurface, anisotropy, thin film, transmission) mixed on smooth shapes, and meshes of struts;
 # ``glass`` (``--glass-sequences``, stop 53) thin-walled, solid, frosted and tinted glass and
-# water, caustics; ``print`` (``--print-sequences``, stop 53) lettering and signs of every size
-CYCLES_EXTRA_KINDS = ("mixed", "lights", "interior", "detail", "layers", "glass", "print")
+# water, caustics; ``print`` (``--print-sequences``, stop 53) lettering and signs of every size;
+# ``media`` (``--media-sequences``, stop 54) participating media: haze, drifting mist, smoke, glow
+CYCLES_EXTRA_KINDS = ("mixed", "lights", "interior", "detail", "layers", "glass", "print", "media")
 # kinds only the test set is made of (render.dataset): built apart from the training kinds,
 # so that the test measures scenes the model never saw the like of. gallery: a long hall
 # under strip lights, a polished floor, finely textured panels, sculptures; night: an
@@ -350,6 +351,8 @@ def build(cfg: dict):
         moving, target, radius, height = _glass(scene, rng, frames)
     elif kind == "print":
         moving, target, radius, height = _print(scene, rng, frames)
+    elif kind == "media":
+        moving, target, radius, height = _media(scene, rng, frames)
     elif kind == "gallery":
         _world(scene, rng, "dark")
         _room(rng, 6.0, 4.0, window=False, texture_walls=False)
@@ -403,7 +406,7 @@ def build(cfg: dict):
                 k.interpolation = "LINEAR"
     cuts = _camera(scene, rng, cfg["camera"], frames, target, radius, height)
     # close-ups and wide views both (drawn last: the other kinds' draws are unchanged)
-    if kind in ("detail", "layers", "glass", "print"):
+    if kind in ("detail", "layers", "glass", "print", "media"):
         scene.camera.data.lens = rng.uniform(18, 55)
     return scene, cuts
 
@@ -1076,6 +1079,96 @@ def _interior_rig(rig, rng, half, height, reach):
         bpy.ops.object.light_add(type="AREA", location=loc, rotation=rot)
         bpy.context.object.data.size = rng.uniform(0.2, 1.0)
         bpy.context.object.data.energy = rng.uniform(150, 700)
+
+
+MEDIA_SORTS = ("air", "mist", "smoke", "glow")
+
+
+def _volume_material(name, rng, density, noise=0.0, emission=0.0, drift=None, frames=0):
+    """A Principled Volume of ``density`` per metre: homogeneous, or where ``noise`` (cycles
+    per metre) is given shaped by a noise texture in object space, thresholded so that it
+    comes in clouds with clear air between them, drifting by ``drift`` (x, y, z metres over
+    the sequence, keyed; a volume gives no motion vectors, as in any engine); emissive
+    (``emission``, blackbody or a colour) where asked."""
+    import bpy
+
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.remove(nodes["Principled BSDF"])
+    vol = nodes.new("ShaderNodeVolumePrincipled")
+    vol.inputs["Color"].default_value = (*[rng.uniform(0.6, 1.0) for _ in range(3)], 1.0)
+    vol.inputs["Anisotropy"].default_value = rng.uniform(-0.3, 0.8)
+    if noise:
+        coords = nodes.new("ShaderNodeTexCoord")
+        mapping = nodes.new("ShaderNodeMapping")
+        tex = nodes.new("ShaderNodeTexNoise")
+        tex.inputs["Scale"].default_value = noise
+        tex.inputs["Detail"].default_value = rng.uniform(1.0, 6.0)
+        ramp = nodes.new("ShaderNodeMapRange")
+        low = rng.uniform(0.4, 0.55)
+        ramp.inputs["From Min"].default_value, ramp.inputs["From Max"].default_value = low, low + rng.uniform(0.1, 0.3)
+        ramp.inputs["To Max"].default_value = density
+        links.new(coords.outputs["Object"], mapping.inputs["Vector"])
+        links.new(mapping.outputs["Vector"], tex.inputs["Vector"])
+        links.new(tex.outputs["Fac"], ramp.inputs["Value"])
+        links.new(ramp.outputs["Result"], vol.inputs["Density"])
+        if drift:
+            loc = mapping.inputs["Location"]
+            for f, t in ((0, 0.0), (frames + 1, 1.0)):
+                loc.default_value = [-d * t for d in drift]
+                loc.keyframe_insert("default_value", frame=f)
+    else:
+        vol.inputs["Density"].default_value = density
+    if emission:
+        if rng.random() < 0.5:
+            vol.inputs["Blackbody Intensity"].default_value = emission
+            vol.inputs["Temperature"].default_value = rng.uniform(1200, 3500)
+        else:
+            vol.inputs["Emission Strength"].default_value = emission
+            vol.inputs["Emission Color"].default_value = (*[rng.uniform(0.2, 1.0) for _ in range(3)], 1.0)
+    links.new(vol.outputs[0], nodes["Material Output"].inputs["Volume"])
+    return mat
+
+
+def _media(scene, rng, frames):
+    """The ``media`` training kind (stop 54): a ``lights`` scene (any world, a room or open ground,
+    two to four light rigs of every sort) in participating media of one or two sorts
+    (``MEDIA_SORTS``): air, a homogeneous haze filling the scene (0.005-0.08 per metre); mist,
+    clouds of noise up to 0.03-0.4 per metre drifting through it; smoke, dense noisy blobs (1-12 per metre)
+    hanging or sliding among the props; glow, an emissive blob (blackbody or a colour).
+    Written after holdout3's ``haze`` had been seen failing (docs/dataset.md), so that holdout3
+    no longer measures unseen volumes. Returns (moving objects, camera target, radius, height)."""
+    import bpy
+
+    moving, target, radius, height = _mixed(scene, rng, frames, RIGS + LIGHTS_RIGS, (2, 4))
+    sorts = rng.sample(MEDIA_SORTS, rng.randint(1, 2))
+    reach = max(radius + 1.0, 4.0)
+    for sort in sorts:
+        if sort in ("air", "mist"):  # a box holding the whole scene, the camera inside it
+            top = rng.uniform(2.5, 4.0) if sort == "air" else rng.uniform(1.0, 3.0)
+            noise = 0.0 if sort == "air" else rng.uniform(0.3, 1.5)
+            drift = [rng.uniform(-1.5, 1.5), rng.uniform(-1.5, 1.5), rng.uniform(-0.3, 0.3)]
+            mat = _volume_material(sort, rng, rng.uniform(0.005, 0.08) if sort == "air" else rng.uniform(0.03, 0.4),
+                                   noise, drift=drift if rng.random() < 0.5 else None, frames=frames)
+            bpy.ops.mesh.primitive_cube_add(size=1, location=(0, 0, top / 2 + 0.01))
+            bpy.context.object.scale = (2 * reach, 2 * reach, top)
+            bpy.context.object.data.materials.append(mat)
+            continue
+        for i in range(rng.randint(1, 4) if sort == "smoke" else rng.randint(1, 2)):
+            s = rng.uniform(0.4, 2.0)
+            loc = (rng.uniform(-2.0, 2.0), rng.uniform(-2.0, 2.0), rng.uniform(s / 3, 2.0))  # inside the camera's circle
+            if rng.random() < 0.5:
+                bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=3, radius=s / 2, location=loc)
+            else:
+                bpy.ops.mesh.primitive_cube_add(size=s, location=loc, rotation=(0, 0, rng.uniform(0, 3)))
+            obj = bpy.context.object
+            obj.data.materials.append(_volume_material(
+                f"{sort}{i}", rng, rng.uniform(1.0, 12.0) if sort == "smoke" else rng.uniform(0.5, 5.0),
+                rng.uniform(0.8, 4.0) / s, emission=rng.uniform(1.0, 20.0) if sort == "glow" else 0.0))
+            if _slides(obj, rng, frames, 0.4, 1.0):
+                moving.append(obj)
+    return moving, target, radius, height
 
 
 def _atrium(scene, rng, frames):

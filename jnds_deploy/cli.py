@@ -73,6 +73,7 @@ EXTRA_KIND_HELP = {
               "thin struts",
     "glass": "thin-walled, solid, frosted and tinted glass, water, caustics",
     "print": "lettering and signs of every size",
+    "media": "participating media: haze, drifting mist, smoke, glowing clouds",
 }
 
 

@@ -54,7 +54,7 @@ SEEDS = {"mitsuba": (1000, 2000, 8000), "cycles": (5000, 6000, 7000)}
 MOVING_SEEDS = 4000  # Mitsuba training sequences of scene kind ``moving`` (objects that move)
 # first seeds of the Cycles training-only kinds (blender_scene.CYCLES_EXTRA_KINDS), added on request
 EXTRA_SEEDS = {"mixed": 9000, "lights": 10000, "interior": 11000, "detail": 12000, "layers": 13000,
-               "glass": 14000, "print": 15000}
+               "glass": 14000, "print": 15000, "media": 16000}
 # the Cycles holdout splits' first seeds: holdout's kinds built after the test set was looked at,
 # holdout2's after the first holdout was, holdout3's after holdout2's studio was looked at to
 # choose training data
@@ -73,7 +73,7 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     ``moving``, seeds 4000+, ``train/moving-*``); ``extra_sequences`` ({kind: N}) N Cycles
     training sequences of each training-only kind (``EXTRA_SEEDS``: ``mixed`` 9000+,
     ``lights`` 10000+, ``interior`` 11000+, ``detail`` 12000+, ``layers`` 13000+, ``glass`` 14000+,
-    ``print`` 15000+; ``train/cycles-<kind>-*``).
+    ``print`` 15000+, ``media`` 16000+; ``train/cycles-<kind>-*``).
     The test split (8000+; Cycles: 7000+) is rendered only when asked for: it is never
     trained on, and no checkpoint or setting is chosen by it. The holdout split (Cycles
     only, seeds 7100+) is the same for two more scene kinds, written after the test set's
