@@ -127,7 +127,7 @@ def _lerp_taps(a, ka, b, kb, t, out, relu=True):
 @njit(parallel=True, cache=True)
 def _lerp_coded(a, b, q, ca, cb, ct, kinds, scale, offset, table, out, relu):
     """_lerp_taps with its kernels (ka: head channels ca..ca+9, none if ca < 0; kb: cb..cb+9)
-    and blend weights (channel ct) read from the u8 head q (runtime.head): each row's are
+    and blend weights (channel ct) read from the u8 head's planes q (runtime.head): each row's are
     decoded into row buffers first (cache-resident; the same values as decoding them whole)."""
     H, W = b.shape[1], b.shape[2]
     plain = ca < 0

@@ -4,10 +4,13 @@ the filter stage reads it.
 The int8 network graph (``calibration.head``) ends in the head's quantized 1x1
 convolution: graph output ``head``, u8, (1, H, W, C) channels last, C padded to a
 multiple of 16 for ONNX Runtime's fast int8 convolution. The float graph's split, clamp,
-sigmoid and softmax nodes are not in it: ``Head.coded`` hands each output on as a
-``Coded`` part, which the filter loops decode row by row (``runtime.filters``), reading a
-quarter of the bytes the float outputs took; ``Coded.decode`` gives the float planes
-where a caller wants them. The graph's metadata (``LAYOUT_KEY``) says which channels are
+sigmoid and softmax nodes are not in it: ``Head.coded`` turns the channels in use to u8
+planes (C', H, W) in one pass and hands each output on as a ``Coded`` part, which the
+filter loops decode row by row (``runtime.filters``), reading a quarter of the bytes the
+float outputs took; ``Coded.decode`` gives the float planes where a caller wants them.
+Planes because each filter path reads a few channels of every pixel: channels last, each
+path pulled the whole head through memory again and read its bytes one at a time; planes
+are read once, contiguously, and their decoding vectorizes (docs/performance.md, stop 54). The graph's metadata (``LAYOUT_KEY``) says which channels are
 which output and how each dequantizes: channel c of output ``name`` holds ``raw = (q -
 zero_point) * scale[c] + centre[c]``, the head's float output, to which
 ``layout.head_kind(name)`` applies as in ``model.OutputBlock``.
@@ -85,23 +88,25 @@ class HeadLayout:
 
 @njit(inline="always")
 def _decode_row(q, y, c0, n, kinds, scale, offset, table, out, r):
-    """out[t, r, :] = channel c0 + t of head row y, decoded (t < n): kernel taps clamped,
-    features ReLU'd, blend weights through the sigmoid table, normalized kernels through
-    the exp table and divided by their taps' sum."""
-    w = q.shape[1]
+    """out[t, r, :] = plane c0 + t of the planar head q (C', H, W), row y, decoded (t < n):
+    kernel taps clamped, features ReLU'd, blend weights through the sigmoid table,
+    normalized kernels through the exp table and divided by their taps' sum."""
+    w = q.shape[2]
     one = np.float32(1)
     for t in range(n):
         c = c0 + t
         k, s, o = kinds[c], scale[c], offset[c]
+        src, dst = q[c, y], out[t, r]
         if k == 0:  # kernel
             for x in range(w):
-                out[t, r, x] = min(max(np.float32(q[y, x, c]) * s + o, -one), one)
+                dst[x] = min(max(np.float32(src[x]) * s + o, -one), one)
         elif k == 3:  # relu
             for x in range(w):
-                out[t, r, x] = max(np.float32(q[y, x, c]) * s + o, np.float32(0))
+                dst[x] = max(np.float32(src[x]) * s + o, np.float32(0))
         else:
+            tab = table[c]
             for x in range(w):
-                out[t, r, x] = table[c, q[y, x, c]]
+                dst[x] = tab[src[x]]
     if kinds[c0] == 2:  # normalized
         for x in range(w):
             total = out[0, r, x]
@@ -114,8 +119,57 @@ def _decode_row(q, y, c0, n, kinds, scale, offset, table, out, r):
 
 @njit(parallel=True, cache=True)
 def _decode(q, c0, kinds, scale, offset, table, out):
-    for y in prange(q.shape[0]):
+    for y in prange(q.shape[1]):
         _decode_row(q, y, c0, out.shape[0], kinds, scale, offset, table, out, y)
+
+
+@njit(inline="always")
+def _swap(a, b, s, m):
+    """a's bytes under ~m (shifted down by s) swapped with b's under m."""
+    t = ((a >> s) ^ b) & m
+    return a ^ (t << s), b ^ t
+
+
+@njit(parallel=True, cache=True)
+def _planes(q, out):
+    """out[c, y, x] = q[y, x, c] for the first out.shape[0] channels (a multiple of 8; q's
+    channels too). Eight channels of eight pixels at a time: the eight 64-bit words (one a
+    pixel) transposed as an 8x8 byte matrix in registers (three rounds of swaps), stored as
+    one word a channel; bytes one at a time cost twice as much (docs/performance.md, stop 54)."""
+    H, W, C = q.shape
+    G, n = C // 8, out.shape[0] // 8
+    m4, m2, m1 = np.uint64(0x00000000FFFFFFFF), np.uint64(0x0000FFFF0000FFFF), np.uint64(0x00FF00FF00FF00FF)
+    s4, s2, s1 = np.uint64(32), np.uint64(16), np.uint64(8)
+    blocks = W // 8 if W % 8 == 0 else 0  # rows of whole words (8-byte aligned) only
+    for y in prange(H):
+        words = q[y].reshape(W * C).view(np.uint64)
+        for g in range(n):
+            c = 8 * g
+            if blocks:
+                d0, d1, d2, d3 = (out[c, y].view(np.uint64), out[c + 1, y].view(np.uint64),
+                                  out[c + 2, y].view(np.uint64), out[c + 3, y].view(np.uint64))
+                d4, d5, d6, d7 = (out[c + 4, y].view(np.uint64), out[c + 5, y].view(np.uint64),
+                                  out[c + 6, y].view(np.uint64), out[c + 7, y].view(np.uint64))
+            for b in range(blocks):
+                i = 8 * b * G + g
+                a0, a1, a2, a3 = words[i], words[i + G], words[i + 2 * G], words[i + 3 * G]
+                a4, a5, a6, a7 = words[i + 4 * G], words[i + 5 * G], words[i + 6 * G], words[i + 7 * G]
+                a0, a4 = _swap(a0, a4, s4, m4)
+                a1, a5 = _swap(a1, a5, s4, m4)
+                a2, a6 = _swap(a2, a6, s4, m4)
+                a3, a7 = _swap(a3, a7, s4, m4)
+                a0, a2 = _swap(a0, a2, s2, m2)
+                a1, a3 = _swap(a1, a3, s2, m2)
+                a4, a6 = _swap(a4, a6, s2, m2)
+                a5, a7 = _swap(a5, a7, s2, m2)
+                a0, a1 = _swap(a0, a1, s1, m1)
+                a2, a3 = _swap(a2, a3, s1, m1)
+                a4, a5 = _swap(a4, a5, s1, m1)
+                a6, a7 = _swap(a6, a7, s1, m1)
+                d0[b], d1[b], d2[b], d3[b], d4[b], d5[b], d6[b], d7[b] = a0, a1, a2, a3, a4, a5, a6, a7
+            for x in range(8 * blocks, W):
+                for t in range(8):
+                    out[c + t, y, x] = q[y, x, c + t]
 
 
 class Head:
@@ -136,15 +190,21 @@ class Head:
         return np.ascontiguousarray(q)
 
     def coded(self, q: np.ndarray) -> dict[str, "Coded"]:
-        """Every output of the u8 head, still coded: the filter stage decodes each row
-        where it reads it (``runtime.filters``)."""
+        """Every output of the u8 head, still coded, from planes of the channels in use:
+        the filter stage decodes each row where it reads it (``runtime.filters``)."""
         q = self._check(q)
-        return {name: Coded(q, c0, c, self) for name, (c0, c) in self.slices.items()}
+        used = sum(c for _, c in self.layout.parts)
+        planes = np.empty((-(-used // 8) * 8, q.shape[0], q.shape[1]), np.uint8)
+        if q.shape[2] % 8:  # no layout here has one; planes by numpy's strided copy
+            planes[:] = q[:, :, :planes.shape[0]].transpose(2, 0, 1)
+        else:
+            _planes(q, planes)
+        return {name: Coded(planes, c0, c, self) for name, (c0, c) in self.slices.items()}
 
 
 @dataclass(frozen=True)
 class Coded:
-    """Channels ``c0 .. c0 + n`` of a u8 head (H, W, C): one network output, not decoded."""
+    """Planes ``c0 .. c0 + n`` of a u8 head's planes (C', H, W): one network output, not decoded."""
 
     q: np.ndarray
     c0: int
@@ -153,7 +213,7 @@ class Coded:
 
     @property
     def shape(self) -> tuple[int, int, int]:
-        return (self.n, self.q.shape[0], self.q.shape[1])
+        return (self.n, self.q.shape[1], self.q.shape[2])
 
     def decode(self) -> np.ndarray:
         """(n, H, W) float32: the values the float graph's nodes compute (within the head's

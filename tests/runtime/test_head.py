@@ -14,18 +14,21 @@ from jnds_deploy.runtime.reformat import InputsLayout, pack_inputs
 
 PARTS = (("diffuse.spatial", 9), ("diffuse.temporal", 9), ("diffuse.blend", 1), ("diffuse.up", 9),
          ("diffuse.up_blend", 1), ("aux.spatial", 9), ("aux.temporal", 9), ("aux.blend", 1), ("features", 3))
-H, W = 7, 11
+H = 7
 
 
-@pytest.fixture
-def head():
+# widths and head channels: rows of whole 64-bit words or not (runtime.head._planes), and a
+# channel count that is no multiple of 8 (numpy's copy)
+@pytest.fixture(params=[(11, 64), (16, 64), (16, 62)], ids=["w11", "w16", "w16-c62"])
+def head(request):
+    w, channels = request.param
     rng = np.random.default_rng(0)
     n = sum(c for _, c in PARTS)
     # kernels: 1/127 (range 1); others up to a range of 20 (aux logits: exp() of +-20)
     scale = np.where(np.arange(n) < 29, 1 / 127, rng.uniform(0.01, 20, n) / 127)
     centre = np.where(np.arange(n) < 29, rng.uniform(-0.3, 0.3, n), rng.uniform(-5, 5, n))
-    layout = HeadLayout(PARTS, tuple(float(s) for s in scale), tuple(float(c) for c in centre), 128, 64)
-    q = rng.integers(0, 256, (1, H, W, 64), dtype=np.uint8)
+    layout = HeadLayout(PARTS, tuple(float(s) for s in scale), tuple(float(c) for c in centre), 128, channels)
+    q = rng.integers(0, 256, (1, H, w, channels), dtype=np.uint8)
     return Head(layout), q
 
 
@@ -54,6 +57,7 @@ def test_filters_read_coded_parts_as_their_decoded_values(head):
     """The filter loops that decode the head row by row give bit-equal results to the
     float loops on the decoded kernels."""
     h, q = head
+    W = q.shape[2]
     rng = np.random.default_rng(1)
     x, hist, coarse = (rng.uniform(0, 4, s).astype(np.float32) for s in ((3, H, W), (3, H, W), (3, 4, 6)))
     coded = h.coded(q)
