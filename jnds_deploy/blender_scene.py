@@ -66,8 +66,14 @@ CYCLES_HOLDOUT2_KINDS = ("street", "studio")
 # material, grass of thin blades, dappled sun through swaying crowns; haze: a closed hall
 # filled with a scattering volume, spot lights and daylight drawing beams through it
 CYCLES_HOLDOUT3_KINDS = ("grove", "haze")
+# kinds of the fourth holdout split (render.dataset), written at stop 54 after holdout3's haze had
+# been seen failing and the ``media`` training kind written for it: built apart from every kind
+# above, with what none of them has. bathroom: a small tiled room of large plane mirrors (facing,
+# on some draws), chrome, ceramic, a sliding frosted screen; fur: shapes and a rug coated in hair
+# strands (Principled Hair BSDF, curves a fraction of a pixel thick)
+CYCLES_HOLDOUT4_KINDS = ("bathroom", "fur")
 CYCLES_SCENE_KINDS = (CYCLES_TRAIN_KINDS + CYCLES_EXTRA_KINDS + CYCLES_TEST_KINDS + CYCLES_HOLDOUT_KINDS
-                      + CYCLES_HOLDOUT2_KINDS + CYCLES_HOLDOUT3_KINDS)
+                      + CYCLES_HOLDOUT2_KINDS + CYCLES_HOLDOUT3_KINDS + CYCLES_HOLDOUT4_KINDS)
 TEXTURES = ("brick", "checker", "noise", "voronoi")
 
 
@@ -398,6 +404,10 @@ def build(cfg: dict):
         moving, target, radius, height = _grove(scene, rng, frames)
     elif kind == "haze":
         moving, target, radius, height = _haze(scene, rng, frames)
+    elif kind == "bathroom":
+        moving, target, radius, height = _bathroom(scene, rng, frames)
+    elif kind == "fur":
+        moving, target, radius, height = _fur(scene, rng, frames)
     else:
         raise ConfigError(f"unknown Cycles scene {kind!r}, expected one of {', '.join(CYCLES_SCENE_KINDS)}")
     for obj in moving:
@@ -1671,6 +1681,176 @@ def _haze(scene, rng, frames):
             moving.append(crate)
     # the camera circles between the crates and the rows of columns
     return moving, (0, 0, rng.uniform(1.0, 2.0)), min(rng.uniform(2.6, 3.6), half - 1.3), rng.uniform(1.2, 2.5)
+
+
+def _bathroom(scene, rng, frames):
+    """The ``bathroom`` fourth-holdout kind: a small tiled room with one or two large plane mirrors
+    (facing mirrors repeat the room into the distance), chrome rails and taps, a ceramic basin and
+    tub, a frosted glass screen sliding along the tub, lit by strip lamps beside the mirror, a
+    ceiling lamp, and on some draws daylight through a frosted window. Mirrors show the whole room
+    in the specular layer, which no other kind has at this size. Returns (moving objects, camera
+    target, radius, height)."""
+    import bpy
+
+    daylight = rng.random() < 0.5
+    _world(scene, rng, "sky" if daylight else "dark")
+    half, height = rng.uniform(1.6, 2.4), rng.uniform(2.4, 2.8)
+    tile_colour = [rng.uniform(0.6, 0.95)] * 3 if rng.random() < 0.6 else [rng.uniform(0.1, 0.8) for _ in range(3)]
+    wall = _material("tiles", rng, rough=rng.uniform(0.05, 0.3), color=tile_colour, texture="brick")
+    floor = _material("floor_tiles", rng, rough=rng.uniform(0.1, 0.5), texture="checker")
+    t = 0.1
+    _box("floor", (2 * half, 2 * half, t), (0, 0, -t / 2), floor)
+    _box("ceiling", (2 * half, 2 * half, t), (0, 0, height + t / 2), _material("ceiling", rng, rough=0.8,
+                                                                                color=[0.85, 0.85, 0.85]))
+    _box("wall_n", (2 * half, t, height), (0, half, height / 2), wall)
+    _box("wall_s", (2 * half, t, height), (0, -half, height / 2), wall)
+    _box("wall_w", (t, 2 * half, height), (-half, 0, height / 2), wall)
+    if daylight:  # the east wall around a window of frosted glass, the sun through it
+        z0, z1, y0, y1 = 1.2, 2.1, -0.5, 0.5
+        _box("wall_e_s", (t, half + y0, height), (half, (-half + y0) / 2, height / 2), wall)
+        _box("wall_e_n", (t, half - y1, height), (half, (half + y1) / 2, height / 2), wall)
+        _box("wall_e_b", (t, y1 - y0, z0), (half, 0, z0 / 2), wall)
+        _box("wall_e_t", (t, y1 - y0, height - z1), (half, 0, (z1 + height) / 2), wall)
+        _box("window", (0.01, y1 - y0, z1 - z0), (half, 0, (z0 + z1) / 2),
+             _material("frosted", rng, glass=True, rough=rng.uniform(0.1, 0.4), color=[0.95, 0.95, 0.95]))
+        bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(40, 65)), 0, math.radians(rng.uniform(60, 120))))
+        bpy.context.object.data.energy = rng.uniform(3.0, 7.0)
+    else:
+        _box("wall_e", (t, 2 * half, height), (half, 0, height / 2), wall)
+    mirror = _material("mirror", rng, metal=True, rough=rng.uniform(0.0, 0.02), color=[0.92, 0.92, 0.92])
+    w, h = rng.uniform(0.9, 1.8), rng.uniform(0.8, 1.2)
+    _box("mirror_n", (w, 0.01, h), (rng.uniform(-0.3, 0.3), half - 0.06, 1.0 + h / 2), mirror)
+    if rng.random() < 0.5:  # facing mirrors
+        _box("mirror_s", (rng.uniform(0.8, 1.6), 0.01, h), (rng.uniform(-0.3, 0.3), -half + 0.06, 1.0 + h / 2), mirror)
+    for side in (-1, 1):  # strip lamps either side of the north mirror
+        _box(f"strip{side}", (0.05, 0.03, h), (side * (w / 2 + 0.12), half - 0.07, 1.0 + h / 2),
+             _material(f"strip{side}", rng, emission=rng.uniform(4.0, 15.0), rough=0.5))
+    bpy.ops.object.light_add(type="AREA", location=(0, 0, height - 0.05))
+    bpy.context.object.data.energy = rng.uniform(30, 150)
+    bpy.context.object.data.size = rng.uniform(0.2, 0.5)
+    ceramic = _material("ceramic", rng, rough=rng.uniform(0.03, 0.15), color=[0.92, 0.92, 0.9])
+    chrome = _material("chrome", rng, metal=True, rough=rng.uniform(0.05, 0.2), color=[0.85, 0.86, 0.88])
+    _box("basin", (0.6, 0.4, 0.15), (0, half - 0.3, 0.85), ceramic)
+    _box("cabinet", (0.7, 0.45, 0.78), (0, half - 0.3, 0.39), _material("cabinet", rng, rough=rng.uniform(0.2, 0.7),
+                                                                     texture=rng.choice(("wave", "noise"))))
+    bpy.ops.mesh.primitive_cylinder_add(vertices=32, radius=0.015, depth=0.25, location=(0, half - 0.12, 1.0),
+                                        rotation=(math.pi / 2.5, 0, 0))
+    bpy.context.object.data.materials.append(chrome)
+    tub_x = -half + 0.45
+    _box("tub", (0.75, 1.6, 0.55), (tub_x, -0.2, 0.275), ceramic)
+    for k in range(rng.randint(1, 3)):  # towel rails
+        bpy.ops.mesh.primitive_cylinder_add(vertices=24, radius=0.012, depth=rng.uniform(0.5, 0.9),
+                                            location=(half - 0.08 if not daylight else rng.uniform(-0.8, 0.8),
+                                                      -half + 0.08 if daylight else rng.uniform(-1.0, 1.0),
+                                                      rng.uniform(0.9, 1.6)),
+                                            rotation=(0, math.pi / 2, 0) if daylight else (math.pi / 2, 0, 0))
+        bpy.context.object.data.materials.append(chrome)
+    screen = _box("screen", (0.01, 0.8, 1.6), (tub_x + 0.38, -0.6, 0.55 + 0.8),
+                  _material("screen", rng, glass=True, rough=rng.uniform(0.0, 0.4), color=[0.9, 0.95, 0.95]))
+    moving = []
+    d = rng.uniform(0.4, 0.8) * rng.choice((-1, 1))
+    for f, tt in ((0, 0.0), (frames + 1, 1.0)):
+        screen.location[1] = -0.6 + d * tt
+        screen.keyframe_insert("location", frame=f)
+    moving.append(screen)
+    for i in range(rng.randint(2, 5)):  # bottles and jars on the basin and the tub's rim
+        s = rng.uniform(0.04, 0.09)
+        x, y, z = (rng.uniform(-0.3, 0.3), half - 0.2, 0.93) if i % 2 else (tub_x + rng.uniform(-0.3, 0.3), -0.95, 0.55)
+        bpy.ops.mesh.primitive_cylinder_add(vertices=32, radius=s / 2, depth=s * rng.uniform(1.5, 3.0),
+                                            location=(x, y, z + s))
+        bpy.ops.object.shade_smooth()
+        bpy.context.object.data.materials.append(_material(f"bottle{i}", rng, glass=rng.random() < 0.4))
+    return moving, (rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), rng.uniform(0.9, 1.3)), half - 0.45, \
+        rng.uniform(1.3, 1.8)
+
+
+def _hair_material(name, rng):
+    """Principled Hair BSDF (Chiang), melanin-coloured or dyed."""
+    import bpy
+
+    m = bpy.data.materials.new(name)
+    m.use_nodes = True
+    nodes = m.node_tree.nodes
+    nodes.remove(nodes["Principled BSDF"])
+    hair = nodes.new("ShaderNodeBsdfHairPrincipled")
+    if rng.random() < 0.6:
+        hair.parametrization = "MELANIN"
+        hair.inputs["Melanin"].default_value = rng.uniform(0.1, 0.95)
+        hair.inputs["Melanin Redness"].default_value = rng.uniform(0.0, 1.0)
+    else:
+        hair.parametrization = "COLOR"
+        hair.inputs["Color"].default_value = (*[rng.uniform(0.05, 0.9) for _ in range(3)], 1.0)
+    hair.inputs["Roughness"].default_value = rng.uniform(0.15, 0.5)
+    hair.inputs["Radial Roughness"].default_value = rng.uniform(0.2, 0.6)
+    m.node_tree.links.new(hair.outputs[0], nodes["Material Output"].inputs["Surface"])
+    return m
+
+
+def _grow_hair(obj, rng, count, length, radius):
+    """A hair particle system on ``obj``: ``count`` strands ``length`` metres long, ``radius``
+    metres thick at the root, tapering, drawn in the object's second material slot."""
+    obj.data.materials.append(_hair_material(f"{obj.name}_hair", rng))
+    mod = obj.modifiers.new("fur", type="PARTICLE_SYSTEM")
+    ps = mod.particle_system.settings
+    ps.type = "HAIR"
+    ps.count, ps.hair_length = count, length
+    ps.material = 2
+    ps.use_advanced_hair = True
+    ps.brownian_factor = rng.uniform(0.0, 0.3) * length
+    ps.factor_random = rng.uniform(0.0, 0.2) * length
+    ps.display_step, ps.render_step = 3, 4
+    ps.radius_scale, ps.root_radius, ps.tip_radius = radius, 1.0, 0.0
+    mod.particle_system.seed = rng.randint(0, 10000)
+
+
+def _fur(scene, rng, frames):
+    """The ``fur`` fourth-holdout kind: furry shapes and a shaggy rug in the Principled Hair BSDF,
+    strands a fraction of a pixel thick (Cycles' curves), which no other kind has: balls, a
+    cushion and a torus coated in fur 1-12 cm long, some rolling or turning, on a rug of longer
+    strands, under a sun and sky or area lights. Returns (moving objects, camera target, radius,
+    height)."""
+    import bpy
+
+    scene.cycles_curves.shape = "THICK"
+    outdoor = rng.random() < 0.5
+    _world(scene, rng, "sky" if outdoor else "color")
+    ground = _material("ground", rng, rough=rng.uniform(0.3, 0.9), texture=rng.choice(TEXTURES))
+    _box("ground", (30, 30, 0.1), (0, 0, -0.05), ground)
+    if outdoor:
+        bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(25, 60)), 0, math.radians(rng.uniform(0, 360))))
+        bpy.context.object.data.energy = rng.uniform(2.0, 6.0)
+    for i in range(1 if outdoor else rng.randint(2, 3)):
+        bpy.ops.object.light_add(type="AREA", location=(rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(1.5, 3.0)),
+                                 rotation=(rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), 0))
+        bpy.context.object.data.energy = rng.uniform(50, 300)
+        bpy.context.object.data.size = rng.uniform(0.3, 1.5)
+    bpy.ops.mesh.primitive_plane_add(size=rng.uniform(1.5, 2.5), location=(0, 0, 0.005))
+    rug = bpy.context.object
+    rug.name = "rug"
+    rug.data.materials.append(_material("rug_base", rng, rough=0.9))
+    _grow_hair(rug, rng, rng.randint(8000, 20000), rng.uniform(0.04, 0.12), rng.uniform(0.0015, 0.004))
+    moving = []
+    for i in range(rng.randint(2, 5)):
+        shape = rng.choice(("ball", "ball", "cushion", "torus"))
+        s = rng.uniform(0.15, 0.45)
+        loc = (rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), s / 2 + 0.02)
+        if shape == "ball":
+            bpy.ops.mesh.primitive_uv_sphere_add(radius=s / 2, location=loc, segments=32, ring_count=16)
+        elif shape == "cushion":
+            bpy.ops.mesh.primitive_cube_add(size=s, location=loc, rotation=(0, 0, rng.uniform(0, 3)))
+            bpy.context.object.scale = (1.0, rng.uniform(0.6, 1.0), 0.4)
+            bpy.ops.object.modifier_add(type="SUBSURF")
+            bpy.context.object.modifiers[-1].levels = bpy.context.object.modifiers[-1].render_levels = 2
+        else:
+            bpy.ops.mesh.primitive_torus_add(major_radius=s / 2, minor_radius=s / 6, location=loc,
+                                             rotation=(rng.uniform(0, 1.2), 0, 0))
+        bpy.ops.object.shade_smooth()
+        obj = bpy.context.object
+        obj.data.materials.append(_material(f"skin{i}", rng, rough=0.7))
+        _grow_hair(obj, rng, rng.randint(3000, 12000), rng.uniform(0.01, 0.12), rng.uniform(0.0008, 0.003))
+        if _slides(obj, rng, frames, 0.5, 0.6):
+            moving.append(obj)
+    return moving, (0, 0, rng.uniform(0.1, 0.3)), rng.uniform(1.6, 2.6), rng.uniform(0.5, 1.4)
 
 
 def _all_fcurves(obj):

@@ -291,8 +291,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("dataset", help="render (or resume) the training and validation sets")
     d.add_argument("--out", default="data")
-    d.add_argument("--split", default="all", choices=("train", "val", "all", "test", "holdout", "holdout2", "holdout3"),
-                   help="all = train + val; test (seeds never trained or selected on) holdout (Cycles: kinds written after the test was read) holdout2 (kinds written after the holdout was read) and holdout3 (after holdout2 was read) only when asked for")
+    d.add_argument("--split", default="all",
+                   choices=("train", "val", "all", "test", "holdout", "holdout2", "holdout3", "holdout4"),
+                   help="all = train + val; test (seeds never trained or selected on) holdout (Cycles: kinds written after the test was read) holdout2 (kinds written after the holdout was read), holdout3 (after holdout2 was read) and holdout4 (after holdout3 was) only when asked for")
     d.add_argument("--limit", type=int, default=None, help="only the first N sequences")
     d.add_argument("--list", action="store_true", help="print the sequences and exit")
     d.add_argument("--train-sequences", type=int, default=TRAIN_SEQUENCES,

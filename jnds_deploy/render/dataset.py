@@ -12,8 +12,8 @@ from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 
-from ..blender_scene import (CYCLES_HOLDOUT2_KINDS, CYCLES_HOLDOUT3_KINDS, CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS,
-                             CYCLES_TRAIN_KINDS)
+from ..blender_scene import (CYCLES_HOLDOUT2_KINDS, CYCLES_HOLDOUT3_KINDS, CYCLES_HOLDOUT4_KINDS, CYCLES_HOLDOUT_KINDS,
+                             CYCLES_TEST_KINDS, CYCLES_TRAIN_KINDS)
 from ..errors import ConfigError
 from .camera import CAMERA_PATHS
 from .sequence import ENGINES, RenderConfig
@@ -21,7 +21,7 @@ from .sequence import ENGINES, RenderConfig
 SIZE = (192, 108)
 # the Cycles splits made of kinds no training or validation sequence has (blender_scene)
 UNSEEN_KINDS = {"test": CYCLES_TEST_KINDS, "holdout": CYCLES_HOLDOUT_KINDS, "holdout2": CYCLES_HOLDOUT2_KINDS,
-                "holdout3": CYCLES_HOLDOUT3_KINDS}
+                "holdout3": CYCLES_HOLDOUT3_KINDS, "holdout4": CYCLES_HOLDOUT4_KINDS}
 
 
 def _specs(split: str, seeds: range, frames: int, spp: int, engine: str = "mitsuba",
@@ -57,8 +57,8 @@ EXTRA_SEEDS = {"mixed": 9000, "lights": 10000, "interior": 11000, "detail": 1200
                "glass": 14000, "print": 15000, "media": 16000}
 # the Cycles holdout splits' first seeds: holdout's kinds built after the test set was looked at,
 # holdout2's after the first holdout was, holdout3's after holdout2's studio was looked at to
-# choose training data
-HOLDOUT_SEEDS = {"holdout": 7100, "holdout2": 7200, "holdout3": 7300}
+# choose training data, holdout4's after holdout3's haze was
+HOLDOUT_SEEDS = {"holdout": 7100, "holdout2": 7200, "holdout3": 7300, "holdout4": 7400}
 
 
 def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
@@ -80,7 +80,9 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     failures had been read to choose training data (``blender_scene.CYCLES_HOLDOUT_KINDS``);
     holdout2 (seeds 7200+) for two more, written after the first holdout had been looked at
     (``blender_scene.CYCLES_HOLDOUT2_KINDS``); holdout3 (seeds 7300+) for two more, written after
-    holdout2 had been looked at to choose training data (``blender_scene.CYCLES_HOLDOUT3_KINDS``).
+    holdout2 had been looked at to choose training data (``blender_scene.CYCLES_HOLDOUT3_KINDS``);
+    holdout4 (seeds 7400+) for two more, written after holdout3 had been
+    (``blender_scene.CYCLES_HOLDOUT4_KINDS``).
     """
     if not 1 <= train_sequences <= 1000:
         raise ConfigError(f"train_sequences must be in 1..1000, got {train_sequences}")
@@ -112,7 +114,7 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     if split == "all":
         return specs["train"] + specs["val"]
     if split not in specs:
-        raise ConfigError(f"unknown split {split!r}, expected train, val, all, test, holdout, holdout2 or holdout3")
+        raise ConfigError(f"unknown split {split!r}, expected train, val, all, test, holdout, holdout2, holdout3 or holdout4")
     return specs[split]
 
 

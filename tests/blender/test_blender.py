@@ -145,30 +145,27 @@ def test_every_cycles_scene_kind_renders_a_lit_valid_frame(kind, tmp_path):
 
 
 def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has():
-    from jnds_deploy.blender_scene import (CYCLES_EXTRA_KINDS, CYCLES_HOLDOUT2_KINDS, CYCLES_HOLDOUT3_KINDS,
-                                           CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS)
-    from jnds_deploy.render.dataset import EXTRA_SEEDS, dataset_specs
-    assert set(EXTRA_SEEDS) == set(CYCLES_EXTRA_KINDS)  # every training-only kind has its seeds
+    """Each unseen split (test, then the holdouts in the order they were written) is made of its
+    own kinds and seeds, none of which any split before it, training or validation has."""
+    from jnds_deploy.blender_scene import CYCLES_EXTRA_KINDS, CYCLES_SCENE_KINDS
     from jnds_deploy.cli import EXTRA_KIND_HELP
+    from jnds_deploy.render.dataset import EXTRA_SEEDS, UNSEEN_KINDS, dataset_specs
+    assert set(EXTRA_SEEDS) == set(CYCLES_EXTRA_KINDS)  # every training-only kind has its seeds
     assert set(EXTRA_KIND_HELP) == set(CYCLES_EXTRA_KINDS)  # and its --<kind>-sequences
-    test = {cfg.scene for _, cfg in dataset_specs("test", engine="cycles")}
-    holdout = {cfg.scene for _, cfg in dataset_specs("holdout", engine="cycles")}
-    seen = {cfg.scene for split in ("train", "val")
-            for _, cfg in dataset_specs(split, 200, engine="cycles", extra_sequences=dict.fromkeys(
-                                            CYCLES_EXTRA_KINDS, 20))}
-    assert test == set(CYCLES_TEST_KINDS) and not test & seen and set(CYCLES_EXTRA_KINDS) <= seen
-    assert holdout == set(CYCLES_HOLDOUT_KINDS) and not holdout & (seen | test)
-    holdout2 = {cfg.scene for _, cfg in dataset_specs("holdout2", engine="cycles")}
-    assert holdout2 == set(CYCLES_HOLDOUT2_KINDS) and not holdout2 & (seen | test | holdout)
-    holdout3 = {cfg.scene for _, cfg in dataset_specs("holdout3", engine="cycles")}
-    assert holdout3 == set(CYCLES_HOLDOUT3_KINDS) and not holdout3 & (seen | test | holdout | holdout2)
-    seeds = {split: {cfg.seed for _, cfg in dataset_specs(split, 200, engine="cycles",
-                                                          extra_sequences=dict.fromkeys(CYCLES_EXTRA_KINDS, 20))}
-             for split in ("train", "val", "test", "holdout", "holdout2", "holdout3")}
-    assert not seeds["holdout"] & (seeds["train"] | seeds["val"] | seeds["test"])
-    assert not seeds["holdout2"] & (seeds["train"] | seeds["val"] | seeds["test"] | seeds["holdout"])
-    assert not seeds["holdout3"] & (seeds["train"] | seeds["val"] | seeds["test"] | seeds["holdout"]
-                                    | seeds["holdout2"])
+    extra = dict.fromkeys(CYCLES_EXTRA_KINDS, 20)
+    seen = [(cfg.scene, cfg.seed) for split in ("train", "val")
+            for _, cfg in dataset_specs(split, 200, engine="cycles", extra_sequences=extra)]
+    kinds, seeds = {k for k, _ in seen}, {s for _, s in seen}
+    assert set(CYCLES_EXTRA_KINDS) <= kinds
+    assert list(UNSEEN_KINDS) == ["test", "holdout", "holdout2", "holdout3", "holdout4"]
+    for split, split_kinds in UNSEEN_KINDS.items():
+        specs = [cfg for _, cfg in dataset_specs(split, engine="cycles")]
+        got = {cfg.scene for cfg in specs}
+        assert got == set(split_kinds) and not got & kinds, split
+        assert not {cfg.seed for cfg in specs} & seeds, split
+        kinds |= got
+        seeds |= {cfg.seed for cfg in specs}
+    assert kinds == set(CYCLES_SCENE_KINDS)  # every kind is in some split
 
 
 def test_procedural_cameras_stay_inside_their_rooms():
