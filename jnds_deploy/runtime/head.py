@@ -10,10 +10,11 @@ filter loops decode row by row (``runtime.filters``), reading a quarter of the b
 float outputs took; ``Coded.decode`` gives the float planes where a caller wants them.
 Planes because each filter path reads a few channels of every pixel: channels last, each
 path pulled the whole head through memory again and read its bytes one at a time; planes
-are read once, contiguously, and their decoding vectorizes (docs/performance.md, stop 54). The graph's metadata (``LAYOUT_KEY``) says which channels are
-which output and how each dequantizes: channel c of output ``name`` holds ``raw = (q -
-zero_point) * scale[c] + centre[c]``, the head's float output, to which
-``layout.head_kind(name)`` applies as in ``model.OutputBlock``.
+are read once, contiguously, and their decoding vectorizes (docs/performance.md, stop 54).
+The graph's metadata (``LAYOUT_KEY``) says which channels are which output and how each
+dequantizes: channel c of output ``name`` holds ``raw = (q - zero_point) * scale[c] +
+centre[c]``, the head's float output, to which ``layout.head_kind(name)`` applies as in
+``model.OutputBlock``.
 """
 from __future__ import annotations
 
@@ -194,10 +195,10 @@ class Head:
         the filter stage decodes each row where it reads it (``runtime.filters``)."""
         q = self._check(q)
         used = sum(c for _, c in self.layout.parts)
-        planes = np.empty((-(-used // 8) * 8, q.shape[0], q.shape[1]), np.uint8)
         if q.shape[2] % 8:  # no layout here has one; planes by numpy's strided copy
-            planes[:] = q[:, :, :planes.shape[0]].transpose(2, 0, 1)
-        else:
+            planes = np.ascontiguousarray(q[:, :, :used].transpose(2, 0, 1))
+        else:  # whole groups of 8 (the tensor's channels are)
+            planes = np.empty((-(-used // 8) * 8, q.shape[0], q.shape[1]), np.uint8)
             _planes(q, planes)
         return {name: Coded(planes, c0, c, self) for name, (c0, c) in self.slices.items()}
 

@@ -19,7 +19,7 @@ H = 7
 
 # widths and head channels: rows of whole 64-bit words or not (runtime.head._planes), and a
 # channel count that is no multiple of 8 (numpy's copy)
-@pytest.fixture(params=[(11, 64), (16, 64), (16, 62)], ids=["w11", "w16", "w16-c62"])
+@pytest.fixture(params=[(11, 64), (16, 64), (16, 62), (16, 52)], ids=["w11", "w16", "w16-c62", "w16-c52"])
 def head(request):
     w, channels = request.param
     rng = np.random.default_rng(0)
