@@ -1738,7 +1738,7 @@ def _bathroom(scene, rng, frames):
     bpy.context.object.data.materials.append(chrome)
     tub_x = -half + 0.45
     _box("tub", (0.75, 1.6, 0.55), (tub_x, -0.2, 0.275), ceramic)
-    for k in range(rng.randint(1, 3)):  # towel rails
+    for _ in range(rng.randint(1, 3)):  # towel rails
         bpy.ops.mesh.primitive_cylinder_add(vertices=24, radius=0.012, depth=rng.uniform(0.5, 0.9),
                                             location=(half - 0.08 if not daylight else rng.uniform(-0.8, 0.8),
                                                       -half + 0.08 if daylight else rng.uniform(-1.0, 1.0),
