@@ -29,6 +29,9 @@ What ``configure`` sets (and nothing else of the user's look):
   lens shift; the jitter of every frame goes to ``jnds.json`` beside the frames, where the
   import reads it. Cycles' Vector pass does not see the lens shift: it describes the pixel
   centre's point, as the format wants (``jnds_deploy.cycles``);
+- Cycles' Denoising Data passes, which mark the camera rays that scattered in a volume
+  before reaching any surface, and per frame the direction back to the camera in
+  ``jnds.json``, the normal the import gives those pixels;
 - multilayer 32-bit float EXR output (Blender 5 writes one part per pass).
 """
 from __future__ import annotations
@@ -62,6 +65,10 @@ CYCLES_PASSES = {  # on view_layer.cycles
     "use_pass_volume_direct": "Volume Direct",
     "use_pass_volume_indirect": "Volume Indirect",
 }
+# view_layer.cycles.denoising_store_passes ("Denoising Data") writes these; the import takes
+# from "Denoising Normal" which camera rays scattered in a volume before any surface (Cycles
+# writes the view direction there, and nothing in Normal, Depth or Vector): ``jnds_deploy.cycles``
+DENOISING_PASSES = ("Denoising Normal", "Denoising Albedo", "Denoising Depth")
 ROUGHNESS_AOV = "Roughness"
 AOV_NODE = "jnds_roughness"  # the name of the AOV Output node added to each material
 SIDECAR = "jnds.json"  # frame range, size and jitter, beside the rendered frames
@@ -205,6 +212,7 @@ def _passes(scene, changes: Changes, log) -> None:
         changes.set(vl, prop, True, f"view_layer[{vl.name!r}]", log)
     for prop in CYCLES_PASSES:
         changes.set(vl.cycles, prop, True, f"view_layer[{vl.name!r}].cycles", log)
+    changes.set(vl.cycles, "denoising_store_passes", True, f"view_layer[{vl.name!r}].cycles", log)
     if ROUGHNESS_AOV not in [a.name for a in vl.aovs]:
         aov = vl.aovs.add()
         aov.name, aov.type = ROUGHNESS_AOV, "VALUE"
@@ -217,7 +225,21 @@ def _render_layer(scene):
     return next((vl for vl in scene.view_layers if vl.use), None)
 
 
-def _sidecar(scene, jitters: dict, kind: str, scale: int = 1) -> None:
+def _toward_camera(scene) -> dict:
+    """{frame: the camera's local +Z axis in world space} (a Blender camera looks down -Z):
+    the normal the import gives a pixel whose camera ray scattered in a volume, where
+    Cycles' Denoising Normal is (0, 0, -1) in camera space."""
+    current = scene.frame_current
+    out = {}
+    for f in range(scene.frame_start, scene.frame_end + 1):
+        scene.frame_set(f)
+        z = scene.camera.matrix_world.to_3x3().col[2].normalized()
+        out[f] = [z.x, z.y, z.z]
+    scene.frame_set(current)
+    return out
+
+
+def _sidecar(scene, jitters: dict, kind: str, scale: int = 1, toward: dict | None = None) -> None:
     import bpy
 
     folder = os.path.dirname(bpy.path.abspath(scene.render.filepath)) or "."
@@ -227,6 +249,8 @@ def _sidecar(scene, jitters: dict, kind: str, scale: int = 1) -> None:
     data = {"kind": kind, "frame_start": scene.frame_start, "frame_end": scene.frame_end, "size": size,
             "scale": scale, "roughness": f"AOV {ROUGHNESS_AOV!r}: Blender's roughness r (alpha = r^2)",
             "jitter": {str(f): list(j) for f, j in jitters.items()}, "blender": bpy.app.version_string}
+    if toward is not None:
+        data["toward_camera"] = {str(f): v for f, v in toward.items()}
     with open(os.path.join(folder, SIDECAR), "w") as fh:
         json.dump(data, fh, indent=1)
 
@@ -246,7 +270,8 @@ def configure(scene=None, output: str | None = None, jitter_frames: bool = True,
     for material in bpy.data.materials:
         _add_roughness_aov(material, changes, log)
     jitters = _key_jitter(scene, changes, log) if jitter_frames else {}
-    _sidecar(scene, {f: j for f, j in jitters.items() if scene.frame_start <= f <= scene.frame_end}, "inputs")
+    _sidecar(scene, {f: j for f, j in jitters.items() if scene.frame_start <= f <= scene.frame_end}, "inputs",
+             toward=_toward_camera(scene))
     return changes
 
 

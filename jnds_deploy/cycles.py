@@ -9,7 +9,14 @@ passes onto the paper's split:
 - specular = Glossy Color (Glossy Direct + Indirect) + Transmission Color (Direct +
   Indirect) + Volume Direct + Volume Indirect + Emission + Environment, so that
   albedo * diffuse + specular = Combined;
-- normal = Normal (world space; Blender's world is Z-up, kept as is);
+- normal = Normal (world space; Blender's world is Z-up, kept as is). A camera ray that
+  scattered in a volume before reaching any surface leaves Normal, Depth and Vector at 0,
+  as on the background, though its radiance is as noisy as any surface's; Cycles' Denoising
+  Normal marks it (the view direction, (0, 0, -1) in camera space). Such a pixel gets the
+  direction back to the camera (``jnds.json``'s ``toward_camera``), as Cycles gives its own
+  denoiser, so the pipeline accumulates it over frames like a surface facing the camera
+  rather than passing it through as exact background (docs/model-gap.md, "Volumes");
+  motion and depth stay 0 there, roughness 1;
 - roughness = the ``Roughness`` AOV squared (Blender's perceptual roughness to the
   microfacet alpha, the format's convention); depth = Depth, 0 on the background;
 - motion = (Vector.X, -Vector.Y): Vector.xy is the previous-frame position minus the
@@ -25,11 +32,12 @@ from __future__ import annotations
 
 import json
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from .blender import CYCLES_PASSES, PASSES, ROUGHNESS_AOV, SIDECAR  # names only: no bpy at import
+from .blender import CYCLES_PASSES, DENOISING_PASSES, PASSES, ROUGHNESS_AOV, SIDECAR  # names only: no bpy at import
 from .errors import SequenceError
 from .io import FrameInfo, SequenceWriter, read_exr, validate
 
@@ -55,6 +63,7 @@ SETTINGS = {  # pass -> the Blender setting that enables it
 }
 INPUT_PASSES = [p for p in [*PASSES.values(), *CYCLES_PASSES.values(), ROUGHNESS_AOV] if p != "Combined"]
 REFERENCE_PASSES = [p for p in [*PASSES.values(), *CYCLES_PASSES.values()] if p not in ("Normal", "Vector", "Depth")]
+VOLUME_MARK = DENOISING_PASSES[0]  # Denoising Normal: non-zero where Normal is 0 marks volume scattering
 _FRAME = re.compile(r"^(.*?)(\d+)\.exr$")
 
 
@@ -95,20 +104,41 @@ def components(passes: dict) -> dict[str, np.ndarray]:
             "specular": specular}
 
 
-def input_layers(passes: dict, path: Path) -> dict[str, np.ndarray]:
-    """The format's input layers (HWC float32) from one frame's passes."""
+def input_layers(passes: dict, path: Path, toward_camera=None) -> dict[str, np.ndarray]:
+    """The format's input layers (HWC float32) from one frame's passes; ``toward_camera``:
+    the frame's direction back to the camera (world space), the normal of the pixels whose
+    camera ray scattered in a volume (module docstring)."""
     _require(passes, INPUT_PASSES, path)
     layers = components(passes)
     vec = passes["Vector"]
     motion = np.stack([vec[..., 0], -vec[..., 1]], -1)  # y up -> y down
     normal = passes["Normal"][..., :3]
-    background = ~np.any(normal != 0, axis=-1, keepdims=True)
-    motion = np.where(background, 0.0, motion).astype(np.float32)  # no surface, no motion: as Blender's
-    depth = np.where(background[..., 0], 0.0, passes["Depth"][..., 0])[..., None]
+    no_surface = ~np.any(normal != 0, axis=-1, keepdims=True)
+    volume = np.zeros_like(no_surface)
+    if VOLUME_MARK in passes:
+        volume = no_surface & np.any(passes[VOLUME_MARK][..., :3] != 0, axis=-1, keepdims=True)
+    if volume.any():
+        if toward_camera is None:
+            raise SequenceError(path, f"{int(volume.sum())} pixels scattered in a volume, and {SIDECAR} beside "
+                                      "the frames has no 'toward_camera' to give them a normal; render with "
+                                      "`jnds_deploy.blender.configure`, which writes it")
+        normal = np.where(volume, np.asarray(toward_camera, np.float32), normal)
+    motion = np.where(no_surface, 0.0, motion).astype(np.float32)  # no surface, no motion: as Blender's
+    depth = np.where(no_surface[..., 0], 0.0, passes["Depth"][..., 0])[..., None]
     roughness = np.clip(passes[ROUGHNESS_AOV][..., :1], 0.0, 1.0) ** 2
-    roughness = np.where(background, 1.0, roughness)
-    return {**layers, "normal": normal, "roughness": roughness.astype(np.float32), "motion": motion,
-            "depth": depth.astype(np.float32)}
+    roughness = np.where(no_surface, 1.0, roughness)
+    return {**layers, "normal": normal.astype(np.float32), "roughness": roughness.astype(np.float32),
+            "motion": motion, "depth": depth.astype(np.float32)}
+
+
+def unmarked_volume_pixels(passes: dict) -> int:
+    """Pixels with no surface but light scattered in a volume, in a render without the
+    Denoising Data passes: they import as background (exact radiance), which they are not."""
+    if VOLUME_MARK in passes:
+        return 0
+    no_surface = ~np.any(passes["Normal"][..., :3] != 0, axis=-1)
+    light = passes["Volume Direct"][..., :3].sum(-1) + passes["Volume Indirect"][..., :3].sum(-1)
+    return int((no_surface & (light > 0)).sum())
 
 
 def reference_layers(passes: dict, path: Path) -> dict[str, np.ndarray]:
@@ -142,7 +172,8 @@ def _sidecar(raw: Path, numbers: list[int]) -> tuple[dict[int, tuple[float, floa
     side = raw / SIDECAR
     data = json.loads(side.read_text()) if side.is_file() else {}
     jit = {int(k): tuple(v) for k, v in data.get("jitter", {}).items()}
-    return {n: jit.get(n, (0.0, 0.0)) for n in numbers}, set(data.get("cuts", []))
+    toward = {int(k): v for k, v in data.get("toward_camera", {}).items()}
+    return {n: jit.get(n, (0.0, 0.0)) for n in numbers}, set(data.get("cuts", [])), toward
 
 
 def import_cycles(raw: str | Path, out: str | Path, reference: str | Path | None = None, progress: bool = True):
@@ -157,7 +188,7 @@ def import_cycles(raw: str | Path, out: str | Path, reference: str | Path | None
     if refs is not None and list(refs) != numbers:
         raise SequenceError(Path(reference), f"reference frames {list(refs)[0]}..{list(refs)[-1]} do not match "
                                              f"the inputs' {numbers[0]}..{numbers[-1]}")
-    jitters, cuts = _sidecar(raw, numbers)
+    jitters, cuts, toward = _sidecar(raw, numbers)
     first = read_passes(frames[numbers[0]])
     h, w = first["Combined"].shape[:2] if "Combined" in first else next(iter(first.values())).shape[:2]
     target = None
@@ -166,9 +197,11 @@ def import_cycles(raw: str | Path, out: str | Path, reference: str | Path | None
         target = (rw, rh)
     writer = SequenceWriter(out, (w, h), target)
     infos = []
+    unmarked = 0
     for i, n in enumerate(tqdm(numbers, desc=f"import {raw.name}", unit="frame", disable=not progress)):
         passes = first if i == 0 else read_passes(frames[n])
-        layers = input_layers(passes, frames[n])
+        layers = input_layers(passes, frames[n], toward.get(n))
+        unmarked += unmarked_volume_pixels(passes)
         cut = n in cuts
         if i == 0 or cut:  # Vector points at a frame that is not in the sequence (or another shot)
             layers["motion"][:] = 0.0
@@ -176,6 +209,11 @@ def import_cycles(raw: str | Path, out: str | Path, reference: str | Path | None
         if refs is not None:
             writer.write_reference(i, reference_layers(read_passes(refs[n]), refs[n]))
         infos.append(FrameInfo(i, jitters[n], cut))
+    if unmarked:
+        warnings.warn(f"{raw}: {unmarked} pixels (all frames) saw light scattered in a volume before any surface "
+                      f"and import as background, whose radiance the pipeline takes as exact: render with the "
+                      f"{VOLUME_MARK} pass (view layer > Passes > Data > Denoising Data; "
+                      "`jnds_deploy.blender.configure` turns it on)", stacklevel=2)
     # the engine, where training's renderer balance reads it (training.data.SequenceArrays.renderer)
     writer.close(infos, {"renderer": {"engine": "cycles", "imported_from": str(raw)}})
     return validate(out)

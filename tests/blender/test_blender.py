@@ -186,3 +186,61 @@ def test_procedural_cameras_stay_inside_their_rooms():
     assert len(found) == len(jobs) == 64
     assert sum(r["half"] is not None for r in found) >= 10  # rooms were drawn, so the check saw some
     assert [r for r in found if r["outside"]] == []
+
+
+def test_pixels_scattered_in_a_volume_import_facing_the_camera_not_as_background(tmp_path):
+    """A camera ray that scatters in a medium before any surface leaves Normal, Depth and
+    Vector empty, as the background does, but its radiance is noisy: the import gives it the
+    direction back to the camera (Cycles' Denoising Normal marks it), so the pipeline's
+    disocclusion test keeps its history. The world's pixels stay background."""
+    raw = _render(tmp_path / "vol", "volume")
+    toward = json.loads((raw / "jnds.json").read_text())["toward_camera"]
+    # the tiny scene's camera is turned 65 degrees about X: its +Z axis is (0, -sin 65, cos 65)
+    expected = np.array([0.0, -np.sin(np.radians(65)), np.cos(np.radians(65))])
+    import_cycles(raw, tmp_path / "seq", progress=False)
+    seq = open_sequence(tmp_path / "seq")
+    for i in range(len(seq)):
+        np.testing.assert_allclose(toward[str(i + 1)], expected, atol=1e-6)
+        passes = read_passes(raw / f"{i + 1:04d}.exr")
+        no_surface = ~np.any(passes["Normal"][..., :3] != 0, -1)
+        volume = no_surface & np.any(passes["Denoising Normal"][..., :3] != 0, -1)
+        assert volume.mean() > 0.02 and (no_surface & ~volume).mean() > 0.005, (volume.mean(), no_surface.mean())
+        layers = seq.inputs(i)
+        np.testing.assert_allclose(layers["normal"][volume], np.broadcast_to(expected, (volume.sum(), 3)), atol=1e-3)  # stored as half
+        assert not layers["normal"][no_surface & ~volume].any()
+        assert not layers["motion"][no_surface].any() and (layers["roughness"][no_surface] == 1).all()
+        # the medium's light is what makes these pixels noisy
+        assert (passes["Volume Direct"][..., :3].sum(-1) + passes["Volume Indirect"][..., :3].sum(-1))[volume].max() > 0
+
+
+def _volume_passes(volume_mark: bool) -> dict:
+    """One frame's passes, 2x2: a surface, the background, and two pixels whose camera rays
+    scattered in a volume (one lit, one not)."""
+    z3 = np.zeros((2, 2, 3), np.float32)
+    normal = z3.copy()
+    normal[0, 0] = (0, 0, 1)
+    passes = {n: z3.copy() for n in ("Combined", "Diffuse Direct", "Diffuse Indirect", "Diffuse Color", "Glossy Direct",
+                                     "Glossy Indirect", "Glossy Color", "Transmission Direct", "Transmission Indirect",
+                                     "Transmission Color", "Volume Direct", "Volume Indirect", "Emission",
+                                     "Environment")}
+    passes.update({"Normal": normal, "Vector": np.zeros((2, 2, 4), np.float32),
+                   "Depth": np.full((2, 2, 1), 1e10, np.float32), "Roughness": np.full((2, 2, 1), 0.5, np.float32)})
+    passes["Volume Direct"][1, 0] = 0.7
+    if volume_mark:
+        passes["Denoising Normal"] = z3.copy()
+        passes["Denoising Normal"][1, :] = (0, 0, -1)
+    return passes
+
+
+def test_volume_pixels_need_the_camera_direction_and_a_render_without_the_mark_is_counted(tmp_path):
+    from jnds_deploy.cycles import input_layers, unmarked_volume_pixels
+
+    layers = input_layers(_volume_passes(True), tmp_path / "0001.exr", [0.0, -1.0, 0.0])
+    np.testing.assert_array_equal(layers["normal"][1], [[0, -1, 0], [0, -1, 0]])
+    np.testing.assert_array_equal(layers["normal"][0], [[0, 0, 1], [0, 0, 0]])
+    with pytest.raises(SequenceError, match=r"0001\.exr.*2 pixels scattered in a volume.*toward_camera"):
+        input_layers(_volume_passes(True), tmp_path / "0001.exr", None)
+    assert unmarked_volume_pixels(_volume_passes(True)) == 0
+    unmarked = _volume_passes(False)
+    assert unmarked_volume_pixels(unmarked) == 1  # the lit one: the unlit one cannot be told from the world
+    assert not input_layers(unmarked, tmp_path / "0001.exr", None)["normal"][1].any()

@@ -1,10 +1,11 @@
 """A tiny Blender scene for the tests, run in Blender's environment:
 
-    python tiny_scene.py OUT_DIR inputs|plain|nojitter|reference|reference-after-inputs
+    python tiny_scene.py OUT_DIR inputs|plain|nojitter|reference|reference-after-inputs|volume
 
 A checker floor, a metal cube that moves on its own, a sun, a world colour, a camera that
 dollies and trucks: set up by ``jnds_deploy.blender.configure`` (``plain``: not at all) and rendered
-by Blender's own ``render(animation=True)``."""
+by Blender's own ``render(animation=True)``; ``volume``: as ``inputs``, with a block of scattering
+medium in front of the cube."""
 import math
 import sys
 
@@ -60,6 +61,19 @@ def build():
     return s
 
 
+def add_volume():
+    """A cube of Principled Volume (density 3 per metre) over the left half of the view."""
+    bpy.ops.mesh.primitive_cube_add(size=2, location=(-1.5, -4, 2))
+    fog = bpy.data.materials.new("fog")
+    fog.use_nodes = True
+    nodes = fog.node_tree.nodes
+    nodes.remove(nodes["Principled BSDF"])
+    vol = nodes.new("ShaderNodeVolumePrincipled")
+    vol.inputs["Density"].default_value = 3.0
+    fog.node_tree.links.new(vol.outputs[0], nodes["Material Output"].inputs["Volume"])
+    bpy.context.object.data.materials.append(fog)
+
+
 if __name__ == "__main__":
     out, mode = sys.argv[1], sys.argv[2]
     scene = build()
@@ -74,6 +88,8 @@ if __name__ == "__main__":
         scene.frame_set(3)  # leaves a jittered lens shift evaluated
         jb.configure_reference(scene, output=out + "/", spp=4)
     else:
-        changes = jb.configure(scene, output=out + "/", jitter_frames=mode == "inputs")
+        if mode == "volume":
+            add_volume()
+        changes = jb.configure(scene, output=out + "/", jitter_frames=mode in ("inputs", "volume"))
         assert changes.settings and changes.nodes and changes.aov
     bpy.ops.render.render(animation=True)
