@@ -3,9 +3,9 @@
 # done. gen22's recipe, seed and init (scripts/gen22.sh: gen14 fine-tuned 2200 steps, the
 # low-frequency term at weight 2.0) on gen22's training set grown by 8 sequences of the Cycles
 # kind `media` (participating media; docs/dataset.md; rendered here first where missing):
-# gen22 its paired control. 16 were planned; cut to 5 in stop 55, before any training, because a
+# gen22 its paired control. 16 were planned; cut to 8 in stop 55, before any training, because a
 # `media` sequence took 2-22 minutes to render two at once and 16 would not fit one session; and
-# their inputs carry the volume normals of stop 55 (jnds_deploy.cycles; the first three re-rendered
+# their inputs carry the volume normals of stop 55 (jnds_deploy.cycles; the first five re-rendered or resumed
 # by scripts/reguide_volumes.py). Written in stop 54 with its rule (docs/training.md, "gen23"),
 # before anything of it was trained or scored and before gen22 was scored.
 # Run it in its own session, niced, e.g.
@@ -15,7 +15,7 @@ set -ex
 cd "$(dirname "$0")/.."
 J=.venv/bin/jnds
 $J dataset --out data --split train --engine cycles --train-sequences 8 --glass-sequences 16 --print-sequences 16 \
-    --media-sequences 5 --jobs 2
+    --media-sequences 8 --jobs 2
 mkdir -p runs/gen23
 # gen14, the init of gen16-gen23: the shipped checkpoint before stop 51
 [ -f runs/gen23/gen14.pt ] || git show a60bb20:jnds_deploy/checkpoints/jnds.pt > runs/gen23/gen14.pt
