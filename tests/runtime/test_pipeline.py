@@ -177,6 +177,7 @@ def test_to_chw_stacks_sanitizes_pads_and_renormalizes():
     layers = {n: (rng.normal(size=(h, w, c)) * 3).astype(np.float32) for n, c in CURRENT + (("motion", 2),)}
     layers["diffuse"][1, 2, 0], layers["albedo"][0, 0, 2], layers["normal"][4, 6, 1] = np.nan, np.inf, -np.inf
     layers["roughness"][2, 3, 0], layers["motion"][3, 1, 1] = np.nan, np.inf
+    layers["normal"][0, 1], layers["normal"][2, 2] = 0.0, (1e-30, 0.0, -1e-30)  # squared norms of 0: left as is
     for names in ([n for n, _ in CURRENT], ["motion"]):
         counts = {}
         got = to_chw(layers, names, pad, counts)
