@@ -16,7 +16,9 @@ passes onto the paper's split:
   direction back to the camera (``jnds.json``'s ``toward_camera``), as Cycles gives its own
   denoiser, so the pipeline accumulates it over frames like a surface facing the camera
   rather than passing it through as exact background (docs/model-gap.md, "Volumes");
-  motion and depth stay 0 there, roughness 1;
+  depth stays 0 there and roughness 1, and its motion is that of the surfaces around it
+  (``volume_motion``): Vector has none, and the light a medium scatters moves with the
+  view much as the surfaces behind it do;
 - roughness = the ``Roughness`` AOV squared (Blender's perceptual roughness to the
   microfacet alpha, the format's convention); depth = Depth, 0 on the background;
 - motion = (Vector.X, -Vector.Y): Vector.xy is the previous-frame position minus the
@@ -124,11 +126,37 @@ def input_layers(passes: dict, path: Path, toward_camera=None) -> dict[str, np.n
                                       "`jnds_deploy.blender.configure`, which writes it")
         normal = np.where(volume, np.asarray(toward_camera, np.float32), normal)
     motion = np.where(no_surface, 0.0, motion).astype(np.float32)  # no surface, no motion: as Blender's
+    motion = volume_motion(motion, volume[..., 0], ~no_surface[..., 0])
     depth = np.where(no_surface[..., 0], 0.0, passes["Depth"][..., 0])[..., None]
     roughness = np.clip(passes[ROUGHNESS_AOV][..., :1], 0.0, 1.0) ** 2
     roughness = np.where(no_surface, 1.0, roughness)
     return {**layers, "normal": normal.astype(np.float32), "roughness": roughness.astype(np.float32),
             "motion": motion, "depth": depth.astype(np.float32)}
+
+
+VOLUME_MOTION_SIGMA = 1 / 32  # of the frame's width: the reach of volume_motion's average
+VOLUME_MOTION_WEIGHT = 0.05  # less surface than this around a volume pixel: its motion stays 0
+
+
+def volume_motion(motion: np.ndarray, volume: np.ndarray, surface: np.ndarray) -> np.ndarray:
+    """``motion`` (H, W, 2) with each ``volume`` pixel's replaced by the Gaussian-weighted mean
+    of the ``surface`` pixels' around it (sigma: VOLUME_MOTION_SIGMA of the width), where
+    they weigh at least VOLUME_MOTION_WEIGHT; 0 elsewhere (a frame all medium). Under a
+    camera that turns, every pixel moves alike whatever lies along it; under one that
+    translates this is the nearby surfaces' motion, not the medium's own, which has none.
+    Chosen on `media` training sequences with the shipped model (docs/model-gap.md)."""
+    if not volume.any() or not surface.any():
+        return motion
+    import cv2
+
+    sigma = VOLUME_MOTION_SIGMA * motion.shape[1]
+    weight = cv2.GaussianBlur(surface.astype(np.float32), (0, 0), sigma)
+    out = motion.copy()
+    fill = volume & (weight >= VOLUME_MOTION_WEIGHT)
+    for c in range(motion.shape[2]):
+        mean = cv2.GaussianBlur(np.where(surface, motion[..., c], 0).astype(np.float32), (0, 0), sigma)
+        out[..., c][fill] = mean[fill] / weight[fill]
+    return out
 
 
 def unmarked_volume_pixels(passes: dict) -> int:

@@ -208,7 +208,9 @@ def test_pixels_scattered_in_a_volume_import_facing_the_camera_not_as_background
         layers = seq.inputs(i)
         np.testing.assert_allclose(layers["normal"][volume], np.broadcast_to(expected, (volume.sum(), 3)), atol=1e-3)  # stored as half
         assert not layers["normal"][no_surface & ~volume].any()
-        assert not layers["motion"][no_surface].any() and (layers["roughness"][no_surface] == 1).all()
+        assert not layers["motion"][no_surface & ~volume].any() and (layers["roughness"][no_surface] == 1).all()
+        if i > 0:  # the camera moves: volume pixels take the surfaces' motion around them
+            assert np.abs(layers["motion"][volume]).max() > 0.1
         # the medium's light is what makes these pixels noisy
         assert (passes["Volume Direct"][..., :3].sum(-1) + passes["Volume Indirect"][..., :3].sum(-1))[volume].max() > 0
 
@@ -244,3 +246,20 @@ def test_volume_pixels_need_the_camera_direction_and_a_render_without_the_mark_i
     unmarked = _volume_passes(False)
     assert unmarked_volume_pixels(unmarked) == 1  # the lit one: the unlit one cannot be told from the world
     assert not input_layers(unmarked, tmp_path / "0001.exr", None)["normal"][1].any()
+
+
+def test_volume_pixels_take_the_motion_of_the_surfaces_around_them():
+    from jnds_deploy.cycles import volume_motion
+
+    h, w = 40, 64
+    motion = np.zeros((h, w, 2), np.float32)
+    surface = np.ones((h, w), bool)
+    surface[14:18, 23:27] = False  # a block of medium in front of a surface moving by (1.5, -2)
+    motion[surface] = (1.5, -2.0)
+    volume = ~surface
+    out = volume_motion(motion, volume, surface)
+    np.testing.assert_allclose(out[volume], np.broadcast_to((1.5, -2.0), (volume.sum(), 2)), rtol=1e-5)
+    np.testing.assert_array_equal(out[surface], motion[surface])
+    # a frame all medium has nothing to take it from; one without a medium is left alone
+    assert not volume_motion(np.zeros_like(motion), np.ones((h, w), bool), np.zeros((h, w), bool)).any()
+    np.testing.assert_array_equal(volume_motion(motion, np.zeros((h, w), bool), surface), motion)
