@@ -34,6 +34,12 @@ MARK = "volume_normals"  # render.json key: the inputs carry volume normals
 MOTION = "volume_motion"  # render.json key: their volume pixels carry the surfaces' motion
 
 
+def _volume(layers) -> np.ndarray:
+    """(H, W) bool: the volume pixels of imported layers, those with a normal but no depth
+    (before stop 55 such a pixel had no normal)."""
+    return (layers["depth"][..., 0] == 0) & np.any(layers["normal"] != 0, axis=-1)
+
+
 def reguide(seq: Path) -> str:
     marker = seq / "render.json"
     meta = json.loads(marker.read_text())
@@ -43,8 +49,7 @@ def reguide(seq: Path) -> str:
     if cfg.engine != "cycles":
         return "not a Cycles render: nothing to do"
     first = open_sequence(seq)
-    if any(np.any((first.inputs(i)["depth"][..., 0] == 0) & np.any(first.inputs(i)["normal"] != 0, axis=-1))
-           for i in range(len(first))):
+    if any(_volume(first.inputs(i)).any() for i in range(len(first))):
         # before stop 55 a pixel without depth had no normal: this import already gave them
         marker.write_text(json.dumps({**meta, MARK: True}, indent=1))
         return "rendered with volume normals"
@@ -86,9 +91,8 @@ def remotion(seq: Path) -> str:
     filled = 0
     for i in range(len(old)):
         layers = old.inputs(i)
-        depth = layers["depth"][..., 0]
-        volume = (depth == 0) & np.any(layers["normal"] != 0, axis=-1)
-        layers["motion"] = volume_motion(layers["motion"], volume, depth > 0)
+        volume = _volume(layers)
+        layers["motion"] = volume_motion(layers["motion"], volume, layers["depth"][..., 0] > 0)
         filled += int((volume & np.any(layers["motion"] != 0, axis=-1)).sum())
         writer.write_inputs(i, layers)
     for p in sorted((tmp / "inputs").iterdir()):
