@@ -146,6 +146,11 @@ class Manifest:
         # model.ModelConfig.firefly_clamp; artifacts from before it existed: off
         return float(self.model_config.get("firefly_clamp", 0.0))
 
+    @property
+    def diffuse_fill(self) -> bool:
+        # model.ModelConfig.diffuse_fill; artifacts from before it existed: off
+        return bool(self.model_config.get("diffuse_fill", False))
+
     # -- files ---------------------------------------------------------------------------
 
     @classmethod

@@ -113,7 +113,7 @@ def cmd_train(args) -> int:
     from .training.train import train
 
     cfg = TrainConfig(data=args.data, run=args.run, preset=args.preset, upsample_root=args.upsample_root,
-                      firefly_clamp=args.firefly_clamp,
+                      firefly_clamp=args.firefly_clamp, diffuse_fill=args.diffuse_fill,
                       patch=args.patch, unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
                       qat_steps=args.qat_steps, lr=args.lr, qat_lr=args.qat_lr, spatial_loss=args.spatial_loss,
                       feature_net=args.feature_net, init=args.init, deepen_blend=args.deepen_blend,
@@ -193,7 +193,8 @@ def cmd_run(args) -> int:
     exr_threads(args.threads)
     cfg = PipelineConfig(artifacts=args.artifacts, precision=args.precision,
                          filter_dtype=args.filter_dtype, threads=args.threads, adaptive=not args.no_adaptive,
-                         native_output=args.native, keep_freed_memory=True, firefly_clamp=args.firefly_clamp)
+                         native_output=args.native, keep_freed_memory=True, firefly_clamp=args.firefly_clamp,
+                         diffuse_fill=None if args.diffuse_fill is None else args.diffuse_fill == "on")
     report = run_sequence(cfg, args.input, args.output, progress=not args.quiet, output_format=args.output_format)
     med = report["median_ms"]
     print(f"{report['frames']} frames -> {args.output}: median {med['total']:.1f} ms/frame "
@@ -322,6 +323,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "the paper)")
     t.add_argument("--firefly-clamp", type=float, default=0.0, metavar="K",
                    help="train with the firefly clamp (model.ModelConfig.firefly_clamp; 0: off)")
+    t.add_argument("--diffuse-fill", action="store_true",
+                   help="train with the diffuse of samples that hit no diffuse surface filled from their "
+                        "neighbours' (model.ModelConfig.diffuse_fill)")
     t.add_argument("--fixed-upsample", action="store_true",
                    help="one learned upsample kernel for every pixel instead of the upsample block's "
                         "per-pixel prediction (no upsample graph; --init from a predicting checkpoint "
@@ -457,6 +461,9 @@ def build_parser() -> argparse.ArgumentParser:
     rn.add_argument("--firefly-clamp", type=float, default=None, metavar="K",
                     help="limit each pixel's current radiance to K x the brightest of its neighbours and its "
                          "history (0: off; default: the model's, model_config.firefly_clamp in the manifest)")
+    rn.add_argument("--diffuse-fill", default=None, choices=("on", "off"),
+                    help="fill the diffuse of samples that hit no diffuse surface from their "
+                                   "neighbours' (default: the model's, model_config.diffuse_fill in the manifest)")
     rn.add_argument("--threads", type=int, default=2)
     rn.add_argument("--output-format", default="float", choices=("float", "half"),
                    help="output frames: float (32-bit, uncompressed) or half (16-bit, PIZ: a quarter of the size)")

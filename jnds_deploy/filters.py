@@ -11,7 +11,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from .layout import BACKGROUND, HDR_MAX, LUMINANCE, REJECT_COS, ROOT_FLOOR, TONEMAP_FLOOR
+from .layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_COS,
+                     ROOT_FLOOR, TONEMAP_FLOOR)
 
 
 
@@ -79,6 +80,37 @@ def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor) -> torch.Tens
         best = d if best is None else torch.maximum(best, d)
     surface = warped_normal.abs().sum(1, keepdim=True) >= BACKGROUND
     return background | (surface & (best < REJECT_COS * length))
+
+
+def fill_diffuse_holes(diffuse: torch.Tensor, albedo: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:
+    """The demodulated ``diffuse`` (N, 3, H, W) with its holes filled: a pixel whose
+    sample hit no diffuse surface (albedo 0, normal not background: a metal, a hair
+    strand, a scattering volume) gets the weighted mean of the diffuse of its 5x5
+    neighbours that did (``layout.DIFFUSE_FILL_TAPS``), where their weights sum to at least
+    ``DIFFUSE_FILL_MIN``; elsewhere unchanged. Borders count as no sample.
+
+    Why: the renderer divides the diffuse light by the diffuse colour, and where that is 0
+    it writes 0, which says nothing about the light there. The filters took it as black
+    light, so where such samples are scattered among diffuse ones (a thin medium over a
+    floor, fur over a rug, sub-pixel metal), the filtered light came out darkened and the
+    composite, that light times the albedo (itself darkened by the same samples), speckled
+    and dark (docs/model-gap.md, "Diffuse holes"). The composite of the pixel itself is
+    unchanged: its albedo is 0. Not in the paper."""
+    c = diffuse.shape[1]
+    valid = (albedo.amax(1, keepdim=True) > 0).to(diffuse.dtype)
+    hole = (valid == 0) & (normal.abs().sum(1, keepdim=True) >= BACKGROUND)
+    taps = torch.tensor(DIFFUSE_FILL_TAPS, dtype=diffuse.dtype, device=diffuse.device)
+    k = len(DIFFUSE_FILL_TAPS)
+
+    def blur(x):  # separable, zero padding: out-of-frame taps carry no weight
+        n = x.shape[1]
+        x = F.conv2d(x, taps.view(1, 1, 1, k).expand(n, 1, 1, k), padding=(0, k // 2), groups=n)
+        return F.conv2d(x, taps.view(1, 1, k, 1).expand(n, 1, k, 1), padding=(k // 2, 0), groups=n)
+
+    sums = blur(torch.cat([diffuse * valid, valid], 1))
+    weight = sums[:, c:]
+    fill = hole & (weight >= DIFFUSE_FILL_MIN)
+    return torch.where(fill, sums[:, :c] / weight.clamp_min(DIFFUSE_FILL_MIN), diffuse)
 
 
 def luminance(x: torch.Tensor) -> torch.Tensor:

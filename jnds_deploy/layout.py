@@ -81,6 +81,13 @@ def head_kind(name: str) -> str:
 REJECT_COS = 0.7
 BACKGROUND = 0.5
 
+# diffuse holes (jnds_deploy.filters.fill_diffuse_holes): a pixel whose sample hit no diffuse
+# surface (albedo 0 on a surface or a volume) gets the demodulated diffuse of its 5x5
+# neighbours that did, weighted by this binomial kernel (sigma 1 pixel), where their weight
+# sums to at least DIFFUSE_FILL_MIN of the kernel's
+DIFFUSE_FILL_TAPS = (1.0 / 16, 4.0 / 16, 6.0 / 16, 4.0 / 16, 1.0 / 16)
+DIFFUSE_FILL_MIN = 0.2
+
 # Rec. 709 luminance weights: the brightness the firefly clamp compares
 # (jnds_deploy.filters.clamp_fireflies; the runtime's twin, runtime.filters)
 LUMINANCE = (0.2126, 0.7152, 0.0722)

@@ -62,6 +62,10 @@ class ModelConfig:
     # brightest of its neighbours and of its warped history (filters.clamp_fireflies); 0: off.
     # Not in the paper, not a weight: a checkpoint trained without it can run with it
     firefly_clamp: float = 0.0
+    # the demodulated diffuse of samples that hit no diffuse surface filled from their
+    # neighbours' (filters.fill_diffuse_holes). Not in the paper, not a weight: a checkpoint
+    # trained without it can run with it
+    diffuse_fill: bool = False
 
     def __post_init__(self):
         object.__setattr__(self, "encoder_widths", tuple(self.encoder_widths))
@@ -552,6 +556,9 @@ class JNDS(nn.Module):
         camera cut): then the current inputs stand in for the history. ``reset`` (N,) bool:
         the samples whose history is dropped, as if None (a cut inside a training window)."""
         cur = _split(current, list(CURRENT))
+        if self.cfg.diffuse_fill:
+            cur["diffuse"] = filters.fill_diffuse_holes(cur["diffuse"], cur["albedo"], cur["normal"])
+            current = torch.cat([cur[n] for n, _ in CURRENT], 1)
         cur_hist = torch.cat([cur[n] for n, _ in HISTORY], 1)
         if history is None:
             warped = cur_hist

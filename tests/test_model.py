@@ -759,3 +759,41 @@ def test_firefly_clamp_below_one_is_refused(k):
         ModelConfig(firefly_clamp=k)
     with pytest.raises(ConfigError, match="firefly_clamp"):
         PipelineConfig(artifacts="a", firefly_clamp=k)
+
+
+def test_fill_diffuse_holes():
+    """A sample that hit no diffuse surface (albedo 0, not background) gets its diffuse
+    neighbours' binomial-weighted mean; background, diffuse samples and holes with too
+    little diffuse around them keep their value, and so does the pixel's composite."""
+    h, w = 9, 12
+    diffuse = torch.full((1, 3, h, w), 2.0)
+    diffuse[:, :, :, 6:] = 4.0
+    albedo = torch.full((1, 3, h, w), 0.5)
+    normal = torch.zeros(1, 3, h, w)
+    normal[:, 2] = 1.0
+    hole = torch.zeros(h, w, dtype=torch.bool)
+    hole[4, 5] = True  # one hole: 2.0 on its left, 4.0 from its right neighbour on
+    hole[0:9, 9:12] = True  # a wide metal strip: its inner column has no diffuse within reach
+    hole[0, 0] = True  # a corner: the frame's border carries no weight
+    albedo[:, :, hole] = 0.0
+    diffuse[:, :, hole] = 0.0  # what the renderer writes there
+    normal[:, :, 8, 0] = 0.0  # background with albedo 0: not a hole
+    albedo[:, :, 8, 0] = 0.0
+    out = filters.fill_diffuse_holes(diffuse, albedo, normal)
+    taps = torch.tensor([1.0, 4.0, 6.0, 4.0, 1.0]) / 16
+    k = taps[:, None] * taps[None, :]  # rows 2..6, columns 3..7 around (4, 5)
+    values = diffuse[0, 0, 2:7, 3:8]
+    valid = ~hole[2:7, 3:8]
+    want = (k * values * valid).sum() / (k * valid).sum()
+    assert out[0, :, 4, 5].tolist() == pytest.approx([float(want)] * 3, rel=1e-6)
+    assert 2.0 < float(want) < 4.0
+    assert out[0, 0, 0, 0] == pytest.approx(2.0)  # all its in-frame diffuse neighbours are 2.0
+    assert torch.all(out[0, :, :, 11] == 0)  # no diffuse sample within two columns
+    assert torch.all(out[0, :, :, 10] == 0)  # one two columns away: weight 1/16, below the minimum
+    assert torch.all(out[0, :, :, 9] > 0)  # the strip's edge column: weight 5/16
+    assert out[0, 0, 8, 0] == diffuse[0, 0, 8, 0]  # background untouched
+    keep = ~hole
+    assert torch.equal(out[:, :, keep], diffuse[:, :, keep])
+    # the composite of a filled pixel is the same: its albedo is 0
+    assert torch.equal(filters.composite(albedo, out, torch.zeros_like(out))[:, :, hole],
+                       torch.zeros(1, 3, int(hole.sum())))

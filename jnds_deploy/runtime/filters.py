@@ -25,13 +25,15 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
-from ..layout import BACKGROUND, HDR_MAX, LUMINANCE, REJECT_COS, ROOT_FLOOR, channels
+from ..layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_COS, ROOT_FLOOR,
+                      channels)
 from .head import Coded, _decode_row
 
 # channel indices of the stacked inputs (layout.CURRENT; the history shares its first 12):
 # numba compiles them as constants
 _DIFFUSE, _SPECULAR = channels("diffuse").start, channels("specular").start
 _GEOMETRY = (channels("albedo").start, channels("normal").stop)  # albedo and normal
+_ALBEDO = channels("albedo").start
 _NX = channels("normal").start
 _NY, _NZ = _NX + 1, _NX + 2
 
@@ -576,6 +578,94 @@ def clamp_fireflies(current: np.ndarray, history: np.ndarray, k: float) -> int:
     _luminance_planes(current, history, lum)
     counts = np.zeros(h, np.int64)
     _clamp_rows(current, lum, np.float32(k), counts)
+    return int(counts.sum())
+
+
+_FILL_TAPS = tuple(np.float32(t) for t in DIFFUSE_FILL_TAPS)
+_FILL_R = len(DIFFUSE_FILL_TAPS) // 2
+
+
+@njit(parallel=True, cache=True)
+def _diffuse_holes(current, flags, counts):
+    """flags[y, x] = 1 where the sample hit a diffuse surface (albedo > 0), 2 where it is a
+    hole (albedo 0, normal not background), else 0; counts[y] = the row's holes."""
+    b = np.float32(BACKGROUND)
+    for y in prange(current.shape[1]):
+        n = 0
+        for x in range(current.shape[2]):
+            a = max(max(current[_ALBEDO, y, x], current[_ALBEDO + 1, y, x]), current[_ALBEDO + 2, y, x])
+            if a > 0:
+                flags[y, x] = 1
+            elif abs(current[_NX, y, x]) + abs(current[_NY, y, x]) + abs(current[_NZ, y, x]) >= b:
+                flags[y, x] = 2
+                n += 1
+            else:
+                flags[y, x] = 0
+        counts[y] = n
+
+
+@njit(parallel=True, cache=True)
+def _fill_row_sums(current, flags, sums):
+    """sums[0:3] = the horizontal taps of diffuse x valid, sums[3] of valid (zero beyond the
+    row's ends)."""
+    w = current.shape[2]
+    for y in prange(current.shape[1]):
+        for x in range(w):
+            s0 = s1 = s2 = s3 = np.float32(0)
+            for i in range(2 * _FILL_R + 1):
+                xx = x + i - _FILL_R
+                if 0 <= xx < w and flags[y, xx] == 1:
+                    t = _FILL_TAPS[i]
+                    s0 += t * current[_DIFFUSE, y, xx]
+                    s1 += t * current[_DIFFUSE + 1, y, xx]
+                    s2 += t * current[_DIFFUSE + 2, y, xx]
+                    s3 += t
+            sums[0, y, x], sums[1, y, x], sums[2, y, x], sums[3, y, x] = s0, s1, s2, s3
+
+
+@njit(parallel=True, cache=True)
+def _fill_holes(current, flags, sums, counts):
+    """The holes' diffuse from the vertical taps of the row sums (in place: a hole's diffuse
+    is never read, its weight is 0)."""
+    h = current.shape[1]
+    lo = np.float32(DIFFUSE_FILL_MIN)
+    for y in prange(h):
+        if counts[y] == 0:
+            continue
+        n = 0
+        for x in range(current.shape[2]):
+            if flags[y, x] != 2:
+                continue
+            s0 = s1 = s2 = s3 = np.float32(0)
+            for i in range(2 * _FILL_R + 1):
+                yy = y + i - _FILL_R
+                if 0 <= yy < h:
+                    t = _FILL_TAPS[i]
+                    s0 += t * sums[0, yy, x]
+                    s1 += t * sums[1, yy, x]
+                    s2 += t * sums[2, yy, x]
+                    s3 += t * sums[3, yy, x]
+            if s3 >= lo:
+                current[_DIFFUSE, y, x] = s0 / s3
+                current[_DIFFUSE + 1, y, x] = s1 / s3
+                current[_DIFFUSE + 2, y, x] = s2 / s3
+                n += 1
+        counts[y] = n
+
+
+def fill_diffuse_holes(current: np.ndarray) -> int:
+    """``jnds_deploy.filters.fill_diffuse_holes`` on the current inputs (13, H, W) float32,
+    in place. Returns how many pixels were filled. Separable, as the torch op: a frame
+    without holes costs one pass over its albedo and normals."""
+    _, h, w = current.shape
+    flags = np.empty((h, w), np.uint8)
+    counts = np.zeros(h, np.int64)
+    _diffuse_holes(current, flags, counts)
+    if not counts.any():
+        return 0
+    sums = np.empty((4, h, w), np.float32)
+    _fill_row_sums(current, flags, sums)
+    _fill_holes(current, flags, sums, counts)
     return int(counts.sum())
 
 

@@ -100,6 +100,9 @@ class PipelineConfig:
     keep_freed_memory: bool = False
     # the firefly clamp's factor (model.ModelConfig.firefly_clamp; 0: off); None: the model's
     firefly_clamp: float | None = None
+    # fill the diffuse of samples that hit no diffuse surface (model.ModelConfig.diffuse_fill);
+    # None: the model's
+    diffuse_fill: bool | None = None
 
     def __post_init__(self):
         if self.precision not in ("fp32", "int8"):
@@ -126,6 +129,7 @@ class FrameResult:
     disoccluded: int = 0  # history pixels replaced by the current inputs (filters.disoccluded)
     rejected: int = 0  # history tiles restarted from the current frame (history.reject_history)
     clamped: int = 0  # current diffuse/specular pixel values clamped as fireflies (filters.clamp_fireflies)
+    filled: int = 0  # current diffuse pixels filled from their neighbours' (filters.fill_diffuse_holes)
 
 
 @functools.cache
@@ -169,6 +173,7 @@ class Pipeline:
         self.levels = self.manifest.filter_levels
         self.upsample_root = self.manifest.upsample_root
         self.firefly_clamp = self.manifest.firefly_clamp if cfg.firefly_clamp is None else cfg.firefly_clamp
+        self.diffuse_fill = self.manifest.diffuse_fill if cfg.diffuse_fill is None else cfg.diffuse_fill
         # a model with one fixed upsample kernel has no upsample graph (Manifest.load checks the
         # kernel); at 2x it runs as one fused pass into the output (filters.upsample_fixed_hwc)
         self._fixed_kernel = None if "upsample" in self.manifest.graphs else self.manifest.upsample_kernel
@@ -262,6 +267,10 @@ class Pipeline:
             padded = (h + (-h) % self.multiple, w + (-w) % self.multiple)
             current = to_chw(layers, [n for n, _ in CURRENT], padded, nonfinite)
             motion = to_chw(layers, ["motion"], padded, nonfinite)
+        filled = 0
+        if self.diffuse_fill:
+            with t("diffuse_fill"):
+                filled = F.fill_diffuse_holes(current)
         if camera_cut:
             self.history.reset()
         with t("warp"):
@@ -300,7 +309,8 @@ class Pipeline:
             if bad_out:
                 nonfinite["output"] = bad_out
         t.ms["total"] = sum(t.ms.values())
-        return FrameResult(result, t.ms, nonfinite, decisions, warped.disoccluded, warped.rejected, clamped)
+        return FrameResult(result, t.ms, nonfinite, decisions, warped.disoccluded, warped.rejected, clamped,
+                           filled)
 
     def _decide(self, current: np.ndarray, warped: Warped) -> dict:
         """What this frame can skip: a signal that is zero in the frame and its history has

@@ -18,7 +18,7 @@ from ..io import OUTPUT_FORMATS, open_sequence, write_output
 from .pipeline import Pipeline, PipelineConfig
 
 
-STAGE_ORDER = ("reformat", "warp", "firefly_clamp", "tile_skip", "network", "filter_diffuse", "filter_specular", "filter_auxiliary",
+STAGE_ORDER = ("reformat", "diffuse_fill", "warp", "firefly_clamp", "tile_skip", "network", "filter_diffuse", "filter_specular", "filter_auxiliary",
                "composite", "upsample_kernel", "upsample_filter")
 
 
@@ -84,7 +84,8 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
             frames.append(frame.ms)
             nonfinite.append(frame.nonfinite)
             decisions.append({k: v for k, v in frame.decisions.items() if v})
-            rejected.append({"pixels": frame.disoccluded, "tiles": frame.rejected, "fireflies_clamped": frame.clamped})
+            rejected.append({"pixels": frame.disoccluded, "tiles": frame.rejected, "fireflies_clamped": frame.clamped,
+                             "diffuse_filled": frame.filled})
             if metrics and seq.has_reference:
                 from ..metrics import flip, psnr
 

@@ -331,3 +331,25 @@ def test_clamp_fireflies_keeps_what_the_history_or_the_neighbours_show():
     bright = cur.copy()
     bright[0:3, 4, 5] = 200.0  # a bright neighbour: no longer isolated, kept
     assert N.clamp_fireflies(bright, hist, 4.0) == 0
+
+
+def test_fill_diffuse_holes_matches_torch():
+    rng = np.random.default_rng(5)
+    cur = rng.exponential(1, (13, 23, 31)).astype(np.float32)
+    cur[9:12] = rng.normal(size=(3, 23, 31))
+    holes = rng.random((23, 31)) < 0.45
+    holes[5:16, 10:20] = True  # a region wider than the kernel: its middle stays as it is
+    cur[6:9, holes] = 0.0
+    cur[0:3, holes] = 0.0
+    cur[9:12, 0:3, 0:4] = 0.0  # background: not filled
+    got = cur.copy()
+    n = N.fill_diffuse_holes(got)
+    want = T.fill_diffuse_holes(*(torch.from_numpy(cur[None, a:a + 3]) for a in (0, 6, 9)))[0].numpy()
+    np.testing.assert_allclose(got[0:3], want, rtol=1e-6, atol=1e-7)  # sums in another order
+    changed = (got[0:3] != cur[0:3]).any(0)
+    assert n == changed.sum() > 0 and not changed[0:3, 0:4].any() and not changed[~holes].any()
+    assert not changed[10, 15]  # the wide region's middle
+    np.testing.assert_array_equal(got[3:], cur[3:])
+    clean = cur.copy()
+    clean[6:9] = 0.5  # no holes: nothing to do
+    assert N.fill_diffuse_holes(clean) == 0

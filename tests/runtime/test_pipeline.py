@@ -227,3 +227,27 @@ def test_firefly_clamp_matches_torch(artifacts):
         assert rel < 1e-4, (i, rel)
         if i > 0:
             assert np.abs(ref[i] - plain[i]).mean() / np.abs(ref[i]).mean() > 1e-3  # the clamp changed it
+
+
+def test_diffuse_fill_matches_torch(artifacts):
+    """The runtime's diffuse fill (PipelineConfig's or the manifest's) equals the model's;
+    the bundled sample's metal pixels are holes."""
+    import dataclasses
+
+    path, model = artifacts
+    model.cfg = dataclasses.replace(model.cfg, diffuse_fill=True)
+    try:
+        ref = infer_sequence(model, load_sequence(SAMPLE))[:3]
+    finally:
+        model.cfg = dataclasses.replace(model.cfg, diffuse_fill=False)
+    plain = infer_sequence(model, load_sequence(SAMPLE))[:3]
+    seq = open_sequence(SAMPLE)
+    pipe = Pipeline(PipelineConfig(artifacts=str(path), diffuse_fill=True))
+    assert not Pipeline(PipelineConfig(artifacts=str(path))).diffuse_fill  # the manifest's: off
+    for i in range(3):
+        frame = pipe(seq.inputs(i), seq.frames[i].camera_cut)
+        assert frame.filled > 0
+        rel = np.abs(frame.output - ref[i]).mean() / np.abs(ref[i]).mean()
+        assert rel < 1e-4, (i, rel)
+        assert np.abs(ref[i] - plain[i]).mean() / np.abs(ref[i]).mean() > 1e-4  # the fill changed it
+        assert "diffuse_fill" in frame.ms
