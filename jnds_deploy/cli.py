@@ -462,8 +462,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="limit each pixel's current radiance to K x the brightest of its neighbours and its "
                          "history (0: off; default: the model's, model_config.firefly_clamp in the manifest)")
     rn.add_argument("--diffuse-fill", default=None, choices=("on", "off"),
-                    help="fill the diffuse of samples that hit no diffuse surface from their "
-                                   "neighbours' (default: the model's, model_config.diffuse_fill in the manifest)")
+                    help="fill the diffuse of samples that hit no diffuse surface from their neighbours' "
+                         "(default: the model's, model_config.diffuse_fill in the manifest)")
     rn.add_argument("--threads", type=int, default=2)
     rn.add_argument("--output-format", default="float", choices=("float", "half"),
                    help="output frames: float (32-bit, uncompressed) or half (16-bit, PIZ: a quarter of the size)")
