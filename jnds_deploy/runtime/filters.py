@@ -626,7 +626,7 @@ def _fill_row_sums(current, flags, sums):
 @njit(parallel=True, cache=True)
 def _fill_holes(current, flags, sums, counts):
     """The holes' diffuse from the vertical taps of the row sums (in place: a hole's diffuse
-    is never read, its weight is 0)."""
+    is never read, its weight is 0). ``counts[y]``: the row's holes in, its filled pixels out."""
     h = current.shape[1]
     lo = np.float32(DIFFUSE_FILL_MIN)
     for y in prange(h):
