@@ -24,13 +24,15 @@ def bicubic(image: np.ndarray, scale: int) -> np.ndarray:
 def oidn(inputs: dict, quality: str = "balanced") -> np.ndarray:
     """OIDN's HDR denoiser at native resolution with albedo and normal guides.
 
-    OIDN wants the albedo of the first hit including specular surfaces' tint; the format's
-    albedo is 0 on metals and background, which OIDN accepts as a (dark) guide.
+    OIDN wants the albedo of the first hit including specular surfaces' tint: the inputs'
+    optional ``denoising_albedo`` where the sequence has it (Cycles' Denoising Albedo, what
+    a Cycles user gives OIDN), else the format's albedo, 0 on metals, hair and volumes,
+    which OIDN accepts as a (dark) guide but denoises worse with (docs/dataset.md).
     """
     import pyoidn
 
     color = np.ascontiguousarray(noisy_composite(inputs), np.float32)
-    albedo = np.ascontiguousarray(inputs["albedo"], np.float32)
+    albedo = np.ascontiguousarray(inputs.get("denoising_albedo", inputs["albedo"]), np.float32)
     normal = np.ascontiguousarray(inputs["normal"], np.float32)
     return np.maximum(pyoidn.denoise(color, albedo, normal, hdr=True, quality=quality), 0.0)
 

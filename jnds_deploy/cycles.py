@@ -26,6 +26,8 @@ passes onto the paper's split:
   Vector pass of a jittered render equals an unjittered render's to a few thousandths of
   a pixel (``tests/test_cycles.py``), i.e. it describes the pixel centre's point, as the
   format wants; 0 on the background.
+- denoising_albedo (optional) = Denoising Albedo where the render has it: not the
+  model's input, but the guide a Cycles user gives OIDN, which the OIDN baseline takes.
 
 A reference (``--reference``: the same frames rendered by ``blender.configure_reference``)
 gives ``color`` = Combined and the converged components by the same mapping.
@@ -66,6 +68,7 @@ SETTINGS = {  # pass -> the Blender setting that enables it
 INPUT_PASSES = [p for p in [*PASSES.values(), *CYCLES_PASSES.values(), ROUGHNESS_AOV] if p != "Combined"]
 REFERENCE_PASSES = [p for p in [*PASSES.values(), *CYCLES_PASSES.values()] if p not in ("Normal", "Vector", "Depth")]
 VOLUME_MARK = DENOISING_PASSES[0]  # Denoising Normal: non-zero where Normal is 0 marks volume scattering
+GUIDE_ALBEDO = DENOISING_PASSES[1]  # Denoising Albedo: the format's optional denoising_albedo
 _FRAME = re.compile(r"^(.*?)(\d+)\.exr$")
 
 
@@ -130,8 +133,11 @@ def input_layers(passes: dict, path: Path, toward_camera=None) -> dict[str, np.n
     depth = np.where(no_surface[..., 0], 0.0, passes["Depth"][..., 0])[..., None]
     roughness = np.clip(passes[ROUGHNESS_AOV][..., :1], 0.0, 1.0) ** 2
     roughness = np.where(no_surface, 1.0, roughness)
-    return {**layers, "normal": normal.astype(np.float32), "roughness": roughness.astype(np.float32),
-            "motion": motion, "depth": depth.astype(np.float32)}
+    out = {**layers, "normal": normal.astype(np.float32), "roughness": roughness.astype(np.float32),
+           "motion": motion, "depth": depth.astype(np.float32)}
+    if GUIDE_ALBEDO in passes:  # what a Cycles user gives OIDN (the baseline), not the model
+        out["denoising_albedo"] = np.clip(passes[GUIDE_ALBEDO][..., :3], 0.0, 1.0).astype(np.float32)
+    return out
 
 
 VOLUME_MOTION_SIGMA = 1 / 32  # of the frame's width: the reach of volume_motion's average

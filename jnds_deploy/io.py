@@ -33,7 +33,10 @@ FORMAT = "jnds-sequence/1"
 
 # layer name -> channel suffixes, in the order they are stacked on the last axis
 INPUT_LAYERS: dict[str, tuple[str, ...]] = {layer.name: layer.suffixes for layer in LAYERS}
-OPTIONAL_INPUT_LAYERS: dict[str, tuple[str, ...]] = {"depth": ("",)}
+# ``denoising_albedo``: the guide albedo a single-frame denoiser takes, a metal's tint and
+# what lies behind glass included (Cycles' Denoising Albedo pass); only the OIDN baseline
+# reads it (docs/dataset.md, "The OIDN baseline's albedo")
+OPTIONAL_INPUT_LAYERS: dict[str, tuple[str, ...]] = {"depth": ("",), "denoising_albedo": ("R", "G", "B")}
 REFERENCE_LAYERS: dict[str, tuple[str, ...]] = {"color": ("R", "G", "B")}
 OPTIONAL_REFERENCE_LAYERS: dict[str, tuple[str, ...]] = {
     "diffuse": ("R", "G", "B"),
@@ -242,7 +245,8 @@ class Sequence:
 
     def inputs(self, i: int) -> Layers:
         """Layers of input frame ``i``: diffuse, specular, albedo, normal (H, W, 3),
-        roughness (H, W, 1), motion (H, W, 2), depth (H, W, 1) if present."""
+        roughness (H, W, 1), motion (H, W, 2); depth (H, W, 1) and denoising_albedo
+        (H, W, 3) if present."""
         self._check_index(i)
         return read_layers(self.input_path(i), self.native_size, INPUT_LAYERS,
                            OPTIONAL_INPUT_LAYERS)
@@ -436,7 +440,7 @@ class SequenceWriter:
     and a renderer can resume it frame by frame.
     """
 
-    HALF_INPUTS = {"albedo", "normal", "roughness"}
+    HALF_INPUTS = {"albedo", "normal", "roughness", "denoising_albedo"}
     HALF_REFERENCE = {"color", "diffuse", "specular", "albedo"}
 
     def __init__(self, path: str | Path, native_size: tuple[int, int],

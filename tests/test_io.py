@@ -54,6 +54,24 @@ def test_round_trip(make_sequence):
     assert validate(path).clean
 
 
+def test_the_optional_denoising_albedo_round_trips_and_validates(make_sequence):
+    """The OIDN baseline's guide albedo (``denoising_albedo``, a Cycles import's Denoising
+    Albedo) is optional: written and read back where a frame has it, absent where not,
+    and a NaN in it is reported by channel like any other."""
+    from jnds_deploy.io import SequenceWriter
+
+    path, ins, _ = make_sequence(frames=2, reference=False)
+    seq = open_sequence(path)
+    assert "denoising_albedo" not in seq.inputs(0)
+    guide = np.random.default_rng(1).random((5, 7, 3)).astype(np.float32)
+    SequenceWriter(path, (7, 5)).write_inputs(0, {**ins[0], "denoising_albedo": guide})
+    np.testing.assert_allclose(open_sequence(path).inputs(0)["denoising_albedo"], guide, atol=1e-3)  # half
+    guide[2, 3, 1] = np.nan
+    SequenceWriter(path, (7, 5)).write_inputs(1, {**ins[1], "denoising_albedo": guide})
+    report = validate(path)
+    assert report.nonfinite["inputs"] == {"denoising_albedo.G": {1: 1}}
+
+
 def test_reads_tiled_half_piz(make_sequence):
     path, ins, _ = make_sequence(frames=1, reference=False)
     chans = {k: v.astype(np.float16) for k, v in read_exr(path / "inputs/0000.exr").items()}

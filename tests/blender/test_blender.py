@@ -55,7 +55,11 @@ def test_configured_render_imports_validates_and_runs(renders, tmp_path, tiny_ar
     seq = open_sequence(tmp_path / "seq")
     assert len(seq) == 4 and seq.native_size == (64, 40) and seq.target_size == (128, 80)
     assert [f.jitter for f in seq.frames] != [(0.0, 0.0)] * 4  # the keyed Halton jitter
-    roughness = seq.inputs(1)["roughness"]
+    layers = seq.inputs(1)
+    # the metal cube: no diffuse albedo in the format, its tint in the OIDN baseline's guide
+    metal = (layers["albedo"].max(-1) == 0) & (np.abs(layers["normal"]).sum(-1) > 0.5)
+    assert metal.mean() > 0.01 and layers["denoising_albedo"][metal].mean() > 0.3
+    roughness = layers["roughness"]
     assert roughness.min() >= 0 and np.isclose(roughness.max(), 1.0)  # the background
     assert np.isclose(np.median(roughness[roughness < 1]), 0.6 ** 2, atol=1e-3)  # floor: alpha = r^2
     assert main(["validate", str(tmp_path / "seq"), "--strict"]) == 0
