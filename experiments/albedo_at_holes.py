@@ -29,11 +29,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository r
 from jnds_deploy import filters, model as M  # noqa: E402
 from jnds_deploy.checkpoint import default_checkpoint, load_model  # noqa: E402
 from jnds_deploy.io import expand_sequences  # noqa: E402
-from jnds_deploy.layout import BACKGROUND, channels  # noqa: E402
+from jnds_deploy.layout import BACKGROUND, DIFFUSE_FILL_TAPS, channels  # noqa: E402
 from jnds_deploy.training.data import load_sequence  # noqa: E402
 from jnds_deploy.training.evaluate import infer_sequence, score_frames  # noqa: E402
 
-_TAPS = torch.tensor([1.0, 4.0, 6.0, 4.0, 1.0]) / 16
+_TAPS = torch.tensor(DIFFUSE_FILL_TAPS)  # the diffuse fill's 5-tap binomial
 _KERNEL = (_TAPS[:, None] * _TAPS[None, :])[None, None]
 
 
