@@ -151,6 +151,11 @@ class Manifest:
         # model.ModelConfig.diffuse_fill; artifacts from before it existed: off
         return bool(self.model_config.get("diffuse_fill", False))
 
+    @property
+    def albedo_at_holes(self) -> bool:
+        # model.ModelConfig.albedo_at_holes; artifacts from before it existed: off
+        return bool(self.model_config.get("albedo_at_holes", False))
+
     # -- files ---------------------------------------------------------------------------
 
     @classmethod

@@ -114,6 +114,7 @@ def cmd_train(args) -> int:
 
     cfg = TrainConfig(data=args.data, run=args.run, preset=args.preset, upsample_root=args.upsample_root,
                       firefly_clamp=args.firefly_clamp, diffuse_fill=args.diffuse_fill,
+                      albedo_at_holes=args.albedo_at_holes,
                       patch=args.patch, unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
                       qat_steps=args.qat_steps, lr=args.lr, qat_lr=args.qat_lr, spatial_loss=args.spatial_loss,
                       feature_net=args.feature_net, init=args.init, deepen_blend=args.deepen_blend,
@@ -194,7 +195,8 @@ def cmd_run(args) -> int:
     cfg = PipelineConfig(artifacts=args.artifacts, precision=args.precision,
                          filter_dtype=args.filter_dtype, threads=args.threads, adaptive=not args.no_adaptive,
                          native_output=args.native, keep_freed_memory=True, firefly_clamp=args.firefly_clamp,
-                         diffuse_fill=None if args.diffuse_fill is None else args.diffuse_fill == "on")
+                         diffuse_fill=None if args.diffuse_fill is None else args.diffuse_fill == "on",
+                         albedo_at_holes=None if args.albedo_at_holes is None else args.albedo_at_holes == "on")
     report = run_sequence(cfg, args.input, args.output, progress=not args.quiet, output_format=args.output_format)
     med = report["median_ms"]
     print(f"{report['frames']} frames -> {args.output}: median {med['total']:.1f} ms/frame "
@@ -293,8 +295,8 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("dataset", help="render (or resume) the training and validation sets")
     d.add_argument("--out", default="data")
     d.add_argument("--split", default="all",
-                   choices=("train", "val", "all", "test", "holdout", "holdout2", "holdout3", "holdout4"),
-                   help="all = train + val; test (seeds never trained or selected on) holdout (Cycles: kinds written after the test was read) holdout2 (kinds written after the holdout was read), holdout3 (after holdout2 was read) and holdout4 (after holdout3 was) only when asked for")
+                   choices=("train", "val", "all", "test", "holdout", "holdout2", "holdout3", "holdout4", "media"),
+                   help="all = train + val; test (seeds never trained or selected on) holdout (Cycles: kinds written after the test was read) holdout2 (kinds written after the holdout was read), holdout3 (after holdout2 was read), holdout4 (after holdout3 was) and media (Cycles: unseen seeds of the media training kind) only when asked for")
     d.add_argument("--limit", type=int, default=None, help="only the first N sequences")
     d.add_argument("--list", action="store_true", help="print the sequences and exit")
     d.add_argument("--train-sequences", type=int, default=TRAIN_SEQUENCES,
@@ -326,6 +328,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--diffuse-fill", action="store_true",
                    help="train with the diffuse of samples that hit no diffuse surface filled from their "
                         "neighbours' (model.ModelConfig.diffuse_fill)")
+    t.add_argument("--albedo-at-holes", action="store_true",
+                   help="train with the composite's albedo averaged where such samples lie scattered "
+                        "(model.ModelConfig.albedo_at_holes)")
     t.add_argument("--fixed-upsample", action="store_true",
                    help="one learned upsample kernel for every pixel instead of the upsample block's "
                         "per-pixel prediction (no upsample graph; --init from a predicting checkpoint "
@@ -464,6 +469,9 @@ def build_parser() -> argparse.ArgumentParser:
     rn.add_argument("--diffuse-fill", default=None, choices=("on", "off"),
                     help="fill the diffuse of samples that hit no diffuse surface from their neighbours' "
                          "(default: the model's, model_config.diffuse_fill in the manifest)")
+    rn.add_argument("--albedo-at-holes", default=None, choices=("on", "off"),
+                    help="composite with the local mean of the filtered albedo where samples that hit no diffuse "
+                         "surface lie scattered (default: the model's, model_config.albedo_at_holes in the manifest)")
     rn.add_argument("--threads", type=int, default=2)
     rn.add_argument("--output-format", default="float", choices=("float", "half"),
                    help="output frames: float (32-bit, uncompressed) or half (16-bit, PIZ: a quarter of the size)")

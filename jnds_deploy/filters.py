@@ -12,6 +12,7 @@ import torch
 import torch.nn.functional as F
 
 from .layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_COS,
+                     SCATTERED_CHANGES, SCATTERED_SHARE,
                      ROOT_FLOOR, TONEMAP_FLOOR)
 
 
@@ -98,7 +99,7 @@ def fill_diffuse_holes(diffuse: torch.Tensor, albedo: torch.Tensor, normal: torc
     unchanged: its albedo is 0. Not in the paper."""
     c = diffuse.shape[1]
     valid = (albedo.amax(1, keepdim=True) > 0).to(diffuse.dtype)
-    hole = (valid == 0) & (normal.abs().sum(1, keepdim=True) >= BACKGROUND)
+    hole = diffuse_holes(albedo, normal)
     taps = torch.tensor(DIFFUSE_FILL_TAPS, dtype=diffuse.dtype, device=diffuse.device)
     k = len(DIFFUSE_FILL_TAPS)
 
@@ -111,6 +112,46 @@ def fill_diffuse_holes(diffuse: torch.Tensor, albedo: torch.Tensor, normal: torc
     weight = sums[:, c:]
     fill = hole & (weight >= DIFFUSE_FILL_MIN)
     return torch.where(fill, sums[:, :c] / weight.clamp_min(DIFFUSE_FILL_MIN), diffuse)
+
+
+def diffuse_holes(albedo: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:
+    """(N, 1, H, W) bool: the samples that hit no diffuse surface (albedo 0, normal not
+    background), ``fill_diffuse_holes``'s holes."""
+    return (albedo.amax(1, keepdim=True) <= 0) & (normal.abs().sum(1, keepdim=True) >= BACKGROUND)
+
+
+def _binomial(x: torch.Tensor) -> torch.Tensor:
+    """The 5x5 binomial mean of each channel (``DIFFUSE_FILL_TAPS`` both ways), the border
+    replicated."""
+    c, k = x.shape[1], len(DIFFUSE_FILL_TAPS)
+    taps = torch.tensor(DIFFUSE_FILL_TAPS, dtype=x.dtype, device=x.device)
+    x = F.pad(x, (k // 2,) * 4, mode="replicate")
+    x = F.conv2d(x, taps.view(1, 1, 1, k).expand(c, 1, 1, k), groups=c)
+    return F.conv2d(x, taps.view(1, 1, k, 1).expand(c, 1, k, 1), groups=c)
+
+
+def scattered_holes(hole: torch.Tensor) -> torch.Tensor:
+    """(N, 1, H, W) bool: where ``diffuse_holes`` lie scattered among diffuse samples: their
+    5x5 share strictly inside ``SCATTERED_SHARE`` and the 5x5 mean of the hole mask's changes
+    from pixel to pixel above ``SCATTERED_CHANGES`` (hair, a medium over a floor; the edge of
+    a solid metal object changes once, and its neighbours keep their albedo)."""
+    h = hole.float()
+    changes = (F.pad((h[..., :, 1:] - h[..., :, :-1]).abs(), (0, 1))
+               + F.pad((h[..., 1:, :] - h[..., :-1, :]).abs(), (0, 0, 0, 1)))
+    share, moves = _binomial(torch.cat([h, changes], 1)).split(1, 1)
+    lo, hi = SCATTERED_SHARE
+    return (share > lo) & (share < hi) & (moves > SCATTERED_CHANGES)
+
+
+def albedo_at_holes(albedo: torch.Tensor, scattered: torch.Tensor) -> torch.Tensor:
+    """The filtered ``albedo`` (N, 3, H, W) the composite takes: its 5x5 binomial mean where
+    ``scattered`` (``scattered_holes``), else itself.
+
+    Why: the auxiliary filter keeps each hole's albedo 0, so where holes lie scattered (fur
+    over a rug, a medium over a floor) the composite, even with the diffuse light filled
+    (``fill_diffuse_holes``), keeps the 1-spp coverage pattern as grain; the reference has its
+    mean (docs/model-gap.md, "The albedo at holes"). Not in the paper, not a weight."""
+    return torch.where(scattered, _binomial(albedo), albedo)
 
 
 def luminance(x: torch.Tensor) -> torch.Tensor:

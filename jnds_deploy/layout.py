@@ -87,6 +87,12 @@ BACKGROUND = 0.5
 # sums to at least DIFFUSE_FILL_MIN of the kernel's
 DIFFUSE_FILL_TAPS = (1.0 / 16, 4.0 / 16, 6.0 / 16, 4.0 / 16, 1.0 / 16)
 DIFFUSE_FILL_MIN = 0.2
+# the albedo at holes (jnds_deploy.filters.albedo_at_holes): where the 5x5 share of holes (the
+# same taps, the border replicated) lies strictly inside SCATTERED_SHARE and the 5x5 mean of
+# the hole mask's changes from pixel to pixel (horizontal plus vertical) is above
+# SCATTERED_CHANGES, the composite takes the 5x5 mean of the filtered albedo
+SCATTERED_SHARE = (0.05, 0.95)
+SCATTERED_CHANGES = 0.5
 
 # Rec. 709 luminance weights: the brightness the firefly clamp compares
 # (jnds_deploy.filters.clamp_fireflies; the runtime's twin, runtime.filters)

@@ -66,6 +66,9 @@ class ModelConfig:
     # neighbours' (filters.fill_diffuse_holes). Not in the paper, not a weight: a checkpoint
     # trained without it can run with it
     diffuse_fill: bool = False
+    # the composite takes the 5x5 mean of the filtered albedo where diffuse holes lie
+    # scattered (filters.albedo_at_holes). Not in the paper, not a weight
+    albedo_at_holes: bool = False
 
     def __post_init__(self):
         object.__setattr__(self, "encoder_widths", tuple(self.encoder_widths))
@@ -556,6 +559,7 @@ class JNDS(nn.Module):
         camera cut): then the current inputs stand in for the history. ``reset`` (N,) bool:
         the samples whose history is dropped, as if None (a cut inside a training window)."""
         cur = _split(current, list(CURRENT))
+        holes = filters.diffuse_holes(cur["albedo"], cur["normal"]) if self.cfg.albedo_at_holes else None
         if self.cfg.diffuse_fill:
             cur["diffuse"] = filters.fill_diffuse_holes(cur["diffuse"], cur["albedo"], cur["normal"])
             current = torch.cat([cur[n] for n, _ in CURRENT], 1)
@@ -592,7 +596,8 @@ class JNDS(nn.Module):
         aux = [filters.spatiotemporal(x, h, net["aux.spatial"], net["aux.temporal"], net["aux.blend"])
                for x, h in ((cur["albedo"], hist["albedo"]), (cur["normal"] * 0.5 + 0.5, hist["normal"] * 0.5 + 0.5))]
         albedo, normal = aux[0], aux[1] * 2.0 - 1.0
-        comp = filters.composite(albedo, paths["diffuse"], paths["specular"])
+        lit = filters.albedo_at_holes(albedo, filters.scattered_holes(holes)) if holes is not None else albedo
+        comp = filters.composite(lit, paths["diffuse"], paths["specular"])
         return FrameOutput(paths["diffuse"], paths["specular"], albedo, normal, comp,
                            self.upsample(comp, net.get("features")))
 

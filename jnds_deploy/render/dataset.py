@@ -59,6 +59,9 @@ EXTRA_SEEDS = {"mixed": 9000, "lights": 10000, "interior": 11000, "detail": 1200
 # holdout2's after the first holdout was, holdout3's after holdout2's studio was looked at to
 # choose training data, holdout4's after holdout3's haze was
 HOLDOUT_SEEDS = {"holdout": 7100, "holdout2": 7200, "holdout3": 7300, "holdout4": 7400}
+# the media split: unseen seeds of the training-only kind ``media``, rendered after the albedo
+# at holes (docs/model-gap.md) had been chosen on media training sequences, to check that choice
+MEDIA_SEEDS = 16100
 
 
 def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
@@ -82,7 +85,8 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     (``blender_scene.CYCLES_HOLDOUT2_KINDS``); holdout3 (seeds 7300+) for two more, written after
     holdout2 had been looked at to choose training data (``blender_scene.CYCLES_HOLDOUT3_KINDS``);
     holdout4 (seeds 7400+) for two more, written after holdout3 had been
-    (``blender_scene.CYCLES_HOLDOUT4_KINDS``).
+    (``blender_scene.CYCLES_HOLDOUT4_KINDS``). The media split (Cycles only, seeds 16100+) is
+    six sequences of the training kind ``media`` at unseen seeds (``MEDIA_SEEDS``).
     """
     if not 1 <= train_sequences <= 1000:
         raise ConfigError(f"train_sequences must be in 1..1000, got {train_sequences}")
@@ -92,8 +96,9 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     for kind, n in extra_sequences.items():
         if kind not in EXTRA_SEEDS:
             raise ConfigError(f"unknown training-only kind {kind!r}, expected one of {', '.join(EXTRA_SEEDS)}")
-        if not 0 <= n <= 1000 or (n and engine != "cycles"):
-            raise ConfigError(f"{kind} sequences must be in 0..1000 (Cycles only), got {n}")
+        top = MEDIA_SEEDS - EXTRA_SEEDS["media"] if kind == "media" else 1000  # below the media split's seeds
+        if not 0 <= n <= top or (n and engine != "cycles"):
+            raise ConfigError(f"{kind} sequences must be in 0..{top} (Cycles only), got {n}")
     if engine not in ENGINES:
         raise ConfigError(f"unknown engine {engine!r}, expected one of {', '.join(ENGINES)}")
     train0, val0, test0 = SEEDS[engine]
@@ -109,12 +114,14 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     if engine == "cycles":
         for name, first in HOLDOUT_SEEDS.items():
             specs[name] = _specs(name, range(first, first + 6), frames=12, spp=128, engine=engine)
-    elif split in HOLDOUT_SEEDS:
+        specs["media"] = _specs("media", range(MEDIA_SEEDS, MEDIA_SEEDS + 6), frames=12, spp=128, engine=engine,
+                                kind="media")
+    elif split in HOLDOUT_SEEDS or split == "media":
         raise ConfigError(f"the {split} split is rendered with Cycles only (--engine cycles)")
     if split == "all":
         return specs["train"] + specs["val"]
     if split not in specs:
-        raise ConfigError(f"unknown split {split!r}, expected train, val, all, test, holdout, holdout2, holdout3 or holdout4")
+        raise ConfigError(f"unknown split {split!r}, expected train, val, all, test, holdout, holdout2, holdout3, holdout4 or media")
     return specs[split]
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_COS, ROOT_FLOOR,
-                      channels)
+                      SCATTERED_CHANGES, SCATTERED_SHARE, channels)
 from .head import Coded, _decode_row
 
 # channel indices of the stacked inputs (layout.CURRENT; the history shares its first 12):
@@ -653,20 +653,103 @@ def _fill_holes(current, flags, sums, counts):
         counts[y] = n
 
 
-def fill_diffuse_holes(current: np.ndarray) -> int:
-    """``jnds_deploy.filters.fill_diffuse_holes`` on the current inputs (13, H, W) float32,
-    in place. Returns how many pixels were filled. Separable, as the torch op: a frame
-    without holes costs one pass over its albedo and normals."""
+def diffuse_holes(current: np.ndarray) -> tuple[np.ndarray, int]:
+    """The current inputs' (13, H, W) float32 samples as flags (H, W) u8: 1 a diffuse surface,
+    2 a hole (``jnds_deploy.filters.diffuse_holes``), 0 background; and the number of holes.
+    One pass over the albedo and normals."""
     _, h, w = current.shape
     flags = np.empty((h, w), np.uint8)
     counts = np.zeros(h, np.int64)
     _diffuse_holes(current, flags, counts)
-    if not counts.any():
+    return flags, int(counts.sum())
+
+
+def fill_diffuse_holes(current: np.ndarray, holes: tuple[np.ndarray, int] | None = None) -> int:
+    """``jnds_deploy.filters.fill_diffuse_holes`` on the current inputs (13, H, W) float32,
+    in place (``holes``: their ``diffuse_holes``, else found here). Returns how many pixels
+    were filled. Separable, as the torch op: a frame without holes costs one pass over its
+    albedo and normals."""
+    flags, n = holes if holes is not None else diffuse_holes(current)
+    if not n:
         return 0
+    _, h, w = current.shape
+    counts = np.count_nonzero(flags == 2, axis=1).astype(np.int64)
     sums = np.empty((4, h, w), np.float32)
     _fill_row_sums(current, flags, sums)
     _fill_holes(current, flags, sums, counts)
     return int(counts.sum())
+
+
+_SHARE_LO, _SHARE_HI = (np.float32(v) for v in SCATTERED_SHARE)
+_CHANGES_MIN = np.float32(SCATTERED_CHANGES)
+
+
+@njit(parallel=True, cache=True)
+def _scattered_row_sums(flags, sums):
+    """sums[0] = the horizontal taps of the hole mask, sums[1] of its changes (to the right
+    plus downward, none beyond the last column and row), the border replicated."""
+    h, w = flags.shape
+    for y in prange(h):
+        below = min(y + 1, h - 1)
+        for x in range(w):
+            s0 = s1 = np.float32(0)
+            for i in range(2 * _FILL_R + 1):
+                xx = min(max(x + i - _FILL_R, 0), w - 1)
+                hole = flags[y, xx] == 2
+                moves = 0
+                if xx + 1 < w and (flags[y, xx + 1] == 2) != hole:
+                    moves += 1
+                if y + 1 < h and (flags[below, xx] == 2) != hole:
+                    moves += 1
+                t = _FILL_TAPS[i]
+                if hole:
+                    s0 += t
+                s1 += t * np.float32(moves)
+            sums[0, y, x], sums[1, y, x] = s0, s1
+
+
+@njit(parallel=True, cache=True)
+def _albedo_means(albedo, sums, out):
+    """out = albedo, with its 5x5 binomial mean (border replicated) where the vertical taps of
+    ``sums`` say the holes lie scattered (the mean only where it is used)."""
+    c, h, w = albedo.shape
+    for y in prange(h):
+        for x in range(w):
+            share = moves = np.float32(0)
+            for j in range(2 * _FILL_R + 1):
+                yy = min(max(y + j - _FILL_R, 0), h - 1)
+                share += _FILL_TAPS[j] * sums[0, yy, x]
+                moves += _FILL_TAPS[j] * sums[1, yy, x]
+            if _SHARE_LO < share < _SHARE_HI and moves > _CHANGES_MIN:
+                for k in range(c):
+                    m = np.float32(0)
+                    for j in range(2 * _FILL_R + 1):
+                        yy = min(max(y + j - _FILL_R, 0), h - 1)
+                        r = np.float32(0)
+                        for i in range(2 * _FILL_R + 1):
+                            r += _FILL_TAPS[i] * albedo[k, yy, min(max(x + i - _FILL_R, 0), w - 1)]
+                        m += _FILL_TAPS[j] * r
+                    out[k, y, x] = m
+            else:
+                for k in range(c):
+                    out[k, y, x] = albedo[k, y, x]
+
+
+def albedo_at_holes(albedo: np.ndarray, holes: tuple[np.ndarray, int]) -> np.ndarray:
+    """``jnds_deploy.filters.albedo_at_holes``: the filtered ``albedo`` (3, H, W) with its
+    5x5 binomial mean where ``holes`` (``diffuse_holes`` of the frame's inputs) lie scattered;
+    ``albedo`` itself (no copy) where the frame has no holes. Float32 inside; the result in
+    ``albedo``'s dtype."""
+    flags, n = holes
+    if not n:
+        return albedo
+    _, h, w = albedo.shape
+    sums = np.empty((2, h, w), np.float32)
+    _scattered_row_sums(flags, sums)
+    src = np.ascontiguousarray(albedo, dtype=np.float32)
+    out = np.empty_like(src)
+    _albedo_means(src, sums, out)
+    return out.astype(albedo.dtype, copy=False)
 
 
 def warp(x: np.ndarray, motion: np.ndarray) -> np.ndarray:

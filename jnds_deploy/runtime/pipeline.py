@@ -103,6 +103,9 @@ class PipelineConfig:
     # fill the diffuse of samples that hit no diffuse surface (model.ModelConfig.diffuse_fill);
     # None: the model's
     diffuse_fill: bool | None = None
+    # the composite takes the mean filtered albedo where diffuse holes lie scattered
+    # (model.ModelConfig.albedo_at_holes); None: the model's
+    albedo_at_holes: bool | None = None
 
     def __post_init__(self):
         if self.precision not in ("fp32", "int8"):
@@ -174,6 +177,7 @@ class Pipeline:
         self.upsample_root = self.manifest.upsample_root
         self.firefly_clamp = self.manifest.firefly_clamp if cfg.firefly_clamp is None else cfg.firefly_clamp
         self.diffuse_fill = self.manifest.diffuse_fill if cfg.diffuse_fill is None else cfg.diffuse_fill
+        self.albedo_at_holes = self.manifest.albedo_at_holes if cfg.albedo_at_holes is None else cfg.albedo_at_holes
         # a model with one fixed upsample kernel has no upsample graph (Manifest.load checks the
         # kernel); at 2x it runs as one fused pass into the output (filters.upsample_fixed_hwc)
         self._fixed_kernel = None if "upsample" in self.manifest.graphs else self.manifest.upsample_kernel
@@ -267,10 +271,12 @@ class Pipeline:
             padded = (h + (-h) % self.multiple, w + (-w) % self.multiple)
             current = to_chw(layers, [n for n, _ in CURRENT], padded, nonfinite)
             motion = to_chw(layers, ["motion"], padded, nonfinite)
-        filled = 0
-        if self.diffuse_fill:
-            with t("diffuse_fill"):
-                filled = F.fill_diffuse_holes(current)
+        filled, holes = 0, None
+        if self.diffuse_fill or self.albedo_at_holes:
+            with t("diffuse_fill"):  # finding the holes (one pass), then filling them
+                holes = F.diffuse_holes(current)
+                if self.diffuse_fill:
+                    filled = F.fill_diffuse_holes(current, holes)
         if camera_cut:
             self.history.reset()
         with t("warp"):
@@ -286,8 +292,12 @@ class Pipeline:
             cur, hist, net = self._filter_inputs(current, warped.signals, net, rs)
         tiles = self._empty_tiles(current, warped.signals, decisions, t)
         filtered = self._filter_paths(current, warped.signals, cur, hist, net, decisions, tiles, t)
+        albedo = filtered["albedo"]  # the history keeps it as filtered
+        if self.albedo_at_holes:
+            with t("albedo_at_holes"):
+                albedo = F.albedo_at_holes(albedo, holes)
         with t("composite"):
-            comp = F.composite(filtered["albedo"], filtered["diffuse"], filtered["specular"])
+            comp = F.composite(albedo, filtered["diffuse"], filtered["specular"])
         if self._fused_upsample:
             # one fixed kernel at 2x: upsampling, kernel, layout and the non-finite check in one pass
             with t("upsample_filter"):

@@ -16,6 +16,7 @@ class TrainConfig:
     upsample_root: int = 1  # ModelConfig.upsample_root of the trained model
     firefly_clamp: float = 0.0  # ModelConfig.firefly_clamp of the trained model (0: off)
     diffuse_fill: bool = False  # ModelConfig.diffuse_fill of the trained model
+    albedo_at_holes: bool = False  # ModelConfig.albedo_at_holes of the trained model
     # one learned upsample kernel for every pixel (ModelConfig.upsample_width 0)
     fixed_upsample: bool = False
     patch: int = 64  # native patch side, a multiple of the model's pad multiple
@@ -69,7 +70,7 @@ class TrainConfig:
 
         fixed = dict(upsample_width=0, upsample_features=0) if self.fixed_upsample else {}
         return ModelConfig.preset(self.preset, upsample_root=self.upsample_root, firefly_clamp=self.firefly_clamp,
-                                  diffuse_fill=self.diffuse_fill, **fixed)
+                                  diffuse_fill=self.diffuse_fill, albedo_at_holes=self.albedo_at_holes, **fixed)
 
     def __post_init__(self):
         if self.spatial_loss not in SPATIAL_LOSSES:

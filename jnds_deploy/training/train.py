@@ -185,10 +185,11 @@ def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
     checkpoint with ``fp32_steps == 0`` goes on in the QAT phase with its ranges; with fp32
     steps it is fine-tuned in full precision first and its ranges are observed afresh."""
     data = read_checkpoint(cfg.init, map_location=cfg.device)
-    # upsample_root, firefly_clamp and diffuse_fill change no weight: a checkpoint can be
-    # fine-tuned with others
+    # upsample_root, firefly_clamp, diffuse_fill and albedo_at_holes change no weight: a
+    # checkpoint can be fine-tuned with others
     init_cfg = replace(ModelConfig(**data["model_config"]), upsample_root=model.cfg.upsample_root,
-                       firefly_clamp=model.cfg.firefly_clamp, diffuse_fill=model.cfg.diffuse_fill)
+                       firefly_clamp=model.cfg.firefly_clamp, diffuse_fill=model.cfg.diffuse_fill,
+                       albedo_at_holes=model.cfg.albedo_at_holes)
     weights = data["model"]
     if model.cfg.fixed_upsample and not init_cfg.fixed_upsample:
         init_cfg, weights = _without_upsample_block(init_cfg, weights)

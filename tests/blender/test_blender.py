@@ -172,6 +172,19 @@ def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has
     assert kinds == set(CYCLES_SCENE_KINDS)  # every kind is in some split
 
 
+def test_the_media_split_is_unseen_seeds_of_the_media_training_kind():
+    from jnds_deploy.errors import ConfigError
+    from jnds_deploy.render.dataset import dataset_specs
+    train = {cfg.seed for _, cfg in dataset_specs("train", 200, engine="cycles", extra_sequences={"media": 100})}
+    media = [cfg for _, cfg in dataset_specs("media", engine="cycles")]
+    assert len(media) == 6 and {cfg.scene for cfg in media} == {"media"}
+    assert not {cfg.seed for cfg in media} & train
+    with pytest.raises(ConfigError, match="media sequences must be in 0..100"):
+        dataset_specs("train", engine="cycles", extra_sequences={"media": 101})
+    with pytest.raises(ConfigError, match="Cycles only"):
+        dataset_specs("media")
+
+
 def test_procedural_cameras_stay_inside_their_rooms():
     """The ``mixed``, ``lights`` and ``interior`` training kinds draw a room's size and the camera's radius
     apart; before the clamp, lights 10002, 10009 and 10012 looked at walls from outside

@@ -353,3 +353,35 @@ def test_fill_diffuse_holes_matches_torch():
     clean = cur.copy()
     clean[6:9] = 0.5  # no holes: nothing to do
     assert N.fill_diffuse_holes(clean) == 0
+
+
+def test_albedo_at_holes_matches_torch():
+    """The runtime's albedo at holes equals the torch op (``filters.scattered_holes`` then
+    ``albedo_at_holes``): the mean where holes lie scattered, the filtered albedo itself
+    beside a solid hole region's straight edge, in the region and where there are none."""
+    rng = np.random.default_rng(6)
+    cur = rng.exponential(1, (13, 40, 52)).astype(np.float32)
+    normals = rng.normal(size=(3, 40, 52))
+    cur[9:12] = normals / np.linalg.norm(normals, axis=0)
+    holes = np.zeros((40, 52), bool)
+    holes[:, :24] = rng.random((40, 24)) < 0.4  # scattered, up to the frame's borders
+    holes[10:30, 32:48] = True  # a solid object: its edge changes once
+    cur[6:9, holes] = 0.0
+    cur[9:12, 0:2, 0:3] = 0.0  # background: not a hole
+    filtered = rng.random((3, 40, 52)).astype(np.float32)
+    found = N.diffuse_holes(cur)
+    got = N.albedo_at_holes(filtered, found)
+    hole = T.diffuse_holes(torch.from_numpy(cur[None, 6:9]), torch.from_numpy(cur[None, 9:12]))
+    np.testing.assert_array_equal(found[0] == 2, hole[0, 0].numpy())
+    scattered = T.scattered_holes(hole)
+    want = T.albedo_at_holes(torch.from_numpy(filtered[None]), scattered)[0].numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)  # sums in another order
+    changed = (got != filtered).any(0)
+    np.testing.assert_array_equal(changed, scattered[0, 0].numpy())
+    assert changed[:, :20].mean() > 0.5 and changed[20, 0] and changed[-1, 0]  # borders replicated
+    assert not changed[12:28, 28:].any()  # the solid region, its edges but for the corners, and beyond
+    half = N.albedo_at_holes(filtered.astype(np.float16), found)
+    assert half.dtype == np.float16 and np.allclose(half, want, atol=2e-3)
+    clean = cur.copy()
+    clean[6:9] = 0.5  # no holes: the albedo itself, not a copy
+    assert N.albedo_at_holes(filtered, N.diffuse_holes(clean)) is filtered
