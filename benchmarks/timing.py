@@ -31,7 +31,7 @@ from jnds_deploy.runtime.reformat import block_input  # noqa: E402
 from jnds_deploy.runtime.profile import STAGES, profile_stages  # noqa: E402
 
 ROWS = ("reformat", "diffuse_fill", "warp", "firefly_clamp", "input_block", "feature_extractor", "output_block", "filter_diffuse",
-        "filter_specular", "filter_auxiliary", "albedo_at_holes", "composite", "upsample_kernel", "upsample_filter")
+        "filter_specular", "filter_auxiliary", "composite", "albedo_at_holes", "upsample_kernel", "upsample_filter")
 
 
 def time_pipeline(pipe: Pipeline, frames, repeats: int, between=None) -> list[dict]:

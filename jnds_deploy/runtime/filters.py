@@ -653,27 +653,27 @@ def _fill_holes(current, flags, sums, counts):
         counts[y] = n
 
 
-def diffuse_holes(current: np.ndarray) -> tuple[np.ndarray, int]:
+def diffuse_holes(current: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The current inputs' (13, H, W) float32 samples as flags (H, W) u8: 1 a diffuse surface,
-    2 a hole (``jnds_deploy.filters.diffuse_holes``), 0 background; and the number of holes.
-    One pass over the albedo and normals."""
+    2 a hole (``jnds_deploy.filters.diffuse_holes``), 0 background; and each row's number of
+    holes (H,). One pass over the albedo and normals."""
     _, h, w = current.shape
     flags = np.empty((h, w), np.uint8)
     counts = np.zeros(h, np.int64)
     _diffuse_holes(current, flags, counts)
-    return flags, int(counts.sum())
+    return flags, counts
 
 
-def fill_diffuse_holes(current: np.ndarray, holes: tuple[np.ndarray, int] | None = None) -> int:
+def fill_diffuse_holes(current: np.ndarray, holes: tuple[np.ndarray, np.ndarray] | None = None) -> int:
     """``jnds_deploy.filters.fill_diffuse_holes`` on the current inputs (13, H, W) float32,
     in place (``holes``: their ``diffuse_holes``, else found here). Returns how many pixels
     were filled. Separable, as the torch op: a frame without holes costs one pass over its
     albedo and normals."""
-    flags, n = holes if holes is not None else diffuse_holes(current)
-    if not n:
+    flags, counts = holes if holes is not None else diffuse_holes(current)
+    if not counts.any():
         return 0
     _, h, w = current.shape
-    counts = np.count_nonzero(flags == 2, axis=1).astype(np.int64)
+    counts = counts.copy()  # _fill_holes counts the filled pixels into it
     sums = np.empty((4, h, w), np.float32)
     _fill_row_sums(current, flags, sums)
     _fill_holes(current, flags, sums, counts)
@@ -685,71 +685,92 @@ _CHANGES_MIN = np.float32(SCATTERED_CHANGES)
 
 
 @njit(parallel=True, cache=True)
-def _scattered_row_sums(flags, sums):
+def _hole_row_sums(flags, counts, sums, live):
     """sums[0] = the horizontal taps of the hole mask, sums[1] of its changes (to the right
-    plus downward, none beyond the last column and row), the border replicated."""
+    plus downward, none beyond the last column and row), the border replicated; rows with
+    no hole in them or below are 0 (``live`` False) without being read."""
     h, w = flags.shape
+    t0, t1, t2, t3, t4 = _FILL_TAPS
     for y in prange(h):
+        if counts[y] == 0 and (y + 1 == h or counts[y + 1] == 0):
+            live[y] = False
+            sums[0, y, :] = 0
+            sums[1, y, :] = 0
+            continue
+        live[y] = True
+        hr = np.empty(w + 4, np.float32)  # the row's hole mask and changes, 2 replicated each side
+        cr = np.empty(w + 4, np.float32)
+        for x in range(w):
+            hr[x + 2] = np.float32(1) if flags[y, x] == 2 else np.float32(0)
         below = min(y + 1, h - 1)
         for x in range(w):
-            s0 = s1 = np.float32(0)
-            for i in range(2 * _FILL_R + 1):
-                xx = min(max(x + i - _FILL_R, 0), w - 1)
-                hole = flags[y, xx] == 2
-                moves = 0
-                if xx + 1 < w and (flags[y, xx + 1] == 2) != hole:
-                    moves += 1
-                if y + 1 < h and (flags[below, xx] == 2) != hole:
-                    moves += 1
-                t = _FILL_TAPS[i]
-                if hole:
-                    s0 += t
-                s1 += t * np.float32(moves)
-            sums[0, y, x], sums[1, y, x] = s0, s1
+            m = np.float32(0)
+            if x + 1 < w:
+                m += abs(hr[x + 3] - hr[x + 2])
+            if y + 1 < h:
+                m += abs((np.float32(1) if flags[below, x] == 2 else np.float32(0)) - hr[x + 2])
+            cr[x + 2] = m
+        hr[0] = hr[1] = hr[2]
+        hr[w + 2] = hr[w + 3] = hr[w + 1]
+        cr[0] = cr[1] = cr[2]
+        cr[w + 2] = cr[w + 3] = cr[w + 1]
+        for x in range(w):
+            sums[0, y, x] = t0 * hr[x] + t1 * hr[x + 1] + t2 * hr[x + 2] + t3 * hr[x + 3] + t4 * hr[x + 4]
+            sums[1, y, x] = t0 * cr[x] + t1 * cr[x + 1] + t2 * cr[x + 2] + t3 * cr[x + 3] + t4 * cr[x + 4]
 
 
 @njit(parallel=True, cache=True)
-def _albedo_means(albedo, sums, out):
-    """out = albedo, with its 5x5 binomial mean (border replicated) where the vertical taps of
-    ``sums`` say the holes lie scattered (the mean only where it is used)."""
+def _composite_at_holes(comp, albedo, diffuse, specular, sums, live, counts):
+    """comp = the 5x5 binomial mean of albedo (border replicated) x diffuse + specular where
+    the vertical taps of ``sums`` say the holes lie scattered; ``counts[y]`` those pixels."""
     c, h, w = albedo.shape
+    t0, t1, t2, t3, t4 = _FILL_TAPS
     for y in prange(h):
+        r0, r1, r2, r3, r4 = max(y - 2, 0), max(y - 1, 0), y, min(y + 1, h - 1), min(y + 2, h - 1)
+        if not (live[r0] or live[r1] or live[r2] or live[r3] or live[r4]):
+            continue
+        n = 0
         for x in range(w):
-            share = moves = np.float32(0)
-            for j in range(2 * _FILL_R + 1):
-                yy = min(max(y + j - _FILL_R, 0), h - 1)
-                share += _FILL_TAPS[j] * sums[0, yy, x]
-                moves += _FILL_TAPS[j] * sums[1, yy, x]
-            if _SHARE_LO < share < _SHARE_HI and moves > _CHANGES_MIN:
-                for k in range(c):
-                    m = np.float32(0)
-                    for j in range(2 * _FILL_R + 1):
-                        yy = min(max(y + j - _FILL_R, 0), h - 1)
-                        r = np.float32(0)
-                        for i in range(2 * _FILL_R + 1):
-                            r += _FILL_TAPS[i] * albedo[k, yy, min(max(x + i - _FILL_R, 0), w - 1)]
-                        m += _FILL_TAPS[j] * r
-                    out[k, y, x] = m
-            else:
-                for k in range(c):
-                    out[k, y, x] = albedo[k, y, x]
+            share = t0 * sums[0, r0, x] + t1 * sums[0, r1, x] + t2 * sums[0, r2, x] + t3 * sums[0, r3, x] \
+                + t4 * sums[0, r4, x]
+            moves = t0 * sums[1, r0, x] + t1 * sums[1, r1, x] + t2 * sums[1, r2, x] + t3 * sums[1, r3, x] \
+                + t4 * sums[1, r4, x]
+            if not (_SHARE_LO < share < _SHARE_HI and moves > _CHANGES_MIN):
+                continue
+            n += 1
+            for k in range(c):
+                m = np.float32(0)
+                for j in range(2 * _FILL_R + 1):
+                    yy = min(max(y + j - _FILL_R, 0), h - 1)
+                    r = np.float32(0)
+                    for i in range(2 * _FILL_R + 1):
+                        r += _FILL_TAPS[i] * albedo[k, yy, min(max(x + i - _FILL_R, 0), w - 1)]
+                    m += _FILL_TAPS[j] * r
+                comp[k, y, x] = m * diffuse[k, y, x] + specular[k, y, x]
+        counts[y] = n
 
 
-def albedo_at_holes(albedo: np.ndarray, holes: tuple[np.ndarray, int]) -> np.ndarray:
-    """``jnds_deploy.filters.albedo_at_holes``: the filtered ``albedo`` (3, H, W) with its
-    5x5 binomial mean where ``holes`` (``diffuse_holes`` of the frame's inputs) lie scattered;
-    ``albedo`` itself (no copy) where the frame has no holes. Float32 inside; the result in
-    ``albedo``'s dtype."""
-    flags, n = holes
-    if not n:
-        return albedo
+def albedo_at_holes(comp: np.ndarray, albedo: np.ndarray, diffuse: np.ndarray, specular: np.ndarray,
+                    holes: tuple[np.ndarray, np.ndarray]) -> int:
+    """``jnds_deploy.filters.albedo_at_holes`` then the composite, as a patch: the composite
+    ``comp`` (3, H, W) of the filtered ``albedo``, ``diffuse`` and ``specular`` is computed
+    again, in place, with the albedo's 5x5 binomial mean where ``holes`` (``diffuse_holes`` of
+    the frame's inputs) lie scattered. The albedo itself, which the history keeps, is not
+    changed. Returns how many pixels were. Rows with no hole within two rows cost nothing;
+    float32 inside, ``comp``'s dtype out."""
+    flags, counts = holes
+    if not counts.any():
+        return 0
     _, h, w = albedo.shape
     sums = np.empty((2, h, w), np.float32)
-    _scattered_row_sums(flags, sums)
-    src = np.ascontiguousarray(albedo, dtype=np.float32)
-    out = np.empty_like(src)
-    _albedo_means(src, sums, out)
-    return out.astype(albedo.dtype, copy=False)
+    live = np.empty(h, np.bool_)
+    _hole_row_sums(flags, counts, sums, live)
+    f32 = [np.ascontiguousarray(a, dtype=np.float32) for a in (comp, albedo, diffuse, specular)]
+    patched = np.zeros(h, np.int64)
+    _composite_at_holes(*f32, sums, live, patched)
+    if f32[0] is not comp:
+        comp[...] = f32[0]
+    return int(patched.sum())
 
 
 def warp(x: np.ndarray, motion: np.ndarray) -> np.ndarray:

@@ -292,12 +292,11 @@ class Pipeline:
             cur, hist, net = self._filter_inputs(current, warped.signals, net, rs)
         tiles = self._empty_tiles(current, warped.signals, decisions, t)
         filtered = self._filter_paths(current, warped.signals, cur, hist, net, decisions, tiles, t)
-        albedo = filtered["albedo"]  # the history keeps it as filtered
-        if self.albedo_at_holes:
-            with t("albedo_at_holes"):
-                albedo = F.albedo_at_holes(albedo, holes)
         with t("composite"):
-            comp = F.composite(albedo, filtered["diffuse"], filtered["specular"])
+            comp = F.composite(filtered["albedo"], filtered["diffuse"], filtered["specular"])
+        if self.albedo_at_holes:  # the composite again where holes lie scattered
+            with t("albedo_at_holes"):
+                F.albedo_at_holes(comp, filtered["albedo"], filtered["diffuse"], filtered["specular"], holes)
         if self._fused_upsample:
             # one fixed kernel at 2x: upsampling, kernel, layout and the non-finite check in one pass
             with t("upsample_filter"):

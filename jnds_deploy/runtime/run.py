@@ -19,7 +19,7 @@ from .pipeline import Pipeline, PipelineConfig
 
 
 STAGE_ORDER = ("reformat", "diffuse_fill", "warp", "firefly_clamp", "tile_skip", "network", "filter_diffuse", "filter_specular", "filter_auxiliary",
-               "albedo_at_holes", "composite", "upsample_kernel", "upsample_filter")
+               "composite", "albedo_at_holes", "upsample_kernel", "upsample_filter")
 
 
 def stage_table(report: dict) -> str:

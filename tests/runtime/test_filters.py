@@ -356,9 +356,10 @@ def test_fill_diffuse_holes_matches_torch():
 
 
 def test_albedo_at_holes_matches_torch():
-    """The runtime's albedo at holes equals the torch op (``filters.scattered_holes`` then
-    ``albedo_at_holes``): the mean where holes lie scattered, the filtered albedo itself
-    beside a solid hole region's straight edge, in the region and where there are none."""
+    """The runtime's albedo at holes (a patch of the composite) equals the torch ops
+    (``filters.scattered_holes``, ``albedo_at_holes``, then the composite): the albedo's mean
+    where holes lie scattered, the filtered albedo itself beside a solid hole region's straight
+    edge, in the region and where there are none."""
     rng = np.random.default_rng(6)
     cur = rng.exponential(1, (13, 40, 52)).astype(np.float32)
     normals = rng.normal(size=(3, 40, 52))
@@ -366,22 +367,29 @@ def test_albedo_at_holes_matches_torch():
     holes = np.zeros((40, 52), bool)
     holes[:, :24] = rng.random((40, 24)) < 0.4  # scattered, up to the frame's borders
     holes[10:30, 32:48] = True  # a solid object: its edge changes once
+    holes[36:, :] = False  # rows without holes below them
     cur[6:9, holes] = 0.0
     cur[9:12, 0:2, 0:3] = 0.0  # background: not a hole
-    filtered = rng.random((3, 40, 52)).astype(np.float32)
+    albedo, diffuse, specular = (rng.random((3, 40, 52)).astype(np.float32) for _ in range(3))
     found = N.diffuse_holes(cur)
-    got = N.albedo_at_holes(filtered, found)
+    plain = N.composite(albedo, diffuse, specular)
+    got = plain.copy()
+    n = N.albedo_at_holes(got, albedo, diffuse, specular, found)
     hole = T.diffuse_holes(torch.from_numpy(cur[None, 6:9]), torch.from_numpy(cur[None, 9:12]))
     np.testing.assert_array_equal(found[0] == 2, hole[0, 0].numpy())
     scattered = T.scattered_holes(hole)
-    want = T.albedo_at_holes(torch.from_numpy(filtered[None]), scattered)[0].numpy()
-    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)  # sums in another order
-    changed = (got != filtered).any(0)
+    lit = T.albedo_at_holes(torch.from_numpy(albedo[None]), scattered)
+    want = T.composite(lit, torch.from_numpy(diffuse[None]), torch.from_numpy(specular[None]))[0].numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)  # sums in another order
+    changed = (got != plain).any(0)
     np.testing.assert_array_equal(changed, scattered[0, 0].numpy())
-    assert changed[:, :20].mean() > 0.5 and changed[20, 0] and changed[-1, 0]  # borders replicated
+    assert n == changed.sum()
+    assert changed[:, :20].mean() > 0.4 and changed[20, 0] and changed[34, 0]  # borders replicated
     assert not changed[12:28, 28:].any()  # the solid region, its edges but for the corners, and beyond
-    half = N.albedo_at_holes(filtered.astype(np.float16), found)
-    assert half.dtype == np.float16 and np.allclose(half, want, atol=2e-3)
+    assert not changed[38:].any()
+    half = plain.astype(np.float16)
+    N.albedo_at_holes(half, albedo, diffuse, specular, found)
+    assert np.allclose(half, want, atol=4e-3, rtol=2e-3)
     clean = cur.copy()
-    clean[6:9] = 0.5  # no holes: the albedo itself, not a copy
-    assert N.albedo_at_holes(filtered, N.diffuse_holes(clean)) is filtered
+    clean[6:9] = 0.5  # no holes: nothing to do
+    assert N.albedo_at_holes(plain, albedo, diffuse, specular, N.diffuse_holes(clean)) == 0
