@@ -229,51 +229,32 @@ def test_firefly_clamp_matches_torch(artifacts):
             assert np.abs(ref[i] - plain[i]).mean() / np.abs(ref[i]).mean() > 1e-3  # the clamp changed it
 
 
-def test_diffuse_fill_matches_torch(artifacts):
-    """The runtime's diffuse fill (PipelineConfig's or the manifest's) equals the model's;
-    the bundled sample's metal pixels are holes."""
+@pytest.mark.parametrize("setting", ["diffuse_fill", "albedo_at_holes"])
+def test_hole_settings_match_torch(artifacts, setting):
+    """The runtime's diffuse fill and albedo at holes (PipelineConfig's or the manifest's)
+    equal the model's; the bundled sample's metal pixels are holes, and a few of them (at
+    corners) count as scattered."""
     import dataclasses
 
     path, model = artifacts
-    model.cfg = dataclasses.replace(model.cfg, diffuse_fill=True)
+    model.cfg = dataclasses.replace(model.cfg, **{setting: True})
     try:
         ref = infer_sequence(model, load_sequence(SAMPLE))[:3]
     finally:
-        model.cfg = dataclasses.replace(model.cfg, diffuse_fill=False)
+        model.cfg = dataclasses.replace(model.cfg, **{setting: False})
     plain = infer_sequence(model, load_sequence(SAMPLE))[:3]
     seq = open_sequence(SAMPLE)
-    pipe = Pipeline(PipelineConfig(artifacts=str(path), diffuse_fill=True))
-    assert not Pipeline(PipelineConfig(artifacts=str(path))).diffuse_fill  # the manifest's: off
+    pipe = Pipeline(PipelineConfig(artifacts=str(path), **{setting: True}))
+    assert not getattr(Pipeline(PipelineConfig(artifacts=str(path))), setting)  # the manifest's: off
     for i in range(3):
         frame = pipe(seq.inputs(i), seq.frames[i].camera_cut)
-        assert frame.filled > 0
+        assert setting in frame.ms
         rel = np.abs(frame.output - ref[i]).mean() / np.abs(ref[i]).mean()
         assert rel < 1e-4, (i, rel)
-        assert np.abs(ref[i] - plain[i]).mean() / np.abs(ref[i]).mean() > 1e-4  # the fill changed it
-        assert "diffuse_fill" in frame.ms
-
-
-def test_albedo_at_holes_matches_torch(artifacts):
-    """The runtime's albedo at holes (PipelineConfig's or the manifest's) equals the model's;
-    the bundled sample has a few pixels where its metal's holes count as scattered (corners)."""
-    import dataclasses
-
-    path, model = artifacts
-    model.cfg = dataclasses.replace(model.cfg, albedo_at_holes=True)
-    try:
-        ref = infer_sequence(model, load_sequence(SAMPLE))[:3]
-    finally:
-        model.cfg = dataclasses.replace(model.cfg, albedo_at_holes=False)
-    plain = infer_sequence(model, load_sequence(SAMPLE))[:3]
-    seq = open_sequence(SAMPLE)
-    pipe = Pipeline(PipelineConfig(artifacts=str(path), albedo_at_holes=True))
-    assert not Pipeline(PipelineConfig(artifacts=str(path))).albedo_at_holes  # the manifest's: off
-    for i in range(3):
-        frame = pipe(seq.inputs(i), seq.frames[i].camera_cut)
-        rel = np.abs(frame.output - ref[i]).mean() / np.abs(ref[i]).mean()
-        assert rel < 1e-4, (i, rel)
-        moved = np.abs(ref[i] - plain[i]).max(-1) > 1e-3  # the pixels it changed
+        moved = np.abs(ref[i] - plain[i]).max(-1) > 1e-3  # the pixels the setting changed
         assert moved.any()
-        # there, the runtime's error is a small part of what the change moved
+        # there, the runtime's error is a small part of what the setting moved
         assert np.abs(frame.output[moved] - ref[i][moved]).max() < 0.1 * np.abs(ref[i] - plain[i]).max()
-        assert "albedo_at_holes" in frame.ms
+        if setting == "diffuse_fill":
+            assert frame.filled > 0
+            assert np.abs(ref[i] - plain[i]).mean() / np.abs(ref[i]).mean() > 1e-4
