@@ -5,7 +5,8 @@ after 3 warm-up runs). Each argument is CIN,COUT,K (docs/performance.md, stop 58
 
     .venv/bin/python experiments/conv_channel_blocks.py 64,16,3 64,24,3 64,32,3
 """
-import sys, json, time, numpy as np, onnx, onnxruntime as ort
+import json, os, sys, tempfile, time
+import numpy as np, onnx, onnxruntime as ort
 from onnx import helper, TensorProto, numpy_helper
 def model(cin, cout, k, H, W):
     rng = np.random.default_rng(0)
@@ -29,6 +30,8 @@ res = {}
 for spec in sys.argv[1:]:
     cin, cout, k = map(int, spec.split(","))
     so = ort.SessionOptions(); so.intra_op_num_threads = 2; so.enable_profiling = True
+    # the profile goes to a temporary folder, not the working directory
+    so.profile_file_prefix = os.path.join(tempfile.mkdtemp(), "conv")
     s = ort.InferenceSession(model(cin, cout, k, H, W), so, providers=["CPUExecutionProvider"])
     x = np.random.default_rng(1).integers(0, 256, (1, cin, H, W)).astype(np.uint8)
     for _ in range(3): s.run(None, {"x": x})
