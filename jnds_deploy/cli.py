@@ -112,13 +112,15 @@ def cmd_train(args) -> int:
     from .training.config import TrainConfig
     from .training.train import train
 
-    cfg = TrainConfig(data=args.data, run=args.run, preset=args.preset, upsample_root=args.upsample_root,
+    cfg = TrainConfig(data=args.data, run=args.run, preset=args.preset, output_width=args.output_width,
+                      upsample_root=args.upsample_root,
                       firefly_clamp=args.firefly_clamp, diffuse_fill=args.diffuse_fill,
                       albedo_at_holes=args.albedo_at_holes,
                       patch=args.patch, unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
                       qat_steps=args.qat_steps, lr=args.lr, qat_lr=args.qat_lr, spatial_loss=args.spatial_loss,
                       feature_net=args.feature_net, init=args.init, deepen_blend=args.deepen_blend,
-                      val_every=args.val_every, val_sequences=args.val_sequences, threads=args.threads, seed=args.seed,
+                      val_every=args.val_every, checkpoint_every=args.checkpoint_every, val_sequences=args.val_sequences,
+                      threads=args.threads, seed=args.seed,
                       device=args.device, exposure=args.exposure, rotate_normals=args.rotate_normals,
                       flips=args.flips, colours=args.colours, warmup_steps=args.warmup_steps,
                       channels_last=not args.no_channels_last,
@@ -320,6 +322,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--data", default="data", help="directory with train/ and val/ sequences")
     t.add_argument("--run", default="runs/small", help="output directory (checkpoint, log, config)")
     t.add_argument("--preset", default="small")
+    t.add_argument("--output-width", type=int, default=0, metavar="C",
+                   help="the output block's hidden channels instead of the preset's (an AVX2 CPU's int8 "
+                        "convolution costs in steps of 16; --init narrows or widens a checkpoint to it)")
     t.add_argument("--upsample-root", type=int, default=1, choices=(1, 2, 4, 8),
                    help="the upsample filter interpolates the composite's root of this degree (1: linear, "
                         "the paper)")
@@ -356,6 +361,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="--init one U-Net level shallower than --preset: the new level enters the old coarsest "
                         "one with blend weight sigmoid(LOGIT)")
     t.add_argument("--val-every", type=int, default=500)
+    t.add_argument("--checkpoint-every", type=int, default=100, metavar="N",
+                   help="write <run>/checkpoint.pt every N steps (and at the end)")
     t.add_argument("--val-sequences", type=int, default=None)
     t.add_argument("--threads", type=int, default=2)
     t.add_argument("--seed", type=int, default=0)

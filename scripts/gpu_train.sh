@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Render the dataset and fine-tune checkpoints on a lent GPU machine (the library's
+# Render a training set and fine-tune checkpoints on a lent GPU machine (the library's
 # `device` tool), where nothing can be downloaded: Mitsuba, Dr.Jit, OpenEXR and
 # flip-evaluator travel in .gpu/ (git-ignored; how to make it: docs/gpu-training.md).
 #
@@ -20,27 +20,36 @@ if [ ! -d /tmp/site/mitsuba ]; then
 fi
 export PYTHONPATH=/tmp/site:$PWD
 DATA=/tmp/data RUNS=/tmp/runs
-TRAIN_SEQUENCES=${TRAIN_SEQUENCES:-40}
+TRAIN_SEQUENCES=${TRAIN_SEQUENCES:-16} MOVING_SEQUENCES=${MOVING_SEQUENCES:-4} JOBS=${JOBS:-20}
 mkdir -p "$RUNS" "$out"
 
 if [ "$mode" = start ]; then
   t0=$(date +%s)
-  python3 -m jnds_deploy dataset --out $DATA --split all --train-sequences "$TRAIN_SEQUENCES" \
-    --jobs 16 --variant cuda_ad_rgb 2>&1 | tr '\r' '\n' | grep -v "frame/s\|frame\]" > "$out/render.log"
-  echo "rendered in $(( $(date +%s) - t0 )) s: $(ls $DATA/train | wc -l) train, $(ls $DATA/val | wc -l) val"
-  common="--data $DATA --batch 64 --fp32-steps ${FP32_STEPS:-650} --qat-steps ${QAT_STEPS:-200}
-          --lr 3e-4 --qat-lr 1e-4 --device cuda --val-every 200 --threads 2 --quiet --upsample-root 4"
-  # the feature-loss network (Eq. 6) is re-created from the data: training runs are not kept in git
-  python3 -m jnds_deploy train-feature-net --data $DATA --out "$RUNS/feature_net.pt" --quiet
-  ship=jnds_deploy/checkpoints/jnds.pt feat="--feature-net $RUNS/feature_net.pt"
+  # the training split only (the first TRAIN_SEQUENCES default seeds and MOVING_SEQUENCES with
+  # moving objects), all at once: Mitsuba's Python-side tracing sets the pace, so the GPU's
+  # throughput is the same at 16 or 20 processes; validation is done on the CPU afterwards
+  python3 -m jnds_deploy dataset --out $DATA --split train --train-sequences "$TRAIN_SEQUENCES" \
+    --moving-sequences "$MOVING_SEQUENCES" --jobs "$JOBS" --variant cuda_ad_rgb 2>&1 | tr '\r' '\n' |
+    grep -v "frame/s\|frame\]" > "$out/render.log"
+  mkdir -p $DATA/val
+  echo "rendered in $(( $(date +%s) - t0 )) s: $(ls $DATA/train | wc -l) train"
+  # the shipped checkpoint's recipe (its model card: fixed upsample, fourth roots, firefly clamp,
+  # diffuse fill, albedo at holes, the augmentations, cross-cut windows, the low-frequency loss)
+  # without the feature loss, whose network would have to be trained here first
+  common="--data $DATA --preset large --init jnds_deploy/checkpoints/jnds.pt --fixed-upsample --upsample-root 4
+          --firefly-clamp 16 --diffuse-fill --albedo-at-holes --cross-cuts --exposure -4 8 --rotate-normals --flips
+          --patch 64 --unroll 6 --batch ${BATCH:-48} --fp32-steps ${FP32_STEPS:-200} --qat-steps ${QAT_STEPS:-60}
+          --lr 1e-4 --qat-lr 2e-5 --warmup-steps 20 --spatial-loss l1 --lowfreq-loss 2.0 --device cuda
+          --val-every 100000 --val-sequences 0 --checkpoint-every 20 --threads 2 --quiet --seed 59"
   start_run() {  # name, then train arguments
     local name=$1; shift
     setsid nohup python3 -m jnds_deploy train $common --run "$RUNS/$name" "$@" > "$RUNS/$name.log" 2>&1 &
   }
-  # $ship: the shipped checkpoint (its model card); every run interpolates fourth roots in
-  # the upsample filter
-  start_run gpu-root4 --init $ship --spatial-loss l1+feature $feat
-  start_run gpu-root4-unroll12 --init $ship --spatial-loss l1+feature $feat --unroll 12
+  # issue 25: the output block's convolution at 16 channels (MLAS's AVX2 int8 kernel works in
+  # blocks of 16, so the shipped 24 cost as 32; docs/performance.md, "Speed") against the same
+  # fine-tune at 24, the control
+  start_run gpu-out16 --output-width 16
+  start_run gpu-out24
 fi
 
 while [ "$(date +%s)" -lt "$t_end" ] && pgrep -f "jnds_deploy train" >/dev/null; do sleep 5; done

@@ -303,6 +303,31 @@ def test_init_widens_a_checkpoint_to_a_wider_preset_computing_the_same(fixed, na
         assert new.network.feature_extractor.bottleneck.a.weight[48:].abs().sum() > 0
 
 
+def test_init_narrows_the_output_block_keeping_the_channels_that_matter():
+    from jnds_deploy.training.train import _narrowed, _narrows
+    up = dict(upsample_width=0, upsample_features=0)
+    wide, narrow = ModelConfig.preset("large", **up), ModelConfig.preset("large", output_width=16, **up)
+    assert _narrows(wide, narrow) and not _narrows(narrow, wide)
+    assert not _narrows(wide, ModelConfig.preset("medium", output_width=16, **up))  # other widths too
+    torch.manual_seed(0)
+    old = JNDS(wide)
+    for p in old.parameters():
+        torch.nn.init.normal_(p, std=0.1)
+    conv = old.network.output_block.conv
+    dead = torch.tensor([1, 4, 6, 11, 13, 17, 20, 23])  # 8 of 24 channels that ReLU silences
+    with torch.no_grad():
+        conv.weight[dead] = 0.0
+        conv.bias[dead] = -1.0
+    new = JNDS(narrow)
+    new.load_state_dict(_narrowed(wide, old.state_dict(), 16))
+    x, mv = _inputs(1, 32, 48)
+    h = torch.rand(1, 12, 32, 48)
+    with torch.no_grad():
+        a, b = old.network(x, h), new.network(x, h)
+        for k in a:
+            assert torch.allclose(a[k], b[k], atol=1e-5), k
+
+
 @pytest.mark.parametrize("fixed", [True, False])
 def test_init_deepens_a_checkpoint_by_one_unet_level_computing_nearly_the_same(fixed):
     from jnds_deploy.training import train

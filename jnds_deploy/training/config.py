@@ -13,6 +13,9 @@ class TrainConfig:
     data: str = "data"  # holds train/ and val/ sequence directories
     run: str = "runs/small"
     preset: str = "small"
+    # the preset's output block width replaced by this one (0: the preset's); --init narrows
+    # or widens a checkpoint's output block to it
+    output_width: int = 0
     upsample_root: int = 1  # ModelConfig.upsample_root of the trained model
     firefly_clamp: float = 0.0  # ModelConfig.firefly_clamp of the trained model (0: off)
     diffuse_fill: bool = False  # ModelConfig.diffuse_fill of the trained model
@@ -69,6 +72,8 @@ class TrainConfig:
         from ..model import ModelConfig
 
         fixed = dict(upsample_width=0, upsample_features=0) if self.fixed_upsample else {}
+        if self.output_width:
+            fixed["output_width"] = self.output_width
         return ModelConfig.preset(self.preset, upsample_root=self.upsample_root, firefly_clamp=self.firefly_clamp,
                                   diffuse_fill=self.diffuse_fill, albedo_at_holes=self.albedo_at_holes, **fixed)
 

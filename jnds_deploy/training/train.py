@@ -195,6 +195,8 @@ def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
         init_cfg, weights = _without_upsample_block(init_cfg, weights)
     if init_cfg != model.cfg and _widens(init_cfg, model.cfg):
         init_cfg, weights = model.cfg, _widened(init_cfg, weights, model)
+    if init_cfg != model.cfg and _narrows(init_cfg, model.cfg):
+        init_cfg, weights = model.cfg, _narrowed(init_cfg, weights, model.cfg.output_width)
     if init_cfg != model.cfg and _deepens(init_cfg, model.cfg):
         init_cfg, weights = model.cfg, _deepened(init_cfg, weights, model, cfg.deepen_blend)
     if init_cfg != model.cfg:
@@ -271,6 +273,31 @@ def _widened(cfg: ModelConfig, weights: dict, model: JNDS) -> dict:
             w[:o] = 0.0
             w[:o, cols] = old
         out[key] = w
+    return out
+
+
+def _narrows(old: ModelConfig, new: ModelConfig) -> bool:
+    """``new`` is ``old`` with a narrower output block (fewer ``output_width`` channels), the
+    only width whose cost on an AVX2 CPU falls in steps of 16 channels
+    (docs/performance.md, "Speed")."""
+    return replace(old, output_width=new.output_width) == new and new.output_width < old.output_width
+
+
+@torch.no_grad()
+def _narrowed(cfg: ModelConfig, weights: dict, width: int) -> dict:
+    """A checkpoint's weights with its output block cut to ``width`` hidden channels: the
+    channels kept are those whose path to the head weighs most (the norm of the channel's
+    convolution weights times the norm of the head's weights that read it; a channel's
+    ReLU output scales with the first, its effect on every head output with the second).
+    The dropped channels' contribution is lost; a fine-tune recovers it (written here: a
+    few lines over the state dict)."""
+    conv, head = "network.output_block.conv", "network.output_block.head"
+    score = (weights[f"{conv}.weight"].flatten(1).norm(dim=1) * weights[f"{head}.weight"].flatten(1).norm(dim=0))
+    keep = score.argsort(descending=True)[:width].sort().values
+    out = dict(weights)
+    out[f"{conv}.weight"] = weights[f"{conv}.weight"][keep].clone()
+    out[f"{conv}.bias"] = weights[f"{conv}.bias"][keep].clone()
+    out[f"{head}.weight"] = weights[f"{head}.weight"][:, keep].clone()
     return out
 
 
