@@ -32,6 +32,7 @@ from onnx import helper, numpy_helper
 from ..errors import CalibrationError
 from ..layout import channels, head_kind
 from ..runtime.head import HEAD, LAYOUT_KEY, HeadLayout
+from .reader import exposed
 
 HEAD_NODE = "/network/output_block/head/Conv"
 PAD = 16
@@ -45,6 +46,7 @@ MIN_RANGE = 1e-2  # a channel that is (nearly) constant on the calibration data
 # 256x brighter than the frames calibrated on (at exposure 1 alone, a sequence 16x brighter
 # lost 0.65 dB to fp32 where the float head lost none: docs/performance.md)
 STOPS = (-4, -2, 0, 2, 4, 6, 8)
+RADIANCE = slice(0, channels("specular").stop)  # diffuse, specular: current and history alike
 
 
 def _head(graph: onnx.GraphProto):
@@ -92,12 +94,8 @@ def raw_ranges(path: Path, feeds: list[dict[str, np.ndarray]], stops=STOPS) -> d
     model.graph.output.append(helper.make_tensor_value_info(conv.output[0], onnx.TensorProto.FLOAT, None))
     sess = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
     lo = hi = None
-    radiance = slice(0, channels("specular").stop)  # diffuse, specular: current and history alike
     for f, k in itertools.product(feeds, stops):
-        f = {n: v.copy() for n, v in f.items()}
-        for v in f.values():
-            v[:, radiance] *= np.float32(2.0 ** k)
-        raw = sess.run([conv.output[0]], f)[0]
+        raw = sess.run([conv.output[0]], exposed(f, k, RADIANCE))[0]
         a, b = raw.min(axis=(0, 2, 3)), raw.max(axis=(0, 2, 3))
         lo, hi = (a, b) if lo is None else (np.minimum(lo, a), np.maximum(hi, b))
     starts = np.cumsum([0] + sizes)

@@ -35,7 +35,7 @@ from ..artifacts import MANIFEST, Int8Graph, Manifest, file_hash, write_json
 from ..errors import CalibrationError
 from ..export.prune import INT8_VARIANT_TOL, validate_variant, write_variants
 from .block import cut_blocks
-from .head import HEAD_NODE, STOPS, channel_ranges, quantize_head, raw_ranges
+from .head import HEAD_NODE, RADIANCE, STOPS, channel_ranges, quantize_head, raw_ranges
 from .inputs import quantize_inputs
 from .reader import FeedReader, collect_feeds
 from .rewrite import pools_as_convolutions, resizes_into_concat_scale
@@ -85,8 +85,10 @@ class CalibrateConfig:
 
 def quantize_graph(fp32_path: Path, out_path: Path, feeds: list[dict[str, np.ndarray]], method: str,
                    activation_type: str = "u8", op_types=DEFAULT_OP_TYPES, overrides: dict | None = None,
-                   percentile: float = 99.999, exclude: tuple[str, ...] = ()) -> None:
-    """Static QDQ quantization of one graph; written atomically to ``out_path``."""
+                   percentile: float = 99.999, exclude: tuple[str, ...] = (),
+                   stops: tuple[float, ...] = (0,)) -> None:
+    """Static QDQ quantization of one graph; written atomically to ``out_path``. The
+    calibrator sees every feed at each exposure 2^k of ``stops`` (``reader.FeedReader``)."""
     from onnxruntime.quantization import CalibrationMethod, QuantType
 
     calib = {"qat": CalibrationMethod.MinMax, "minmax": CalibrationMethod.MinMax,
@@ -100,7 +102,8 @@ def quantize_graph(fp32_path: Path, out_path: Path, feeds: list[dict[str, np.nda
     root_logger = logging.getLogger()
     root_logger.addFilter(_drop_preprocessing_advice)
     try:
-        _quantize_static(fp32_path, out_path, feeds, calib, act, op_types, exclude, extra)
+        _quantize_static(fp32_path, out_path, FeedReader(feeds, stops, RADIANCE), calib, act, op_types, exclude,
+                         extra)
     finally:
         root_logger.removeFilter(_drop_preprocessing_advice)
 
@@ -109,12 +112,12 @@ def _drop_preprocessing_advice(record: logging.LogRecord) -> bool:
     return not str(record.msg).startswith("Please consider")
 
 
-def _quantize_static(fp32_path, out_path, feeds, calib, act, op_types, exclude, extra) -> None:
+def _quantize_static(fp32_path, out_path, reader, calib, act, op_types, exclude, extra) -> None:
     from onnxruntime.quantization import QuantFormat, QuantType, quantize_static
 
     with tempfile.TemporaryDirectory(dir=out_path.parent) as tmp:
         tmp_out = Path(tmp) / out_path.name
-        quantize_static(str(fp32_path), str(tmp_out), FeedReader(feeds), quant_format=QuantFormat.QDQ,
+        quantize_static(str(fp32_path), str(tmp_out), reader, quant_format=QuantFormat.QDQ,
                         per_channel=True, activation_type=act, weight_type=QuantType.QInt8,
                         calibrate_method=calib, op_types_to_quantize=list(op_types),
                         nodes_to_exclude=list(exclude), extra_options=extra)
@@ -221,8 +224,13 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
         log(f"quantizing {g.file} -> {file} ({cfg.method}, {cfg.activation_type} activations, "
             f"{len(feeds[name])} calibration frames)")
         learned = follow_shared_ranges(root / g.file, overrides.get(name, {}), cfg.op_types)
+        # with learned ranges, the tensors left to the calibrator (the level heads' outputs, the
+        # preprocessing's) see the exposures the output block's head is calibrated over
+        # (head.STOPS): ranged at exposure 1 alone, the float edges' preprocessing clipped on
+        # brighter frames (benchmarks/results/int8_exposure.md)
+        stops = STOPS if cfg.method == "qat" and name == "network" else (0,)
         quantize_graph(root / g.file, root / file, feeds[name], cfg.method, cfg.activation_type,
-                       cfg.op_types, qat_overrides(learned), cfg.percentile, cfg.float_nodes)
+                       cfg.op_types, qat_overrides(learned), cfg.percentile, cfg.float_nodes, stops)
         pools_as_convolutions(root / file)
         resizes_into_concat_scale(root / file)
         ranges[name] = quantized_tensors(root / file)

@@ -35,17 +35,33 @@ def collect_feeds(artifacts: str | Path, sequences: list[str | Path], frames: in
 
 
 class FeedReader(CalibrationDataReader):
-    """ONNX Runtime's reader interface over recorded feeds (rewindable)."""
+    """ONNX Runtime's reader interface over recorded feeds (rewindable); with ``stops``,
+    every feed once per exposure 2^k, its radiance channels (``radiance``: current and
+    history alike) scaled, one copy at a time."""
 
-    def __init__(self, feeds: list[dict[str, np.ndarray]]):
-        self.feeds = feeds
+    def __init__(self, feeds: list[dict[str, np.ndarray]], stops: tuple[float, ...] = (0,),
+                 radiance: slice | None = None):
+        self.feeds, self.stops, self.radiance = feeds, tuple(stops), radiance
+        if self.stops != (0,) and radiance is None:
+            raise ValueError("FeedReader: stops other than (0,) need the radiance channels")
         self.i = 0
 
     def get_next(self) -> dict[str, np.ndarray] | None:
-        if self.i >= len(self.feeds):
+        if self.i >= len(self.feeds) * len(self.stops):
             return None
+        f, k = divmod(self.i, len(self.stops))
         self.i += 1
-        return self.feeds[self.i - 1]
+        return exposed(self.feeds[f], self.stops[k], self.radiance)
 
     def rewind(self) -> None:
         self.i = 0
+
+
+def exposed(feed: dict[str, np.ndarray], stop: float, radiance: slice | None) -> dict[str, np.ndarray]:
+    """``feed`` with its radiance channels x 2^stop (a copy; the feed itself if stop is 0)."""
+    if stop == 0:
+        return feed
+    out = {n: v.copy() for n, v in feed.items()}
+    for v in out.values():
+        v[:, radiance] *= np.float32(2.0 ** stop)
+    return out

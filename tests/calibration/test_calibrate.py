@@ -307,3 +307,47 @@ def test_the_cut_graph_computes_what_the_whole_graph_did(calibrated, tmp_path, m
                 np.testing.assert_array_equal(got[name], want[name], err_msg=name)
     with pytest.raises(CalibrationError, match="Resize"):
         cut_blocks(d / file, tmp_path / "again.onnx", manifest.pad_multiple)
+
+
+def test_feed_reader_gives_every_feed_at_every_exposure():
+    from jnds_deploy.calibration.head import RADIANCE
+    from jnds_deploy.calibration.reader import FeedReader
+    rng = np.random.default_rng(0)
+    feeds = [{"current": rng.random((1, 13, 4, 4), np.float32), "history": rng.random((1, 12, 4, 4), np.float32)}
+             for _ in range(2)]
+    kept = [{k: v.copy() for k, v in f.items()} for f in feeds]
+    reader = FeedReader(feeds, (-2, 0, 3), RADIANCE)
+    for _ in range(2):  # and again after a rewind
+        got = list(iter(reader.get_next, None))
+        assert len(got) == 6
+        for i, g in enumerate(got):
+            f, k = feeds[i // 3], (-2, 0, 3)[i % 3]
+            for name in f:
+                assert np.allclose(g[name][:, RADIANCE], f[name][:, RADIANCE] * 2.0 ** k)
+                assert np.array_equal(g[name][:, RADIANCE.stop:], f[name][:, RADIANCE.stop:])
+        reader.rewind()
+    assert all(np.array_equal(f[n], k[n]) for f, k in zip(feeds, kept) for n in f)  # the feeds untouched
+    with pytest.raises(ValueError):
+        FeedReader(feeds, (0, 2))
+
+
+def test_ranges_left_to_the_calibrator_cover_every_exposure(calibrated):
+    """A level head's output has no learned range: its calibrated range holds the values of
+    the calibration frames at every exposure of head.STOPS, as the output block's head does."""
+    import onnxruntime as ort
+    from onnx import helper
+    from jnds_deploy.calibration.head import RADIANCE
+    from jnds_deploy.calibration.reader import exposed
+    d, _, _ = calibrated
+    tensor = "/network/feature_extractor/specular1/Conv_output_0"
+    saved = json.loads((d / "calibration.qat.json").read_text())["tensors"]["network"][tensor]
+    model = onnx.load(d / "network.onnx")
+    model.graph.output.append(helper.make_tensor_value_info(tensor, onnx.TensorProto.FLOAT, None))
+    sess = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+    feeds = collect_feeds(d, [SAMPLE], frames=3, progress=False)["network"]
+    at = {k: [sess.run([tensor], exposed(f, k, RADIANCE))[0] for f in feeds] for k in STOPS}
+    lo, hi = min(min(v.min() for v in vs) for vs in at.values()), max(max(v.max() for v in vs) for vs in at.values())
+    step = (saved["rmax"] - saved["rmin"]) / 255
+    assert saved["rmin"] <= lo + step and saved["rmax"] >= hi - step
+    # and wider than the frames as they are would have given
+    assert hi > max(v.max() for v in at[0]) or lo < min(v.min() for v in at[0])
