@@ -224,11 +224,13 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
         log(f"quantizing {g.file} -> {file} ({cfg.method}, {cfg.activation_type} activations, "
             f"{len(feeds[name])} calibration frames)")
         learned = follow_shared_ranges(root / g.file, overrides.get(name, {}), cfg.op_types)
-        # with learned ranges, the tensors left to the calibrator (the level heads' outputs, the
-        # preprocessing's) see the exposures the output block's head is calibrated over
-        # (head.STOPS): ranged at exposure 1 alone, the float edges' preprocessing clipped on
-        # brighter frames (benchmarks/results/int8_exposure.md)
-        stops = STOPS if cfg.method == "qat" and name == "network" else (0,)
+        # with float edges and learned ranges, the tensors left to the calibrator (the input
+        # preprocessing's, the level heads' outputs) see the exposures the output block's head
+        # is calibrated over (head.STOPS): ranged at exposure 1 alone, the preprocessing clipped
+        # on brighter frames. With u8 edges the preprocessing is the runtime's, in the learned
+        # range, and the same stops changed nothing but a little resolution
+        # (benchmarks/results/int8_exposure.md)
+        stops = STOPS if cfg.method == "qat" and name == "network" and not cfg.u8_edges else (0,)
         quantize_graph(root / g.file, root / file, feeds[name], cfg.method, cfg.activation_type,
                        cfg.op_types, qat_overrides(learned), cfg.percentile, cfg.float_nodes, stops)
         pools_as_convolutions(root / file)

@@ -331,23 +331,31 @@ def test_feed_reader_gives_every_feed_at_every_exposure():
         FeedReader(feeds, (0, 2))
 
 
-def test_ranges_left_to_the_calibrator_cover_every_exposure(calibrated):
-    """A level head's output has no learned range: its calibrated range holds the values of
-    the calibration frames at every exposure of head.STOPS, as the output block's head does."""
+def test_float_edges_ranges_left_to_the_calibrator_cover_every_exposure(tmp_path):
+    """With float edges, a tensor without a learned range (the input preprocessing's, a level
+    head's output) is ranged over the calibration frames at every exposure of head.STOPS, as
+    the output block's head is."""
     import onnxruntime as ort
     from onnx import helper
     from jnds_deploy.calibration.head import RADIANCE
     from jnds_deploy.calibration.reader import exposed
-    d, _, _ = calibrated
-    tensor = "/network/feature_extractor/specular1/Conv_output_0"
-    saved = json.loads((d / "calibration.qat.json").read_text())["tensors"]["network"][tensor]
+    d = tmp_path
+    export(ExportConfig(out=str(d)), log=lambda s: None)
+    calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="qat", frames=2, u8_edges=False),
+              log=lambda s: None)
+    saved = json.loads((d / "calibration.qat.json").read_text())["tensors"]["network"]
     model = onnx.load(d / "network.onnx")
-    model.graph.output.append(helper.make_tensor_value_info(tensor, onnx.TensorProto.FLOAT, None))
+    tensors = [t for t in saved if t.endswith("Exp_output_0") or t.endswith("specular1/Conv_output_0")]
+    assert len(tensors) == 2
+    for t in tensors:
+        model.graph.output.append(helper.make_tensor_value_info(t, onnx.TensorProto.FLOAT, None))
     sess = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
-    feeds = collect_feeds(d, [SAMPLE], frames=3, progress=False)["network"]
-    at = {k: [sess.run([tensor], exposed(f, k, RADIANCE))[0] for f in feeds] for k in STOPS}
-    lo, hi = min(min(v.min() for v in vs) for vs in at.values()), max(max(v.max() for v in vs) for vs in at.values())
-    step = (saved["rmax"] - saved["rmin"]) / 255
-    assert saved["rmin"] <= lo + step and saved["rmax"] >= hi - step
-    # and wider than the frames as they are would have given
-    assert hi > max(v.max() for v in at[0]) or lo < min(v.min() for v in at[0])
+    feeds = collect_feeds(d, [SAMPLE], frames=2, progress=False)["network"]
+    for i, t in enumerate(tensors):
+        at = {k: [sess.run([t], exposed(f, k, RADIANCE))[0] for f in feeds] for k in STOPS}
+        lo = min(min(v.min() for v in vs) for vs in at.values())
+        hi = max(max(v.max() for v in vs) for vs in at.values())
+        step = (saved[t]["rmax"] - saved[t]["rmin"]) / 255
+        assert saved[t]["rmin"] <= lo + step and saved[t]["rmax"] >= hi - step, t
+        # wider than the frames as they are would have given
+        assert hi > max(v.max() for v in at[0]) + step or lo < min(v.min() for v in at[0]) - step, t
