@@ -10,6 +10,14 @@ preprocessed inputs already quantized at the scale and zero point the projection
 convolution reads them with, channels last, padded to a multiple of 8 (MLAS's fast int8
 convolution wants input channels in multiples of 4; the padding's weights are 0).
 ``runtime.reformat.pack_inputs`` computes it in one pass over the frame.
+
+The channels are placed so that no two neighbours can overflow a 16-bit sum
+(``safe_slots``): on AVX2 without VNNI, MLAS multiplies u8 activations by s8 weights with
+``vpmaddubsw``, which adds the products of channels 2j and 2j+1 into a saturating 16-bit
+integer. The radiance channels reach code 255 on bright frames, and in their first order two
+of them with large weights of one sign overflowed: the int8 graph lost 0.26 dB to fp32 at
+2^8 exposure (benchmarks/results/int8_exposure.md). Where no such placement exists the
+channels keep their order.
 """
 from __future__ import annotations
 
@@ -20,8 +28,8 @@ import onnx
 from onnx import helper, numpy_helper
 
 from ..errors import CalibrationError
-from ..layout import N_CURRENT, N_HISTORY
-from ..runtime.reformat import INPUTS, INPUTS_KEY, InputsLayout
+from ..layout import HDR_MAX, N_CURRENT, N_HISTORY
+from ..runtime.reformat import _PREPROCESS, INPUTS, INPUTS_KEY, InputsLayout
 from .head import save_extracted
 
 PROJECT = "/network/input_block/project/Conv"
@@ -49,7 +57,10 @@ def quantize_inputs(src: Path, dst: Path) -> InputsLayout:
     if w.shape[1] != N_CURRENT + N_HISTORY:
         raise CalibrationError(f"{src.name}: the input projection has {w.shape[1]} input channels, "
                                f"expected {N_CURRENT + N_HISTORY}")
-    w = np.concatenate([w, np.zeros((w.shape[0], CHANNELS - w.shape[1], *w.shape[2:]), w.dtype)], 1)
+    slots = safe_slots(w[:, :, 0, 0], scale, int(zp))
+    padded = np.zeros((w.shape[0], CHANNELS, *w.shape[2:]), w.dtype)
+    padded[:, slots] = w
+    w = padded
     g.initializer.append(numpy_helper.from_array(w, w_dq.input[0] + "_padded"))
     w_dq.input[0] += "_padded"
     prefix = PROJECT.rsplit("/", 2)[0]  # named in the input block (runtime.profile's stages)
@@ -60,6 +71,61 @@ def quantize_inputs(src: Path, dst: Path) -> InputsLayout:
                                        perm=[0, 3, 1, 2]))
     conv.input[0] += "_packed"
     g.input.append(helper.make_tensor_value_info(INPUTS, onnx.TensorProto.UINT8, ["N", "H", "W", CHANNELS]))
-    layout = InputsLayout(scale, int(zp), CHANNELS)
+    layout = InputsLayout(scale, int(zp), CHANNELS, tuple(slots))
     save_extracted(model, dst, [INPUTS], [o.name for o in g.output], {INPUTS_KEY: layout.to_json()})
     return layout
+
+
+I16 = (-32768, 32767)
+
+
+def code_bounds(scale: float, zero_point: int) -> np.ndarray:
+    """The largest u8 code each of current and history's channels can take in ``inputs``:
+    radiance through Eq. 1's tonemap up to HDR_MAX, the other layers (albedo, roughness,
+    normals mapped to [0, 1]) up to 1; the inputs are clamped to these ranges on reading."""
+    top = np.where(_PREPROCESS == 1, np.log1p(HDR_MAX) ** (1 / 2.2), 1.0)
+    return np.minimum(np.ceil(top / scale) + zero_point, 255).astype(np.int64)
+
+
+def safe_slots(w: np.ndarray, scale: float, zero_point: int, channels: int = CHANNELS) -> list[int]:
+    """A slot in ``channels`` for each input channel of the projection's int8 weights ``w``
+    (out, in), such that for every output the products of the two channels of each slot pair
+    (2j, 2j+1) sum within a 16-bit integer at any codes up to ``code_bounds``; a padding slot
+    (weights 0) is safe beside any channel. A perfect matching found by backtracking from the
+    channel with the fewest safe partners (written here: 25 channels, found at once for the
+    shipped weights). The identity order if there is none."""
+    w = w.astype(np.int64)
+    a = code_bounds(scale, zero_point)
+    hi, lo = np.maximum(w, 0) * a, np.minimum(w, 0) * a  # (out, in): the extremes of each product
+    n, pads = w.shape[1], channels - w.shape[1]
+    safe = ((hi[:, :, None] + hi[:, None, :]).max(0) <= I16[1]) & ((lo[:, :, None] + lo[:, None, :]).min(0) >= I16[0])
+    np.fill_diagonal(safe, False)
+
+    def match(left: list[int], pads: int) -> list[tuple[int, int]] | None:
+        if not left:
+            return [] if pads % 2 == 0 else None
+        options = {c: [d for d in left if safe[c, d]] for c in left}
+        c = min(left, key=lambda c: len(options[c]))
+        if pads:  # beside a padding slot
+            rest = match([d for d in left if d != c], pads - 1)
+            if rest is not None and (len(options[c]) == 0 or pads > len(left) // 2):
+                return [(c, -1)] + rest
+        for d in options[c]:
+            rest = match([e for e in left if e not in (c, d)], pads)
+            if rest is not None:
+                return [(c, d)] + rest
+        if pads:
+            rest = match([d for d in left if d != c], pads - 1)
+            if rest is not None:
+                return [(c, -1)] + rest
+        return None
+
+    pairs = match(list(range(n)), pads)
+    if pairs is None:
+        return list(range(n))
+    slots = [0] * n
+    for j, (c, d) in enumerate(pairs):
+        slots[c] = 2 * j
+        if d >= 0:
+            slots[d] = 2 * j + 1
+    return slots

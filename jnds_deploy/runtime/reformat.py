@@ -138,18 +138,35 @@ class InputsLayout:
     scale: float
     zero_point: int
     channels: int  # current and history's, then padding
+    # the channel of ``inputs`` each of current and history's channels goes to; the others are
+    # padding. Empty: in order, the padding last (graphs calibrated before stop 59).
+    # calibration.inputs chooses it so that no two neighbours can overflow the 16-bit sums of
+    # AVX2's u8 x s8 multiply (benchmarks/results/int8_exposure.md)
+    slots: tuple[int, ...] = ()
+
+    def __post_init__(self):
+        object.__setattr__(self, "slots", tuple(int(c) for c in self.slots))
+
+    @property
+    def order(self) -> np.ndarray:
+        """``slots``, or the identity where empty."""
+        return np.array(self.slots or range(len(_PREPROCESS)), np.int64)
 
     def to_json(self) -> str:
-        return json.dumps({"scale": self.scale, "zero_point": self.zero_point, "channels": self.channels})
+        return json.dumps({"scale": self.scale, "zero_point": self.zero_point, "channels": self.channels,
+                           "slots": list(self.slots)})
 
     @classmethod
     def from_json(cls, text: str) -> "InputsLayout":
         try:
             d = json.loads(text)
-            layout = cls(float(d["scale"]), int(d["zero_point"]), int(d["channels"]))
+            layout = cls(float(d["scale"]), int(d["zero_point"]), int(d["channels"]), tuple(d.get("slots", ())))
         except (ValueError, KeyError, TypeError) as exc:
             raise ArtifactError(f"inputs metadata {INPUTS_KEY!r} malformed ({exc!r})") from exc
-        if layout.channels < len(_PREPROCESS) or not layout.scale > 0 or not 0 <= layout.zero_point <= 255:
+        order = layout.order
+        if (layout.channels < len(_PREPROCESS) or not layout.scale > 0 or not 0 <= layout.zero_point <= 255
+                or len(order) != len(_PREPROCESS) or len(set(order.tolist())) != len(order)
+                or not (0 <= order.min() and order.max() < layout.channels)):
             raise ArtifactError(f"inputs metadata {INPUTS_KEY!r}: {layout}")
         return layout
 
@@ -183,7 +200,7 @@ def _tonemap_codes(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(parallel=True, cache=True)
-def _pack(current, history, kinds, scale, zero_point, first, at, out):
+def _pack(current, history, kinds, scale, zero_point, first, at, slots, pads, out):
     # each channel of a row into a contiguous byte row first, then the row's pixels
     # written out whole: storing straight into the channels-last output was one byte store
     # per value at a stride of C bytes (docs/design-notes.md, "Input packing")
@@ -204,14 +221,14 @@ def _pack(current, history, kinds, scale, zero_point, first, at, out):
                     # no branch: on 1-spp noise a branch here is mispredicted often
                     # (docs/performance.md, stop 40)
                     q += np.int64(v >= at[q + 1])
-                    codes[c, i] = np.uint8(q)
+                    codes[slots[c], i] = np.uint8(q)
             else:
                 a = half if k == 2 else np.float32(1)
                 b = half if k == 2 else lo
                 for i in range(w):
                     q = np.rint((src[y, i] * a + b) / scale) + zp
-                    codes[c, i] = np.uint8(min(max(q, lo), hi))
-        for c in range(kinds.shape[0], C):
+                    codes[slots[c], i] = np.uint8(min(max(q, lo), hi))
+        for c in pads:
             for i in range(w):
                 codes[c, i] = np.uint8(zero_point)
         if C % 8 == 0:
@@ -236,12 +253,15 @@ def pack_inputs(current: np.ndarray, history: np.ndarray, layout: InputsLayout) 
     """The int8 network graph's ``inputs`` (1, H, W, channels) u8 from its float ``current``
     (1, 13, H, W) and ``history`` (1, 12, H, W), linear as the float graph takes them:
     ``model.tonemap_inputs`` of both, concatenated, quantized (round half to even,
-    saturated, as QuantizeLinear), the padding channels at the zero point (value 0)."""
+    saturated, as QuantizeLinear), each channel in its slot (``InputsLayout.slots``), the
+    padding channels at the zero point (value 0)."""
     _, _, h, w = current.shape
     out = np.empty((1, h, w, layout.channels), np.uint8)
     first, at = _tables(layout)
+    slots = layout.order
+    pads = np.setdiff1d(np.arange(layout.channels), slots)
     _pack(np.ascontiguousarray(current[0], np.float32), np.ascontiguousarray(history[0], np.float32), _PREPROCESS,
-          np.float32(layout.scale), layout.zero_point, first, at, out)
+          np.float32(layout.scale), layout.zero_point, first, at, slots, pads, out)
     return out
 
 

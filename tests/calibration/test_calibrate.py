@@ -359,3 +359,44 @@ def test_float_edges_ranges_left_to_the_calibrator_cover_every_exposure(tmp_path
         assert saved[t]["rmin"] <= lo + step and saved[t]["rmax"] >= hi - step, t
         # wider than the frames as they are would have given
         assert hi > max(v.max() for v in at[0]) + step or lo < min(v.min() for v in at[0]) - step, t
+
+
+def _pair_extremes(w, bounds):
+    """The smallest and largest 16-bit pair sums (channels 2j, 2j+1) of int8 weights w (out, in)
+    at codes 0..bounds."""
+    hi, lo = np.maximum(w, 0) * bounds, np.minimum(w, 0) * bounds
+    return (lo[:, 0::2] + lo[:, 1::2]).min(), (hi[:, 0::2] + hi[:, 1::2]).max()
+
+
+def test_safe_slots_keep_every_pair_within_16_bits():
+    from jnds_deploy.calibration.inputs import I16, code_bounds, safe_slots
+    scale = 2.9 / 255  # below the tonemap's top: the brightest radiance saturates at 255
+    bounds = code_bounds(scale, 0)
+    assert bounds.max() == 255 and bounds.min() < 128  # radiance to the top, the other layers to 1.0
+    rng = np.random.default_rng(3)
+    w = rng.integers(-60, 61, (16, 25)).astype(np.int64)
+    w[:, :6] = 127  # six radiance channels that overflow beside each other or a large weight
+    slots = safe_slots(w, scale, 0)
+    assert sorted(slots) == sorted(set(slots)) and max(slots) < 32
+    placed, b = np.zeros((16, 32), np.int64), np.zeros(32, np.int64)
+    placed[:, slots], b[slots] = w, bounds
+    lo, hi = _pair_extremes(placed, b)
+    assert I16[0] <= lo and hi <= I16[1]
+    lo, hi = _pair_extremes(np.concatenate([w, np.zeros((16, 7), np.int64)], 1), np.append(bounds, [0] * 7))
+    assert hi > I16[1]  # in order they would overflow
+    # no placement: every channel a radiance channel at the top, no padding
+    assert safe_slots(np.full((4, 25), 127), scale, 0, channels=25) == list(range(25))
+
+
+def test_the_calibrated_projection_cannot_overflow_16_bits(calibrated):
+    """In the int8 graph every pair of the projection's input channels stays within a 16-bit
+    sum at any code the packed inputs can hold (AVX2's vpmaddubsw)."""
+    from jnds_deploy.calibration.inputs import I16, code_bounds
+    d, manifest, _ = calibrated
+    model = onnx.load(d / manifest.graphs["network"].int8["qat"].file)
+    layout = InputsLayout.from_json({p.key: p.value for p in model.metadata_props}[INPUTS_KEY])
+    w = next(numpy_helper.to_array(i) for i in model.graph.initializer if i.name.endswith("project.weight_quantized_padded"))
+    b = np.zeros(layout.channels, np.int64)
+    b[list(layout.slots)] = code_bounds(layout.scale, layout.zero_point)
+    lo, hi = _pair_extremes(w[:, :, 0, 0].astype(np.int64), b)
+    assert len(layout.slots) == 25 and I16[0] <= lo and hi <= I16[1]

@@ -117,3 +117,9 @@ def test_pack_inputs_is_the_input_blocks_preprocessing_quantized(scale, zero_poi
     assert (got[0, :, :, 25:] == zero_point).all()
     # channel counts that are not a multiple of 8 take the byte loop, 8 and more the word stores
     np.testing.assert_array_equal(pack_inputs(cur, hist, InputsLayout(scale, zero_point, 28)), got[..., :28])
+    # channels in other slots (calibration.inputs.safe_slots): the same codes, moved; the rest padding
+    slots = tuple(np.random.default_rng(1).permutation(32)[:25].tolist())
+    moved = pack_inputs(cur, hist, InputsLayout(scale, zero_point, 32, slots))
+    np.testing.assert_array_equal(moved[..., list(slots)], got[..., :25])
+    assert (np.delete(moved, list(slots), axis=3) == zero_point).all()
+    assert InputsLayout.from_json(InputsLayout(scale, zero_point, 32, slots).to_json()).slots == slots
