@@ -102,22 +102,19 @@ def safe_slots(w: np.ndarray, scale: float, zero_point: int, channels: int = CHA
     np.fill_diagonal(safe, False)
 
     def match(left: list[int], pads: int) -> list[tuple[int, int]] | None:
+        """Pairs (channel, partner or -1 for a padding slot) covering ``left``, or None."""
         if not left:
-            return [] if pads % 2 == 0 else None
-        options = {c: [d for d in left if safe[c, d]] for c in left}
-        c = min(left, key=lambda c: len(options[c]))
-        if pads:  # beside a padding slot
-            rest = match([d for d in left if d != c], pads - 1)
-            if rest is not None and (len(options[c]) == 0 or pads > len(left) // 2):
-                return [(c, -1)] + rest
-        for d in options[c]:
-            rest = match([e for e in left if e not in (c, d)], pads)
+            return []  # the padding left over fills whole pairs: n + pads is even
+        c = min(left, key=lambda c: int(safe[c, left].sum()))
+        partners = [d for d in left if safe[c, d]]
+        # a padding slot first while there is padding to spare, a partner channel first after
+        tries = ([-1] + partners) if pads > len(left) // 2 else (partners + [-1])
+        for d in tries:
+            if d < 0 and not pads:
+                continue
+            rest = match([e for e in left if e not in (c, d)], pads - (d < 0))
             if rest is not None:
                 return [(c, d)] + rest
-        if pads:
-            rest = match([d for d in left if d != c], pads - 1)
-            if rest is not None:
-                return [(c, -1)] + rest
         return None
 
     pairs = match(list(range(n)), pads)
