@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from jnds_deploy.checkpoint import read_checkpoint
 from jnds_deploy.io import expand_sequences

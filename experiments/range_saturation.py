@@ -40,7 +40,6 @@ def main() -> None:
     a = ap.parse_args()
     torch.set_num_threads(2)
     q, f = load_model(a.checkpoint), load_fp32_model(a.checkpoint)
-    seq0 = load_sequence(a.sequence)
     refs = ground_truth(a.sequence)[0]
     rad = radiance_channels()
     for k in a.stops:
@@ -69,7 +68,6 @@ def main() -> None:
         worst = sorted(clipped.items(), key=lambda kv: -kv[1][0] / kv[1][1])[:a.top]
         for n, (above, total, hi, mx) in worst:
             print(f"  {n:50s} above its top {100 * above / total:7.3f} %  (top {hi:.2f}, max seen {mx:.2f})")
-    del seq0
 
 
 if __name__ == "__main__":

@@ -258,11 +258,17 @@ def pack_inputs(current: np.ndarray, history: np.ndarray, layout: InputsLayout) 
     _, _, h, w = current.shape
     out = np.empty((1, h, w, layout.channels), np.uint8)
     first, at = _tables(layout)
-    slots = layout.order
-    pads = np.setdiff1d(np.arange(layout.channels), slots)
+    slots, pads = _placement(layout)
     _pack(np.ascontiguousarray(current[0], np.float32), np.ascontiguousarray(history[0], np.float32), _PREPROCESS,
           np.float32(layout.scale), layout.zero_point, first, at, slots, pads, out)
     return out
+
+
+@functools.lru_cache(maxsize=8)
+def _placement(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
+    """The slot of each channel and the padding slots, once per layout, not per frame."""
+    slots = layout.order
+    return slots, np.setdiff1d(np.arange(layout.channels), slots)
 
 
 @functools.lru_cache(maxsize=8)
