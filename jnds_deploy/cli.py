@@ -98,7 +98,7 @@ def cmd_dataset(args) -> int:
     done = render_dataset(args.out, args.split, args.limit, variant=args.variant,
                           train_sequences=args.train_sequences, jobs=args.jobs, engine=args.engine,
                           address=args.address, progress=not args.quiet, moving_sequences=args.moving_sequences,
-                          extra_sequences=_extra_sequences(args))
+                          extra_sequences=_extra_sequences(args), reference=not args.no_reference)
     for path, times in done:
         # None: every frame of that kind was rendered before a resume (the medians are of this run's)
         rates = ", ".join(f"{k} " + ("none rendered in this run" if v is None else f"{v:.2f} s/frame")
@@ -126,7 +126,8 @@ def cmd_train(args) -> int:
                       channels_last=not args.no_channels_last,
                       fixed_upsample=args.fixed_upsample, cross_cuts=args.cross_cuts,
                       balance_renderers=args.balance_renderers, burn_in=args.burn_in,
-                      clean_references=args.clean_references, lowfreq_loss=args.lowfreq_loss)
+                      clean_references=args.clean_references, lowfreq_loss=args.lowfreq_loss,
+                      teacher=args.teacher, train_only=tuple(args.train_only))
     ckpt = train(cfg, progress=not args.quiet)
     print(f"checkpoint: {ckpt}")
     return 0
@@ -315,6 +316,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--address", default=None,
                    help="render the sequences as Ray tasks on this cluster ('local': an embedded Ray here); "
                         "RAY_ADDRESS also selects a cluster")
+    d.add_argument("--no-reference", action="store_true",
+                   help="inputs only (no reference frames): training data for jnds train --teacher, in a "
+                        "directory of its own (--out)")
     d.add_argument("--quiet", action="store_true")
     d.set_defaults(func=cmd_dataset)
 
@@ -357,6 +361,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "reference to each radiance task's spatial loss (0: the paper's loss)")
     t.add_argument("--init", default=None,
                    help="start a new run from this checkpoint's weights (e.g. the shipped one) to fine-tune it")
+    t.add_argument("--teacher", default=None, metavar="CHECKPOINT",
+                   help="distil: this checkpoint's outputs are the targets, not the references (the training "
+                        "sequences need none: jnds dataset --no-reference)")
+    t.add_argument("--train-only", action="append", default=[], metavar="PREFIX",
+                   help="train only the parameters whose names start with PREFIX (repeatable; e.g. "
+                        "network.output_block)")
     t.add_argument("--deepen-blend", type=float, default=-4.0, metavar="LOGIT",
                    help="--init one U-Net level shallower than --preset: the new level enters the old coarsest "
                         "one with blend weight sigmoid(LOGIT)")

@@ -822,3 +822,66 @@ def test_fill_diffuse_holes():
     # the composite of a filled pixel is the same: its albedo is 0
     assert torch.equal(filters.composite(albedo, out, torch.zeros_like(out))[:, :, hole],
                        torch.zeros(1, 3, int(hole.sum())))
+
+
+def test_distillation_trains_only_the_named_block_on_inputs_only_toward_its_teacher(tmp_path, make_sequence):
+    from jnds_deploy.checkpoint import load_model
+    from jnds_deploy.errors import ConfigError, TrainError
+    from jnds_deploy.training.config import TrainConfig
+    from jnds_deploy.training.data import Augment, PatchSampler, load_sequence
+    from jnds_deploy.training.losses import Loss
+    from jnds_deploy.training.train import run_unroll, train
+    from .conftest import SAMPLE
+    data = tmp_path / "data"
+    (data / "train").mkdir(parents=True)
+    (data / "train" / "sample").symlink_to(SAMPLE)
+    common = dict(preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1, val_every=10 ** 6, threads=1,
+                  fixed_upsample=True, cross_cuts=True)
+    teacher = train(TrainConfig(data=str(data), run=str(tmp_path / "t"), fp32_steps=2, qat_steps=1, lr=1e-2,
+                                **common), progress=False)
+
+    # inputs only: no reference component, which a run against references refuses
+    path, _, _ = make_sequence(frames=4, size=(32, 32), reference=False, name="inputs")
+    seq = load_sequence(path)
+    assert seq.ref == {}
+    with pytest.raises(TrainError, match="reference has no"):
+        PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0), cross_cuts=True)
+    aug = Augment(exposure=(-4, 8), rotate_normals=True, flips=True, colours=True)
+    batch = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0), augment=aug,
+                         cross_cuts=True, references=False).batch(2)
+    assert set(batch) == {"current", "motion", "cut"}
+
+    # a student equal to its teacher is at zero loss; one cut to fewer output-block channels is
+    # not, and distilling brings it closer
+    cfg = TrainConfig(**common)
+    loss_fn, t_model = Loss(cfg, 2), load_model(teacher)
+    with torch.no_grad():
+        targets = Loss.teacher_targets(run_unroll(t_model, batch))
+        assert float(loss_fn(run_unroll(t_model, batch), batch, targets)[0]) == 0.0
+    dist = tmp_path / "distill"
+    (dist / "train").mkdir(parents=True)
+    (dist / "train" / "inputs").symlink_to(path)
+    args = dict(data=str(dist), fp32_steps=0, init=str(teacher), teacher=str(teacher), output_width=2,
+                train_only=("network.output_block",), **common)
+    cut = load_model(train(TrainConfig(run=str(tmp_path / "cut"), qat_steps=0, **args), progress=False))
+    student = torch.load(train(TrainConfig(run=str(tmp_path / "s"), qat_steps=2, qat_lr=1e-3, **args),
+                               progress=False), weights_only=False)
+    assert student["quantized"] and student["model_config"]["output_width"] == 2
+    moved = {k for k, v in cut.state_dict().items() if not torch.equal(v, student["model"][k])}
+    assert moved and all(k.startswith("network.output_block.") for k in moved), moved
+    opt = torch.optim.Adam(cut.network.output_block.parameters(), lr=1e-4)
+    losses = []
+    for _ in range(4):
+        loss = loss_fn(run_unroll(cut, batch), batch, targets)[0]
+        losses.append(float(loss.detach()))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert 0 < losses[-1] < losses[0], losses
+
+    # the student must run as its teacher does (fill, clamp, albedo at holes, upsample root)
+    with pytest.raises(ConfigError, match="firefly_clamp"):
+        train(TrainConfig(run=str(tmp_path / "x"), qat_steps=1, firefly_clamp=16.0, **args), progress=False)
+    with pytest.raises(ConfigError, match="no parameter"):
+        train(TrainConfig(run=str(tmp_path / "y"), qat_steps=1, **{**args, "train_only": ("network.nothing",)}),
+              progress=False)

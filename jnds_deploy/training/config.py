@@ -66,6 +66,12 @@ class TrainConfig:
     balance_renderers: bool = False
     # "oidn": train against references with OIDN-denoised diffuse and specular (training.data.clean_references)
     clean_references: str | None = None
+    # distillation: this checkpoint's outputs are the targets instead of the references
+    # (which the training sequences then need not have: ``jnds dataset --no-reference``)
+    teacher: str | None = None
+    # only the parameters whose names start with one of these train (e.g.
+    # "network.output_block"); empty: all
+    train_only: tuple[str, ...] = ()
 
     def model_config(self):
         """The ``ModelConfig`` this run trains."""
@@ -88,6 +94,9 @@ class TrainConfig:
                 raise ConfigError(f"exposure must be (lo, hi) stops with lo <= hi, got {self.exposure}")
         if not self.lowfreq_loss >= 0:
             raise ConfigError(f"lowfreq_loss must be >= 0, got {self.lowfreq_loss}")
+        self.train_only = tuple(self.train_only)  # a list when read from config.json
+        if self.teacher and self.clean_references:
+            raise ConfigError("teacher and clean_references exclude each other: a distilled run has no reference")
         if self.clean_references not in (None, "oidn"):
             raise ConfigError(f"clean_references must be None or 'oidn', got {self.clean_references!r}")
         if not 0 <= self.warmup_steps <= self.fp32_steps:

@@ -43,13 +43,15 @@ def load_sequence(path: str | Path, clean: str | None = None) -> SequenceArrays:
             raise TrainError(f"clean references: unknown method {clean!r} (known: oidn)")
         return clean_references(load_sequence(path), path)
     seq = open_sequence(path)
-    present = seq.reference(0) if len(seq) else {}
+    # a sequence of inputs only (``jnds dataset --no-reference``) has no component: what a
+    # teacher-distilled run trains on
+    present = seq.reference(0) if len(seq) and seq.has_reference else {}
     cur, mot, refs = [], [], {k: [] for k in REFERENCE_COMPONENTS if k in present}
     for i in range(len(seq)):
         a = seq.inputs(i)
         cur.append(np.concatenate([a[n] for n, _ in CURRENT], -1).transpose(2, 0, 1))
         mot.append(a["motion"].transpose(2, 0, 1))
-        r = seq.reference(i)
+        r = seq.reference(i) if refs else {}
         for k in refs:
             refs[k].append(r[k].transpose(2, 0, 1))
     return SequenceArrays(Path(path).name, np.stack(cur), np.stack(mot),
@@ -176,14 +178,15 @@ class Augment:
             for name in RADIANCE:
                 out["current"][:, channels(name)] *= gain
             for name in ("color", "diffuse", "specular"):
-                out[name] *= gain
+                if name in out:  # a sample without reference (PatchSampler(references=False))
+                    out[name] *= gain
         if self.colours and rng.random() < 0.5:
             perm = rng.permutation(3)
             tint = (2.0 ** rng.uniform(-0.5, 0.5, size=(1, 3, 1, 1))).astype(np.float32)
             for name in (*RADIANCE, "albedo"):
                 c = channels(name)
                 out["current"][:, c] = out["current"][:, c][:, perm] * (tint if name in RADIANCE else 1)
-            for name in REFERENCE_COMPONENTS:  # color = albedo * diffuse + specular: tinted too
+            for name in (c for c in REFERENCE_COMPONENTS if c in out):  # color = albedo * diffuse + specular: tinted too
                 out[name] = np.ascontiguousarray(out[name][:, perm] * (1 if name == "albedo" else tint))
         if self.rotate_normals:
             n = channels("normal")
@@ -214,13 +217,16 @@ class PatchSampler:
     halfway has no window of 8 frames without a cut: crossing, it trains the frame after a
     cut, which the evaluation sets have. With ``balance_renderers`` the windows of each
     renderer (``SequenceArrays.renderer``) together are drawn as often as another's: the
-    evaluation sets are half Cycles, the training data a third."""
+    evaluation sets are half Cycles, the training data a third. ``references=False``
+    draws the inputs only (a teacher-distilled run's targets are the teacher's outputs)."""
 
     def __init__(self, seqs: list[SequenceArrays], patch: int, unroll: int, rng: np.random.Generator,
-                 augment: Augment = Augment(), cross_cuts: bool = False, balance_renderers: bool = False):
+                 augment: Augment = Augment(), cross_cuts: bool = False, balance_renderers: bool = False,
+                 references: bool = True):
         self.seqs, self.patch, self.unroll, self.rng, self.augment = seqs, patch, unroll, rng, augment
+        self.components = REFERENCE_COMPONENTS if references else ()
         for s in seqs:
-            if missing := [c for c in REFERENCE_COMPONENTS if c not in s.ref]:
+            if missing := [c for c in self.components if c not in s.ref]:
                 raise TrainError(f"{s.name}: the reference has no {', '.join(missing)}; training needs every "
                                  "component (the renderers write them)")
         self.windows = []
@@ -248,7 +254,7 @@ class PatchSampler:
         at that frame (a camera cut inside the window). ``burn_in`` frames precede each
         window (T = burn_in + unroll): the sequence's frames before it, where it has them;
         before its first frame, that frame repeated, the history restarting at the real one."""
-        out = {k: [] for k in ("current", "motion", *REFERENCE_COMPONENTS)}
+        out = {k: [] for k in ("current", "motion", *self.components)}
         cuts = []
         for _ in range(n):
             si, t = self.window()
@@ -257,11 +263,11 @@ class PatchSampler:
             p = self.patch
             y = int(self.rng.integers(0, h - p + 1))
             x = int(self.rng.integers(0, w - p + 1))
-            k = s.scale
             sl = np.maximum(np.arange(t - burn_in, t + self.unroll), 0)
             cuts.append([False] + [bool(s.cuts[b]) or a == b for a, b in zip(sl[:-1], sl[1:])])
             sample = {"current": s.current[sl, :, y:y + p, x:x + p], "motion": s.motion[sl, :, y:y + p, x:x + p]}
-            for c in REFERENCE_COMPONENTS:
+            for c in self.components:
+                k = s.scale
                 sample[c] = s.ref[c][sl, :, k * y:k * (y + p), k * x:k * (x + p)]
             if self.augment:
                 sample = self.augment(sample, self.rng)

@@ -74,13 +74,31 @@ class Loss:
             return feat + l1(o, r) if self.with_l1 else feat
         return l1(o, r)
 
-    def __call__(self, outs: list, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
+    def targets(self, batch: dict) -> dict[str, torch.Tensor]:
+        """The reference of each task, (T * N, C, H, W) linear: native tasks box-downsampled."""
+        s = self.scale
+        return {"diffuse": F.avg_pool2d(batch["diffuse"].flatten(0, 1), s),
+                "specular": F.avg_pool2d(batch["specular"].flatten(0, 1), s),
+                "auxiliary": F.avg_pool2d(batch["albedo"].flatten(0, 1), s),
+                "upsample": batch["color"].flatten(0, 1)}
+
+    @staticmethod
+    def teacher_targets(outs: list) -> dict[str, torch.Tensor]:
+        """A teacher's outputs as each task's target (``targets``' layout): distillation."""
+        def stack(name):
+            return torch.cat([getattr(o, name) for o in outs]).detach()
+        return {"diffuse": stack("diffuse"), "specular": stack("specular"), "auxiliary": stack("albedo"),
+                "upsample": stack("output")}
+
+    def __call__(self, outs: list, batch: dict, targets: dict | None = None) -> tuple[torch.Tensor, dict[str, float]]:
+        """``targets``: each task's target (``teacher_targets``); the batch's reference by default."""
         s, tm = self.scale, loss_tonemap
+        ref = self.targets(batch) if targets is None else targets
         tasks = {
-            "diffuse": ([tm(o.diffuse) for o in outs], tm(F.avg_pool2d(batch["diffuse"].flatten(0, 1), s)), False),
-            "specular": ([tm(o.specular) for o in outs], tm(F.avg_pool2d(batch["specular"].flatten(0, 1), s)), False),
-            "auxiliary": ([o.albedo for o in outs], F.avg_pool2d(batch["albedo"].flatten(0, 1), s), False),
-            "upsample": ([tm(o.output) for o in outs], tm(batch["color"].flatten(0, 1)), True),
+            "diffuse": ([tm(o.diffuse) for o in outs], tm(ref["diffuse"]), False),
+            "specular": ([tm(o.specular) for o in outs], tm(ref["specular"]), False),
+            "auxiliary": ([o.albedo for o in outs], ref["auxiliary"], False),
+            "upsample": ([tm(o.output) for o in outs], tm(ref["upsample"]), True),
         }
         T, N = batch["current"].shape[:2]
         total, parts = 0.0, {}

@@ -103,6 +103,8 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
     ckpt = run / "checkpoint.pt"
 
     model = JNDS(cfg.model_config()).to(cfg.device)
+    if cfg.train_only:
+        _freeze_except(model, cfg.train_only)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=0.0)
     rng = np.random.default_rng(cfg.seed)
     state = TrainState()
@@ -129,11 +131,14 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
         return list(val_seqs.values())
     sampler = PatchSampler(train_seqs, cfg.patch, cfg.unroll, rng,
                            Augment(cfg.exposure, cfg.rotate_normals, cfg.flips, cfg.colours), cross_cuts=cfg.cross_cuts,
-                           balance_renderers=cfg.balance_renderers)
+                           balance_renderers=cfg.balance_renderers, references=cfg.teacher is None)
     loss_fn = Loss(cfg, model.cfg.scale)
+    teacher = _teacher(cfg, model.cfg) if cfg.teacher else None
     if cfg.channels_last:
         model.to(memory_format=torch.channels_last)
         loss_fn.to(memory_format=torch.channels_last)
+        if teacher is not None:
+            teacher.to(memory_format=torch.channels_last)
     total_steps = cfg.fp32_steps + cfg.qat_steps
     log = (run / "log.jsonl").open("a")
 
@@ -156,7 +161,11 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
             g["lr"] = _lr(cfg, state)
         burn = int(rng.integers(cfg.burn_in + 1)) if cfg.burn_in else 0
         batch = sampler.batch(cfg.batch, cfg.device, burn_in=burn)
-        loss, parts = loss_fn(run_unroll(model, batch, burn), after_burn_in(batch, burn))
+        targets = None
+        if teacher is not None:
+            with torch.no_grad():
+                targets = loss_fn.teacher_targets(run_unroll(teacher, batch, burn))
+        loss, parts = loss_fn(run_unroll(model, batch, burn), after_burn_in(batch, burn), targets)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
@@ -178,6 +187,32 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
     bar.close()
     log.close()
     return ckpt
+
+
+def _freeze_except(model: JNDS, prefixes: tuple[str, ...]) -> None:
+    """Only the parameters named with one of ``prefixes`` train; ConfigError if none is."""
+    names = [n for n, p in model.named_parameters() if n.startswith(prefixes)]
+    if not names:
+        raise ConfigError(f"train_only {list(prefixes)}: no parameter of the model is named so "
+                          f"(e.g. network.output_block)")
+    for n, p in model.named_parameters():
+        p.requires_grad_(n.startswith(prefixes))
+
+
+def _teacher(cfg: TrainConfig, student: ModelConfig) -> JNDS:
+    """The distillation teacher (``TrainConfig.teacher``), eval mode, frozen, as it was trained
+    (fake quantization on if it was QAT-trained). Its runtime switches (fill, clamp, albedo
+    at holes, upsample root) must be the student's: the student learns to equal it."""
+    from ..checkpoint import load_model
+
+    teacher = load_model(cfg.teacher).to(cfg.device)
+    same = ("upsample_root", "firefly_clamp", "diffuse_fill", "albedo_at_holes", "scale")
+    if diff := [k for k in same if getattr(teacher.cfg, k) != getattr(student, k)]:
+        raise ConfigError(f"--teacher {cfg.teacher}: {', '.join(f'{k} {getattr(teacher.cfg, k)}' for k in diff)} "
+                          f"where the trained model has {', '.join(str(getattr(student, k)) for k in diff)}")
+    for p in teacher.parameters():
+        p.requires_grad_(False)
+    return teacher
 
 
 def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
