@@ -288,6 +288,10 @@ def test_dataset_jobs_render_what_one_process_renders(tmp_path, monkeypatch):
     assert [p.name for p, _ in one] == [p.name for p, _ in two] == ["s0", "s1"]
     assert_same_sequences(tmp_path / "one", tmp_path / "two", [rel for rel, _ in specs])
     assert dataset.render_dataset(tmp_path / "two", jobs=2) == []  # finished sequences are kept
+    # without references (jnds dataset --no-reference): the same inputs, and no reference
+    dataset.render_dataset(tmp_path / "bare", reference=False)
+    assert_same_sequences(tmp_path / "one", tmp_path / "bare", [rel for rel, _ in specs], reference=False)
+    assert not any(open_sequence(tmp_path / "bare" / rel).has_reference for rel, _ in specs)
 
 
 def test_the_test_split_is_apart_and_only_rendered_when_asked_for():
