@@ -127,7 +127,7 @@ def cmd_train(args) -> int:
                       fixed_upsample=args.fixed_upsample, cross_cuts=args.cross_cuts,
                       balance_renderers=args.balance_renderers, burn_in=args.burn_in,
                       clean_references=args.clean_references, lowfreq_loss=args.lowfreq_loss,
-                      teacher=args.teacher, train_only=tuple(args.train_only))
+                      teacher=args.teacher, train_only=tuple(args.train_only), w_spatial=args.w_spatial)
     ckpt = train(cfg, progress=not args.quiet)
     print(f"checkpoint: {ckpt}")
     return 0
@@ -361,6 +361,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "reference to each radiance task's spatial loss (0: the paper's loss)")
     t.add_argument("--init", default=None,
                    help="start a new run from this checkpoint's weights (e.g. the shipped one) to fine-tune it")
+    t.add_argument("--w-spatial", type=float, default=0.2, metavar="W",
+                   help="each task's loss: W x spatial + (1 - W) x temporal (Sec. 3.3's 0.2)")
     t.add_argument("--teacher", default=None, metavar="CHECKPOINT",
                    help="distil: this checkpoint's outputs are the targets, not the references (the training "
                         "sequences need none: jnds dataset --no-reference)")
