@@ -191,8 +191,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
 
 def _freeze_except(model: JNDS, prefixes: tuple[str, ...]) -> None:
     """Only the parameters named with one of ``prefixes`` train; ConfigError if none is."""
-    names = [n for n, p in model.named_parameters() if n.startswith(prefixes)]
-    if not names:
+    if not any(n.startswith(prefixes) for n, _ in model.named_parameters()):
         raise ConfigError(f"train_only {list(prefixes)}: no parameter of the model is named so "
                           f"(e.g. network.output_block)")
     for n, p in model.named_parameters():
