@@ -81,7 +81,7 @@ def main() -> int:
     variants["fp32, optimization extended"], levels["fp32, optimization extended"] = network, "extended"
     variants["int8 default, optimization extended"] = variants[default]
     levels["int8 default, optimization extended"] = "extended"
-    net_feeds = network_feeds(seqs[0], size)
+    net_feeds = network_feeds(seqs[0], size, manifest.guide_albedo)
     timing = time_sessions(variants, net_feeds, args.runs, args.threads, levels)
     profiles = {k: profile_stages(variants[k], net_feeds, runs=3, threads=args.threads) for k in ("fp32", default)}
 

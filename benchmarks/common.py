@@ -322,19 +322,26 @@ def resized_frames(seq, size: tuple[int, int] | None) -> list[tuple[dict, bool]]
     return frames
 
 
-def network_feeds(seq_path: Path, size: tuple[int, int]) -> dict[str, np.ndarray]:
+def network_feeds(seq_path: Path, size: tuple[int, int], guide: bool = False) -> dict[str, np.ndarray]:
     """The network graph's inputs from a real frame resized to ``size`` (history: the
-    current inputs, as on a first frame)."""
+    current inputs, as on a first frame; with ``guide``, the guide albedo, for a network
+    that reads it: ``Manifest.guide_albedo``)."""
     import cv2
 
     from jnds_deploy.io import open_sequence
-    from jnds_deploy.layout import CURRENT, N_HISTORY
+    from jnds_deploy.layout import CURRENT, GUIDE, N_HISTORY, guide_of
 
-    layers = open_sequence(seq_path).inputs(0)
-    cur = np.concatenate([cv2.resize(layers[n], size, interpolation=cv2.INTER_LINEAR).reshape(size[1], size[0], -1)
-                          for n, _ in CURRENT], -1).transpose(2, 0, 1)
-    cur = np.ascontiguousarray(cur[None], np.float32)
-    return {"current": cur, "history": np.ascontiguousarray(cur[:, :N_HISTORY])}
+    layers = dict(open_sequence(seq_path).inputs(0))
+    layers[GUIDE.name] = guide_of(layers)
+    names = [n for n, _ in CURRENT] + ([GUIDE.name] if guide else [])
+    x = np.concatenate([cv2.resize(layers[n], size, interpolation=cv2.INTER_LINEAR).reshape(size[1], size[0], -1)
+                        for n in names], -1).transpose(2, 0, 1)
+    x = np.ascontiguousarray(x[None], np.float32)
+    cur = np.ascontiguousarray(x[:, :-GUIDE.channels]) if guide else x
+    feeds = {"current": cur, "history": np.ascontiguousarray(cur[:, :N_HISTORY])}
+    if guide:
+        feeds["guide"] = np.ascontiguousarray(x[:, -GUIDE.channels:])
+    return feeds
 
 
 # --- reports -------------------------------------------------------------------------------

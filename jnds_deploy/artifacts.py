@@ -84,7 +84,8 @@ class Int8Graph:
     ranges: str  # calibration.<method>.json: scale and zero point of every quantized tensor
     variants: dict[str, Variant] = field(default_factory=dict)
     head: str = "float"  # the output block's head: float outputs, or one u8 tensor (runtime.head)
-    inputs: str = "float"  # current and history float, or one u8 tensor preprocessed (runtime.reformat)
+    # current and history (and the guide albedo) float, or one u8 tensor preprocessed (runtime.reformat)
+    inputs: str = "float"
     # the upsamplings and concatenations (decoder blocks, output block): in the graph, or
     # between runs of it (calibration.block, runtime.reformat.block_input)
     block: str = "in the graph"
@@ -155,6 +156,12 @@ class Manifest:
     def albedo_at_holes(self) -> bool:
         # model.ModelConfig.albedo_at_holes; artifacts from before it existed: off
         return bool(self.model_config.get("albedo_at_holes", False))
+
+    @property
+    def guide_albedo(self) -> bool:
+        # model.ModelConfig.guide_albedo: the network graph's third input ``guide``; artifacts
+        # from before it existed: none
+        return bool(self.model_config.get("guide_albedo", False))
 
     # -- files ---------------------------------------------------------------------------
 

@@ -115,7 +115,7 @@ def cmd_train(args) -> int:
     cfg = TrainConfig(data=args.data, run=args.run, preset=args.preset, output_width=args.output_width,
                       upsample_root=args.upsample_root,
                       firefly_clamp=args.firefly_clamp, diffuse_fill=args.diffuse_fill,
-                      albedo_at_holes=args.albedo_at_holes,
+                      albedo_at_holes=args.albedo_at_holes, guide_albedo=args.guide_albedo,
                       patch=args.patch, unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
                       qat_steps=args.qat_steps, lr=args.lr, qat_lr=args.qat_lr, spatial_loss=args.spatial_loss,
                       feature_net=args.feature_net, init=args.init, deepen_blend=args.deepen_blend,
@@ -340,6 +340,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--albedo-at-holes", action="store_true",
                    help="train with the composite's albedo averaged where such samples lie scattered "
                         "(model.ModelConfig.albedo_at_holes)")
+    t.add_argument("--guide-albedo", action="store_true",
+                   help="the network also reads the guide albedo (the optional layer denoising_albedo, the albedo "
+                        "where a frame has none; model.ModelConfig.guide_albedo); --init from a checkpoint without "
+                        "it adds the input with zero weights")
     t.add_argument("--fixed-upsample", action="store_true",
                    help="one learned upsample kernel for every pixel instead of the upsample block's "
                         "per-pixel prediction (no upsample graph; --init from a predicting checkpoint "

@@ -27,16 +27,17 @@ from .errors import (
     ImageSizeError,
     SequenceFormatError,
 )
-from .layout import LAYERS
+from .layout import GUIDE, LAYERS
 
 FORMAT = "jnds-sequence/1"
 
 # layer name -> channel suffixes, in the order they are stacked on the last axis
 INPUT_LAYERS: dict[str, tuple[str, ...]] = {layer.name: layer.suffixes for layer in LAYERS}
-# ``denoising_albedo``: the guide albedo a single-frame denoiser takes, a metal's tint and
-# what lies behind glass included (Cycles' Denoising Albedo pass); only the OIDN baseline
-# reads it (docs/dataset.md, "The OIDN baseline's albedo")
-OPTIONAL_INPUT_LAYERS: dict[str, tuple[str, ...]] = {"depth": ("",), "denoising_albedo": ("R", "G", "B")}
+# ``denoising_albedo`` (layout.GUIDE): the guide albedo a single-frame denoiser takes, a
+# metal's tint and what lies behind glass included (Cycles' Denoising Albedo pass); the OIDN
+# baseline reads it (docs/dataset.md, "The OIDN baseline's albedo"), and a network trained
+# with it (ModelConfig.guide_albedo)
+OPTIONAL_INPUT_LAYERS: dict[str, tuple[str, ...]] = {"depth": ("",), GUIDE.name: GUIDE.suffixes}
 REFERENCE_LAYERS: dict[str, tuple[str, ...]] = {"color": ("R", "G", "B")}
 OPTIONAL_REFERENCE_LAYERS: dict[str, tuple[str, ...]] = {
     "diffuse": ("R", "G", "B"),

@@ -39,6 +39,11 @@ LAYERS = (
     Layer("motion", ("X", "Y"), -HDR_MAX, HDR_MAX),
 )
 INPUT_CHANNELS = {layer.name: layer.channels for layer in LAYERS}  # what a frame must hold
+# the guide albedo (Cycles' Denoising Albedo: a mirror's or a metal's shows the albedo of
+# what it reflects, where the layer ``albedo`` is 0) is an optional layer of the format; a
+# network trained with it (``ModelConfig.guide_albedo``) reads it after current and history,
+# and the layer ``albedo`` where a frame has none. No filter reads it
+GUIDE = Layer("denoising_albedo", ("R", "G", "B"), 0.0, 1.0)
 
 # channels of the current inputs and of the history, in order: (name, channel count)
 CURRENT = tuple((layer.name, layer.channels) for layer in LAYERS if layer.name != "motion")
@@ -46,6 +51,12 @@ HISTORY = CURRENT[:4]  # diffuse, specular, albedo, normal: the filtered outputs
 RADIANCE = ("diffuse", "specular")  # the layers that carry radiance: tonemapped, filtered, exposed
 N_CURRENT = sum(c for _, c in CURRENT)
 N_HISTORY = sum(c for _, c in HISTORY)
+N_GUIDE = GUIDE.channels
+
+
+def guide_of(layers: dict):
+    """A frame's guide albedo (``GUIDE``): its ``denoising_albedo``, else its ``albedo``."""
+    return layers.get(GUIDE.name, layers["albedo"])
 
 
 def channels(name: str, layout=CURRENT) -> slice:

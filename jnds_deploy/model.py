@@ -35,7 +35,7 @@ import torch.nn.functional as F
 
 from . import filters
 from .errors import ConfigError
-from .layout import CURRENT, HISTORY, N_CURRENT, N_HISTORY, RADIANCE, UPSAMPLE_ROOTS, head_kind  # noqa: F401 (re-exported)
+from .layout import CURRENT, HISTORY, N_CURRENT, N_GUIDE, N_HISTORY, RADIANCE, UPSAMPLE_ROOTS, head_kind  # noqa: F401 (re-exported)
 
 
 
@@ -69,6 +69,11 @@ class ModelConfig:
     # the composite takes the 5x5 mean of the filtered albedo where diffuse holes lie
     # scattered (filters.albedo_at_holes). Not in the paper, not a weight
     albedo_at_holes: bool = False
+    # the input block also reads the guide albedo (layout.GUIDE: Cycles' Denoising Albedo, the
+    # albedo where a frame has none), after current and history: what a mirror or chrome
+    # reflects, where the albedo is 0 and the reflection lives only in the noisy specular
+    # layer (docs/model-gap.md, "Where the gap is"). A weight: three more projection inputs
+    guide_albedo: bool = False
 
     def __post_init__(self):
         object.__setattr__(self, "encoder_widths", tuple(self.encoder_widths))
@@ -296,13 +301,16 @@ def _split(t: torch.Tensor, sizes: list[tuple[str, int]]) -> dict[str, torch.Ten
 class InputBlock(nn.Module):
     def __init__(self, cfg: ModelConfig):
         super().__init__()
-        self.project = QConv(N_CURRENT + N_HISTORY, cfg.input_width, 1)
+        self.project = QConv(N_CURRENT + N_HISTORY + (N_GUIDE if cfg.guide_albedo else 0), cfg.input_width, 1)
         self.conv = QConv(cfg.input_width, cfg.input_width, 3)
 
-    def forward(self, current: torch.Tensor, history: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """current (N, 13, H, W), history (N, 12, H, W): linear, as stored. Returns
-        (native features for the output block, pooled features for the U-Net)."""
-        x = torch.cat([tonemap_inputs(current, CURRENT), tonemap_inputs(history, HISTORY)], 1)
+    def forward(self, current: torch.Tensor, history: torch.Tensor,
+                guide: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """current (N, 13, H, W), history (N, 12, H, W): linear, as stored; guide (N, 3, H, W)
+        the guide albedo, with ``guide_albedo`` (else None). Returns (native features for
+        the output block, pooled features for the U-Net)."""
+        parts = [tonemap_inputs(current, CURRENT), tonemap_inputs(history, HISTORY)]
+        x = torch.cat(parts + ([guide] if guide is not None else []), 1)
         f = F.relu(self.conv(F.relu(self.project(x))))
         return f, filters.downsample(f)
 
@@ -404,8 +412,9 @@ class JNDSNetwork(nn.Module):
     """Input block + feature extractor + output block: every per-pixel kernel and blend
     weight of the filter paths, and the features of the upsample block.
 
-    Inputs: current (N, 13, H, W) and warped history (N, 12, H, W), linear as stored,
-    H and W multiples of ``cfg.pad_multiple``. Output: a flat dict of tensors named
+    Inputs: current (N, 13, H, W) and warped history (N, 12, H, W), linear as stored, and
+    with ``cfg.guide_albedo`` the guide albedo (N, 3, H, W); H and W multiples of
+    ``cfg.pad_multiple``. Output: a flat dict of tensors named
     ``diffuse.spatial``, ..., ``diffuse.level1.down``, ..., ``features``.
     """
 
@@ -416,8 +425,11 @@ class JNDSNetwork(nn.Module):
         self.feature_extractor = FeatureExtractor(cfg)
         self.output_block = OutputBlock(cfg)
 
-    def forward(self, current: torch.Tensor, history: torch.Tensor) -> dict[str, torch.Tensor]:
-        native, pooled = self.input_block(current, history)
+    def forward(self, current: torch.Tensor, history: torch.Tensor,
+                guide: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        if (guide is not None) != self.cfg.guide_albedo:
+            raise ConfigError(f"the network {'reads' if self.cfg.guide_albedo else 'has no'} guide albedo input")
+        native, pooled = self.input_block(current, history, guide)
         decoded, levels = self.feature_extractor(pooled)
         out = self.output_block(decoded, native)
         for path, lv in levels.items():
@@ -553,12 +565,19 @@ class JNDS(nn.Module):
         self.upsample_block = UpsampleBlock(cfg) if cfg.scale > 1 else None
 
     def forward(self, current: torch.Tensor, motion: torch.Tensor,
-                history: torch.Tensor | None, reset: torch.Tensor | None = None) -> FrameOutput:
+                history: torch.Tensor | None, reset: torch.Tensor | None = None,
+                guide: torch.Tensor | None = None) -> FrameOutput:
         """One frame. ``current`` (N, 13, H, W) linear inputs; ``motion`` (N, 2, H, W);
         ``history`` the previous frame's ``FrameOutput.history()`` or None (first frame,
         camera cut): then the current inputs stand in for the history. ``reset`` (N,) bool:
-        the samples whose history is dropped, as if None (a cut inside a training window)."""
+        the samples whose history is dropped, as if None (a cut inside a training window).
+        ``guide`` (N, 3, H, W): the guide albedo, read only with ``cfg.guide_albedo``
+        (None: the albedo, as for a frame without one)."""
         cur = _split(current, list(CURRENT))
+        if self.cfg.guide_albedo:
+            guide = (cur["albedo"] if guide is None else guide).clamp(0, 1)
+        else:
+            guide = None
         holes = filters.diffuse_holes(cur["albedo"], cur["normal"]) if self.cfg.albedo_at_holes else None
         if self.cfg.diffuse_fill:
             cur["diffuse"] = filters.fill_diffuse_holes(cur["diffuse"], cur["albedo"], cur["normal"])
@@ -582,7 +601,7 @@ class JNDS(nn.Module):
                 for p in RADIANCE:
                     cur[p] = filters.clamp_fireflies(cur[p], w[p], self.cfg.firefly_clamp)
                 current = torch.cat([cur[n] for n, _ in CURRENT], 1)
-        net = self.network(current, warped)
+        net = self.network(current, warped, guide)
         hist = split_history(warped)
         paths = {}
         for p in ("diffuse", "specular"):

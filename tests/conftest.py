@@ -88,6 +88,33 @@ def _tiny_artifacts(tmp_path_factory, **config):
     return d / "a", model
 
 
+def guided_copy(src: Path, dst: Path) -> Path:
+    """A copy of sequence ``src`` whose frames have the guide albedo layer
+    (``denoising_albedo``, what Cycles writes): 1 - albedo, unlike the albedo everywhere."""
+    seq = open_sequence(src)
+    writer = SequenceWriter(dst, seq.native_size, seq.target_size)
+    for i in range(len(seq)):
+        layers = dict(seq.inputs(i))
+        layers["denoising_albedo"] = (1.0 - layers["albedo"]).astype(np.float32)
+        writer.write_inputs(i, layers)
+        if seq.has_reference:
+            writer.write_reference(i, seq.reference(i))
+    writer.close(seq.frames)
+    return dst
+
+
+@pytest.fixture(scope="session")
+def guided_sample(tmp_path_factory):
+    """The bundled sample with a guide albedo layer (``guided_copy``)."""
+    return guided_copy(SAMPLE, tmp_path_factory.mktemp("guided") / "orbit-guided")
+
+
+@pytest.fixture(scope="session")
+def tiny_artifacts_guided(tmp_path_factory):
+    """The same as ``tiny_artifacts`` for a network that reads the guide albedo."""
+    return _tiny_artifacts(tmp_path_factory, guide_albedo=True)
+
+
 @pytest.fixture(scope="session")
 def tiny_artifacts(tmp_path_factory):
     """fp32 artifacts of a randomly initialized `tiny` model (heads perturbed away from the

@@ -885,3 +885,48 @@ def test_distillation_trains_only_the_named_block_on_inputs_only_toward_its_teac
     with pytest.raises(ConfigError, match="no parameter"):
         train(TrainConfig(run=str(tmp_path / "y"), qat_steps=1, **{**args, "train_only": ("network.nothing",)}),
               progress=False)
+
+
+def test_the_guide_albedo_input_starts_at_zero_from_a_checkpoint_without_it_and_trains(tmp_path, guided_sample):
+    """``--guide-albedo --init`` a checkpoint without the input: the projection reads the
+    guide with zero weights (the same outputs), the batches carry the guide (the albedo for a
+    sequence without the layer) through the augmentations as an albedo, and a step trains
+    the new weights."""
+    from jnds_deploy.checkpoint import load_model
+    from jnds_deploy.training.config import TrainConfig
+    from jnds_deploy.training.data import Augment, PatchSampler, load_sequence
+    from jnds_deploy.training.evaluate import infer_sequence
+    from jnds_deploy.training.train import GUIDED, train
+    from .conftest import SAMPLE
+    data = tmp_path / "data"
+    for split in ("train", "val"):
+        (data / split).mkdir(parents=True)
+        (data / split / "guided").symlink_to(guided_sample)
+    common = dict(data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1,
+                  val_every=10 ** 6, threads=1)
+    first = train(TrainConfig(run=str(tmp_path / "a"), fp32_steps=1, qat_steps=1, **common), progress=False)
+    guided = train(TrainConfig(run=str(tmp_path / "b"), fp32_steps=0, qat_steps=0, init=str(first),
+                               guide_albedo=True, **common), progress=False)
+    a, b = (torch.load(p, weights_only=False) for p in (first, guided))
+    assert b["model_config"]["guide_albedo"] and b["quantized"]
+    assert b["model"][GUIDED].shape[1] == a["model"][GUIDED].shape[1] + 3
+    assert not b["model"][GUIDED][:, 25:].any() and torch.equal(b["model"][GUIDED][:, :25], a["model"][GUIDED])
+    seq = load_sequence(guided_sample)
+    assert seq.guide is not None and load_sequence(SAMPLE).guide is None
+    for x, y in zip(infer_sequence(load_model(first), seq)[:2], infer_sequence(load_model(guided), seq)[:2]):
+        np.testing.assert_allclose(x, y, atol=1e-5)
+
+    # the guide is 1 - albedo in this sequence: so it stays through flips and colour permutations
+    rng = np.random.default_rng(0)
+    sampler = PatchSampler([seq], 32, 3, rng, Augment((-1.0, 1.0), True, True, True), guide=True)
+    for _ in range(4):
+        batch = sampler.batch(2)
+        torch.testing.assert_close(batch["guide"], 1 - batch["current"][:, :, 6:9], atol=2e-3, rtol=0)
+    plain = PatchSampler([load_sequence(SAMPLE)], 32, 3, rng, guide=True).batch(1)
+    assert torch.equal(plain["guide"], plain["current"][:, :, 6:9])
+    assert "guide" not in PatchSampler([seq], 32, 3, rng).batch(1)
+
+    tuned = torch.load(train(TrainConfig(run=str(tmp_path / "c"), fp32_steps=0, qat_steps=1, lr=1e-3,
+                                         init=str(guided), guide_albedo=True, **common), progress=False),
+                       weights_only=False)
+    assert tuned["model"][GUIDED][:, 25:].abs().max() > 0

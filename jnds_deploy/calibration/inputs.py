@@ -28,12 +28,13 @@ import onnx
 from onnx import helper, numpy_helper
 
 from ..errors import CalibrationError
+from ..errors import ArtifactError
 from ..layout import HDR_MAX, N_CURRENT, N_HISTORY
-from ..runtime.reformat import _PREPROCESS, INPUTS, INPUTS_KEY, InputsLayout
+from ..runtime.reformat import INPUTS, INPUTS_KEY, InputsLayout, preprocess
 from .head import save_extracted
 
 PROJECT = "/network/input_block/project/Conv"
-CHANNELS = 32  # N_CURRENT + N_HISTORY = 25, padded
+CHANNELS = 32  # N_CURRENT + N_HISTORY = 25 (+ N_GUIDE = 28 with the guide albedo), padded
 
 
 def quantize_inputs(src: Path, dst: Path) -> InputsLayout:
@@ -54,9 +55,10 @@ def quantize_inputs(src: Path, dst: Path) -> InputsLayout:
     if zp.dtype != np.uint8:
         raise CalibrationError(f"{src.name}: the input projection reads {zp.dtype} activations, expected uint8")
     w = numpy_helper.to_array(inits[w_dq.input[0]])
-    if w.shape[1] != N_CURRENT + N_HISTORY:
-        raise CalibrationError(f"{src.name}: the input projection has {w.shape[1]} input channels, "
-                               f"expected {N_CURRENT + N_HISTORY}")
+    try:
+        preprocess(w.shape[1])
+    except ArtifactError as e:
+        raise CalibrationError(f"{src.name}: {e}") from e
     slots = safe_slots(w[:, :, 0, 0], scale, int(zp))
     padded = np.zeros((w.shape[0], CHANNELS, *w.shape[2:]), w.dtype)
     padded[:, slots] = w
@@ -79,11 +81,14 @@ def quantize_inputs(src: Path, dst: Path) -> InputsLayout:
 I16 = (-32768, 32767)
 
 
-def code_bounds(scale: float, zero_point: int) -> np.ndarray:
-    """The largest u8 code each of current and history's channels can take in ``inputs``:
-    radiance through Eq. 1's tonemap up to HDR_MAX, the other layers (albedo, roughness,
-    normals mapped to [0, 1]) up to 1; the inputs are clamped to these ranges on reading."""
-    top = np.where(_PREPROCESS == 1, np.log1p(HDR_MAX) ** (1 / 2.2), 1.0)
+def code_bounds(scale: float, zero_point: int, kinds: np.ndarray | None = None) -> np.ndarray:
+    """The largest u8 code each of current and history's channels (``kinds``, from
+    ``runtime.reformat.preprocess``; current and history's by default) can take in
+    ``inputs``: radiance through Eq. 1's tonemap up to HDR_MAX, the other layers (albedo,
+    roughness, normals mapped to [0, 1], the guide albedo) up to 1; the inputs are clamped to
+    these ranges on reading."""
+    kinds = preprocess(N_CURRENT + N_HISTORY) if kinds is None else kinds
+    top = np.where(kinds == 1, np.log1p(HDR_MAX) ** (1 / 2.2), 1.0)
     return np.minimum(np.ceil(top / scale) + zero_point, 255).astype(np.int64)
 
 
@@ -95,7 +100,7 @@ def safe_slots(w: np.ndarray, scale: float, zero_point: int, channels: int = CHA
     channel with the fewest safe partners (written here: 25 channels, found at once for the
     shipped weights). The identity order if there is none."""
     w = w.astype(np.int64)
-    a = code_bounds(scale, zero_point)
+    a = code_bounds(scale, zero_point, preprocess(w.shape[1]))
     hi, lo = np.maximum(w, 0) * a, np.minimum(w, 0) * a  # (out, in): the extremes of each product
     n, pads = w.shape[1], channels - w.shape[1]
     safe = ((hi[:, :, None] + hi[:, None, :]).max(0) <= I16[1]) & ((lo[:, :, None] + lo[:, None, :]).min(0) >= I16[0])

@@ -187,7 +187,7 @@ def validate_int8(root: Path, manifest: Manifest, method: str, feeds: dict[str, 
     if not ckpt.is_file():
         raise CalibrationError(f"{ckpt}: checkpoint of these artifacts not found; pass --checkpoint")
     model = load_fp32_model(ckpt)
-    fns = {"network": lambda names: (lambda c, h: tuple(model.network(c, h)[k] for k in names)),
+    fns = {"network": lambda names: (lambda *x: tuple(model.network(*x)[k] for k in names)),
            "upsample": lambda names: (lambda c, f: to_phases(model.upsample_block(c, f), model.cfg.scale))}
     rows = []
     for name, g in manifest.graphs.items():

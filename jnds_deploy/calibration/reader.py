@@ -58,10 +58,12 @@ class FeedReader(CalibrationDataReader):
 
 
 def exposed(feed: dict[str, np.ndarray], stop: float, radiance: slice | None) -> dict[str, np.ndarray]:
-    """``feed`` with its radiance channels x 2^stop (a copy; the feed itself if stop is 0)."""
+    """``feed`` with its radiance channels x 2^stop (a copy; the feed itself if stop is 0).
+    The guide albedo (``guide``) is an albedo: no exposure changes it."""
     if stop == 0:
         return feed
     out = {n: v.copy() for n, v in feed.items()}
-    for v in out.values():
-        v[:, radiance] *= np.float32(2.0 ** stop)
+    for n, v in out.items():
+        if n != "guide":
+            v[:, radiance] *= np.float32(2.0 ** stop)
     return out

@@ -2,7 +2,8 @@
 
 - ``network.onnx``: input block + feature extractor + output block at native resolution.
   Inputs ``current`` (N, 13, H, W) and ``history`` (N, 12, H, W), linear as stored (the
-  tonemap of Eq. 1 is inside). Outputs: every per-pixel kernel and blend weight of the
+  tonemap of Eq. 1 is inside), and ``guide`` (N, 3, H, W), the guide albedo, for a model
+  trained with it (``ModelConfig.guide_albedo``). Outputs: every per-pixel kernel and blend weight of the
   filter paths (already clamped / normalized / squashed) and the upsample features.
 - ``upsample.onnx``: the upsample block's kernel prediction for the target resolution,
   computed by native-resolution convolutions (sub-pixel form, ``model.SubPixelUpsampleBlock``).

@@ -13,7 +13,8 @@ from ..artifacts import Graph, Manifest, file_hash, write_json
 from ..checkpoint import default_checkpoint, load_fp32_model
 from ..errors import ValidationError
 from ..filters import to_phases
-from ..model import CURRENT, HISTORY, N_CURRENT, N_HISTORY, JNDS, quant_ranges
+from ..layout import GUIDE
+from ..model import CURRENT, HISTORY, N_CURRENT, N_GUIDE, N_HISTORY, JNDS, quant_ranges
 from .prune import validate_variant, write_variants
 
 OPSET = 17
@@ -33,20 +34,24 @@ class _NetworkGraph(torch.nn.Module):
         super().__init__()
         self.network, self.names = model.network, names
 
-    def forward(self, current, history):
-        out = self.network(current, history)
+    def forward(self, *inputs):
+        out = self.network(*inputs)
         return tuple(out[k] for k in self.names)
 
 
-def _validation_inputs(cfg: ExportConfig, model: JNDS):
+def _validation_inputs(cfg: ExportConfig, model: JNDS) -> dict[str, torch.Tensor]:
+    """The network graph's validation feeds: current, history and, for a model that reads
+    it, the guide albedo (``guide``)."""
     g = torch.Generator().manual_seed(cfg.seed)
     w, h = cfg.validate_size
     m = model.cfg.pad_multiple
     w, h = w + (-w) % m, h + (-h) % m
     current = torch.rand(1, N_CURRENT, h, w, generator=g)
     current[:, :6] = current[:, :6] ** 4 * 50  # HDR-ish radiance with a long tail
-    history = torch.rand(1, N_HISTORY, h, w, generator=g)
-    return current, history
+    feeds = {"current": current, "history": torch.rand(1, N_HISTORY, h, w, generator=g)}
+    if model.cfg.guide_albedo:
+        feeds["guide"] = torch.rand(1, N_GUIDE, h, w, generator=g)
+    return feeds
 
 
 def validate_graph(onnx_path: Path, torch_fn, feeds: dict[str, torch.Tensor], names: list[str],
@@ -81,26 +86,29 @@ def export(cfg: ExportConfig, log=print) -> Manifest:
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
 
-    current, history = _validation_inputs(cfg, model)
+    feeds = _validation_inputs(cfg, model)
+    current = feeds["current"]
     with torch.no_grad():
-        net_out = model.network(current, history)
+        net_out = model.network(*feeds.values())
     names = list(net_out)
     graphs = {}
     dyn = {2: "H", 3: "W"}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        torch.onnx.export(_NetworkGraph(model, names), (current, history), str(out / "network.onnx"),
-                          input_names=["current", "history"], output_names=names,
-                          dynamic_axes={"current": dyn, "history": dyn, **{n: dyn for n in names}},
+        torch.onnx.export(_NetworkGraph(model, names), tuple(feeds.values()), str(out / "network.onnx"),
+                          input_names=list(feeds), output_names=names,
+                          dynamic_axes={**{k: dyn for k in feeds}, **{n: dyn for n in names}},
                           opset_version=OPSET, dynamo=False)
+    inputs = {"current": _layout(CURRENT, "native, linear as stored"),
+              "history": _layout(HISTORY, "native, warped previous filtered outputs, linear")}
+    if "guide" in feeds:
+        inputs["guide"] = _layout(((GUIDE.name, N_GUIDE),), "native, the frame's denoising_albedo, else its albedo")
     graphs["network"] = Graph(
-        file="network.onnx",
-        inputs={"current": _layout(CURRENT, "native, linear as stored"),
-                "history": _layout(HISTORY, "native, warped previous filtered outputs, linear")},
+        file="network.onnx", inputs=inputs,
         outputs={n: {"shape": ["N", int(net_out[n].shape[1]), _res(net_out[n], current), ""],
                      "meaning": _meaning(n)} for n in names})
-    rows = validate_graph(out / "network.onnx", lambda c, h: tuple(model.network(c, h)[k] for k in names),
-                          {"current": current, "history": history}, names, cfg.atol)
+    rows = validate_graph(out / "network.onnx", lambda *x: tuple(model.network(*x)[k] for k in names),
+                          feeds, names, cfg.atol)
 
     # one fixed kernel for every pixel: no graph, the manifest carries it (below)
     if model.upsample_block is not None and not model.cfg.fixed_upsample:
@@ -130,7 +138,7 @@ def export(cfg: ExportConfig, log=print) -> Manifest:
 
     # pruned variants: the graphs adaptive execution runs when a frame skips a filter path
     # or the upsample block (export.prune)
-    net_feeds = {"current": current.numpy(), "history": history.numpy()}
+    net_feeds = {k: v.numpy() for k, v in feeds.items()}
     graphs["network"].variants = write_variants(out, "network.onnx", "network")
     for v in graphs["network"].variants.values():
         rows += validate_variant(out / "network.onnx", out / v.file, net_feeds)
@@ -138,9 +146,9 @@ def export(cfg: ExportConfig, log=print) -> Manifest:
         g.sha256 = file_hash(out / g.file)
         for v in g.variants.values():
             v.sha256 = file_hash(out / v.file)
-    feeds = {"network": (current, history)}
+    block_feeds = {"network": tuple(feeds.values())}
     if "upsample" in graphs:
-        feeds["upsample"] = (comp, feats)
+        block_feeds["upsample"] = (comp, feats)
     fixed = None
     if model.cfg.fixed_upsample:
         with torch.no_grad():
@@ -148,7 +156,7 @@ def export(cfg: ExportConfig, log=print) -> Manifest:
     manifest = Manifest(checkpoint={"path": str(ckpt), "sha256": file_hash(ckpt)}, model_config=asdict(model.cfg),
                         pad_multiple=model.cfg.pad_multiple, graphs=graphs, validation=rows,
                         package_version=__version__, upsample_kernel=fixed)
-    write_json(out / manifest.qat_ranges, qat_ranges(model, graphs, out, feeds))
+    write_json(out / manifest.qat_ranges, qat_ranges(model, graphs, out, block_feeds))
     manifest.save(out)
     report_validation(rows, log)
     return manifest

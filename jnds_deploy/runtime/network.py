@@ -47,10 +47,10 @@ class Edges:
         self.outputs = [n for n in outputs if n not in self.block.internal] if self.block else outputs
 
     def feeds(self, feeds: dict) -> dict:
-        """``feeds`` ({current, history}: float NCHW) as the graph takes them."""
+        """``feeds`` ({current, history} and perhaps guide: float NCHW) as the graph takes them."""
         if self.inputs is None:
             return feeds
-        return {INPUTS: pack_inputs(feeds["current"], feeds["history"], self.inputs)}
+        return {INPUTS: pack_inputs(feeds["current"], feeds["history"], self.inputs, feeds.get("guide"))}
 
     def run(self, sess, feeds: dict, internal: bool = False) -> dict:
         """The graph on ``feeds`` as it takes them (``feeds``): {output: array} for

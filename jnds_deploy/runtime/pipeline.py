@@ -29,7 +29,7 @@ import numpy as np
 from ..artifacts import Manifest, variant_key
 from ..errors import ConfigError, FrameError
 from ..heap import keep_freed_memory
-from ..layout import CURRENT, HISTORY, INPUT_CHANNELS, RADIANCE, channels
+from ..layout import CURRENT, GUIDE, HISTORY, INPUT_CHANNELS, RADIANCE, channels, guide_of
 from . import filters as F
 from .head import Coded
 from .history import History, Warped, replace_nonfinite
@@ -57,13 +57,15 @@ KERNEL_PARTS = ("spatial", "temporal", "blend", "up", "up_blend")
 LEVEL_PARTS = ("down", "up", "up_blend")
 
 
-def check_layers(layers: dict) -> tuple[int, int]:
-    """The frame's (H, W), or FrameError naming the missing or misshapen layer."""
+def check_layers(layers: dict, guide: bool = False) -> tuple[int, int]:
+    """The frame's (H, W), or FrameError naming the missing or misshapen layer (with
+    ``guide``, the guide albedo's too where the frame has one)."""
     missing = [n for n in INPUT_CHANNELS if n not in layers]
     if missing:
         raise FrameError(f"frame: missing layer(s) {', '.join(missing)}")
     h, w = np.shape(layers["diffuse"])[:2]
-    for n, c in INPUT_CHANNELS.items():
+    expected = dict(INPUT_CHANNELS, **({GUIDE.name: GUIDE.channels} if guide and GUIDE.name in layers else {}))
+    for n, c in expected.items():
         shape, dtype = np.shape(layers[n]), np.asarray(layers[n]).dtype
         if len(shape) != 3 or shape[2] != c:
             raise FrameError(f"frame: layer {n!r} has shape {shape}, expected (H, W, {c})")
@@ -178,6 +180,7 @@ class Pipeline:
         self.firefly_clamp = self.manifest.firefly_clamp if cfg.firefly_clamp is None else cfg.firefly_clamp
         self.diffuse_fill = self.manifest.diffuse_fill if cfg.diffuse_fill is None else cfg.diffuse_fill
         self.albedo_at_holes = self.manifest.albedo_at_holes if cfg.albedo_at_holes is None else cfg.albedo_at_holes
+        self.guide_albedo = self.manifest.guide_albedo  # a weight: the graph's input, no switch
         # a model with one fixed upsample kernel has no upsample graph (Manifest.load checks the
         # kernel); at 2x it runs as one fused pass into the output (filters.upsample_fixed_hwc)
         self._fixed_kernel = None if "upsample" in self.manifest.graphs else self.manifest.upsample_kernel
@@ -265,12 +268,14 @@ class Pipeline:
 
     def __call__(self, layers: dict, camera_cut: bool = False) -> FrameResult:
         t = Timer()
-        h, w = check_layers(layers)
+        h, w = check_layers(layers, self.guide_albedo)
         nonfinite: dict[str, int] = {}
         with t("reformat"):  # NaN/Inf replaced and counted, values clamped into range
             padded = (h + (-h) % self.multiple, w + (-w) % self.multiple)
             current = to_chw(layers, [n for n, _ in CURRENT], padded, nonfinite)
             motion = to_chw(layers, ["motion"], padded, nonfinite)
+            # the guide albedo (layout.guide_of: the albedo where the frame has none)
+            guide = to_chw({GUIDE.name: guide_of(layers)}, [GUIDE.name], padded, nonfinite) if self.guide_albedo else None
         filled, holes = 0, None
         if self.diffuse_fill or self.albedo_at_holes:
             with t("diffuse_fill"):  # finding the holes (one pass), then filling them
@@ -286,7 +291,7 @@ class Pipeline:
             with t("firefly_clamp"):
                 clamped = F.clamp_fireflies(current, warped.signals, self.firefly_clamp)
         decisions = self._decide(current, warped)
-        net = self._network(current, warped.signals, decisions, t)
+        net = self._network(current, warped.signals, guide, decisions, t)
         with t("reformat"):
             rs = self._radiance_scale(current, warped.signals)
             cur, hist, net = self._filter_inputs(current, warped.signals, net, rs)
@@ -332,11 +337,14 @@ class Pipeline:
             decisions[f"skip_{path}"] = bool(adaptive and not current[c].any() and not warped.signals[c].any())
         return decisions
 
-    def _network(self, current: np.ndarray, warped: np.ndarray, decisions: dict, t: Timer) -> dict:
+    def _network(self, current: np.ndarray, warped: np.ndarray, guide: np.ndarray | None, decisions: dict,
+                 t: Timer) -> dict:
         """Input block, feature extractor and output block: {output name: (C, H, W)}."""
         drops = frozenset([p for p in RADIANCE if decisions[f"skip_{p}"]]
                           + (["features"] if self.out_scale == 1 else []))
         feeds = {"current": current[None], "history": warped[None]}
+        if guide is not None:
+            feeds["guide"] = guide[None]
         if self.on_feeds:
             self.on_feeds("network", feeds)
         sess = self.sessions["network"]

@@ -22,11 +22,12 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import ArtifactError
-from ..layout import CURRENT, HDR_MAX, HISTORY, LAYERS, RADIANCE, TONEMAP_FLOOR
+from ..layout import CURRENT, GUIDE, HDR_MAX, HISTORY, LAYERS, N_GUIDE, RADIANCE, TONEMAP_FLOOR
 
-# layer -> (low, high, renormalize), from the one table of input layers (layout.LAYERS)
+# layer -> (low, high, renormalize), from the one table of input layers (layout.LAYERS) and
+# the guide albedo (layout.GUIDE)
 LIMITS: dict[str, tuple[float, float, bool]] = {layer.name: (layer.lo, layer.hi, layer.unit_vector)
-                                                for layer in LAYERS}
+                                                for layer in (*LAYERS, GUIDE)}
 
 
 @njit(inline="always")
@@ -126,9 +127,21 @@ def to_hwc(x: np.ndarray, h: int, w: int) -> np.ndarray:
 INPUTS = "inputs"  # an int8 network graph's input (calibration.inputs)
 INPUTS_KEY = "jnds.inputs"  # its quantization, JSON in the ONNX model's metadata_props
 # what model.tonemap_inputs does to each channel of current then history: 1 Eq. 1's tonemap
-# (radiance), 2 n * 0.5 + 0.5 (normals), 0 nothing
+# (radiance), 2 n * 0.5 + 0.5 (normals), 0 nothing; a network with the guide albedo input
+# reads its channels after them, as they are (``preprocess``)
 _PREPROCESS = np.array([1 if n in RADIANCE else 2 if n == "normal" else 0
                         for layout in (CURRENT, HISTORY) for n, c in layout for _ in range(c)], np.int64)
+_GUIDED = np.append(_PREPROCESS, np.zeros(N_GUIDE, np.int64))
+
+
+def preprocess(channels: int) -> np.ndarray:
+    """``_PREPROCESS`` for a projection of ``channels`` inputs: current and history's, and
+    the guide albedo's after them where it reads one."""
+    for kinds in (_PREPROCESS, _GUIDED):
+        if channels == len(kinds):
+            return kinds
+    raise ArtifactError(f"an input projection reads {len(_PREPROCESS)} channels (current, history) or "
+                        f"{len(_GUIDED)} (and the guide albedo), not {channels}")
 
 
 @dataclass(frozen=True)
@@ -137,9 +150,10 @@ class InputsLayout:
 
     scale: float
     zero_point: int
-    channels: int  # current and history's, then padding
-    # the channel of ``inputs`` each of current and history's channels goes to; the others are
-    # padding. Empty: in order, the padding last (graphs calibrated before stop 59).
+    channels: int  # current and history's (and the guide albedo's), then padding
+    # the channel of ``inputs`` each of current and history's (and the guide albedo's) channels
+    # goes to; the others are padding. Empty: current and history's in order, the padding last
+    # (graphs calibrated before stop 59).
     # calibration.inputs chooses it so that no two neighbours can overflow the 16-bit sums of
     # AVX2's u8 x s8 multiply (benchmarks/results/int8_exposure.md)
     slots: tuple[int, ...] = ()
@@ -151,6 +165,11 @@ class InputsLayout:
     def order(self) -> np.ndarray:
         """``slots``, or the identity where empty."""
         return np.array(self.slots or range(len(_PREPROCESS)), np.int64)
+
+    @property
+    def guided(self) -> bool:
+        """The graph reads the guide albedo (after current and history)."""
+        return len(self.order) == len(_GUIDED)
 
     def to_json(self) -> str:
         return json.dumps({"scale": self.scale, "zero_point": self.zero_point, "channels": self.channels,
@@ -164,8 +183,8 @@ class InputsLayout:
         except (ValueError, KeyError, TypeError) as exc:
             raise ArtifactError(f"inputs metadata {INPUTS_KEY!r} malformed ({exc!r})") from exc
         order = layout.order
-        if (layout.channels < len(_PREPROCESS) or not layout.scale > 0 or not 0 <= layout.zero_point <= 255
-                or len(order) != len(_PREPROCESS) or len(set(order.tolist())) != len(order)
+        if (layout.channels < len(order) or not layout.scale > 0 or not 0 <= layout.zero_point <= 255
+                or len(order) not in (len(_PREPROCESS), len(_GUIDED)) or len(set(order.tolist())) != len(order)
                 or not (0 <= order.min() and order.max() < layout.channels)):
             raise ArtifactError(f"inputs metadata {INPUTS_KEY!r}: {layout}")
         return layout
@@ -200,11 +219,11 @@ def _tonemap_codes(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(parallel=True, cache=True)
-def _pack(current, history, kinds, scale, zero_point, first, at, slots, pads, out):
+def _pack(current, history, guide, kinds, scale, zero_point, first, at, slots, pads, out):
     # each channel of a row into a contiguous byte row first, then the row's pixels
     # written out whole: storing straight into the channels-last output was one byte store
     # per value at a stride of C bytes (docs/design-notes.md, "Input packing")
-    nc = current.shape[0]
+    nc, nh = current.shape[0], history.shape[0]
     zp = np.float32(zero_point)
     half, top = np.float32(0.5), np.float32(HDR_MAX)
     lo, hi = np.float32(0), np.float32(255)
@@ -212,7 +231,7 @@ def _pack(current, history, kinds, scale, zero_point, first, at, slots, pads, ou
     for y in prange(out.shape[1]):
         codes = np.empty((C, w), np.uint8)
         for c in range(kinds.shape[0]):
-            src = current[c] if c < nc else history[c - nc]
+            src = current[c] if c < nc else history[c - nc] if c < nc + nh else guide[c - nc - nh]
             k = kinds[c]
             if k == 1:  # tonemap, through the tables
                 for i in range(w):
@@ -249,18 +268,23 @@ def _pack(current, history, kinds, scale, zero_point, first, at, slots, pads, ou
                     out[0, y, i, c] = codes[c, i]
 
 
-def pack_inputs(current: np.ndarray, history: np.ndarray, layout: InputsLayout) -> np.ndarray:
+def pack_inputs(current: np.ndarray, history: np.ndarray, layout: InputsLayout,
+                guide: np.ndarray | None = None) -> np.ndarray:
     """The int8 network graph's ``inputs`` (1, H, W, channels) u8 from its float ``current``
-    (1, 13, H, W) and ``history`` (1, 12, H, W), linear as the float graph takes them:
-    ``model.tonemap_inputs`` of both, concatenated, quantized (round half to even,
-    saturated, as QuantizeLinear), each channel in its slot (``InputsLayout.slots``), the
-    padding channels at the zero point (value 0)."""
+    (1, 13, H, W) and ``history`` (1, 12, H, W), linear as the float graph takes them (and
+    ``guide`` (1, 3, H, W), the guide albedo, for a graph that reads it):
+    ``model.tonemap_inputs`` of both, concatenated (the guide after them, as it is),
+    quantized (round half to even, saturated, as QuantizeLinear), each channel in its slot
+    (``InputsLayout.slots``), the padding channels at the zero point (value 0)."""
     _, _, h, w = current.shape
+    if (guide is not None) != layout.guided:
+        raise ArtifactError(f"the int8 network graph {'reads' if layout.guided else 'has no'} guide albedo input")
+    guide = np.empty((0, h, w), np.float32) if guide is None else np.ascontiguousarray(guide[0], np.float32)
     out = np.empty((1, h, w, layout.channels), np.uint8)
     first, at = _tables(layout)
     slots, pads = _placement(layout)
-    _pack(np.ascontiguousarray(current[0], np.float32), np.ascontiguousarray(history[0], np.float32), _PREPROCESS,
-          np.float32(layout.scale), layout.zero_point, first, at, slots, pads, out)
+    _pack(np.ascontiguousarray(current[0], np.float32), np.ascontiguousarray(history[0], np.float32), guide,
+          preprocess(len(slots)), np.float32(layout.scale), layout.zero_point, first, at, slots, pads, out)
     return out
 
 

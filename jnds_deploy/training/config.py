@@ -20,6 +20,9 @@ class TrainConfig:
     firefly_clamp: float = 0.0  # ModelConfig.firefly_clamp of the trained model (0: off)
     diffuse_fill: bool = False  # ModelConfig.diffuse_fill of the trained model
     albedo_at_holes: bool = False  # ModelConfig.albedo_at_holes of the trained model
+    # ModelConfig.guide_albedo of the trained model; --init from a checkpoint without it adds the
+    # input with zero weights (train._guided)
+    guide_albedo: bool = False
     # one learned upsample kernel for every pixel (ModelConfig.upsample_width 0)
     fixed_upsample: bool = False
     patch: int = 64  # native patch side, a multiple of the model's pad multiple
@@ -81,7 +84,8 @@ class TrainConfig:
         if self.output_width:
             fixed["output_width"] = self.output_width
         return ModelConfig.preset(self.preset, upsample_root=self.upsample_root, firefly_clamp=self.firefly_clamp,
-                                  diffuse_fill=self.diffuse_fill, albedo_at_holes=self.albedo_at_holes, **fixed)
+                                  diffuse_fill=self.diffuse_fill, albedo_at_holes=self.albedo_at_holes,
+                                  guide_albedo=self.guide_albedo, **fixed)
 
     def __post_init__(self):
         if self.spatial_loss not in SPATIAL_LOSSES:

@@ -11,7 +11,7 @@ import torch
 
 from ..errors import TrainError
 from ..io import find_sequences, open_sequence
-from ..layout import CURRENT, RADIANCE, channels
+from ..layout import CURRENT, GUIDE, RADIANCE, channels
 
 REFERENCE_COMPONENTS = ("color", "diffuse", "specular", "albedo")
 
@@ -20,7 +20,8 @@ REFERENCE_COMPONENTS = ("color", "diffuse", "specular", "albedo")
 class SequenceArrays:
     """One sequence in memory, NCHW-ready float32: current (T, 13, H, W) in
     ``layout.CURRENT`` order, motion (T, 2, H, W), reference components (T, 3, sH, sW),
-    camera cuts."""
+    camera cuts; the guide albedo (T, 3, H, W) where every frame has one (``layout.GUIDE``),
+    else None."""
 
     name: str
     current: np.ndarray
@@ -28,6 +29,7 @@ class SequenceArrays:
     ref: dict[str, np.ndarray]
     cuts: list[bool]
     renderer: str = "unknown"  # render.json's engine (mitsuba, cycles) where the sequence has one
+    guide: np.ndarray | None = None
 
     @property
     def scale(self) -> int:
@@ -46,17 +48,20 @@ def load_sequence(path: str | Path, clean: str | None = None) -> SequenceArrays:
     # a sequence of inputs only (``jnds dataset --no-reference``) has no component: what a
     # teacher-distilled run trains on
     present = seq.reference(0) if len(seq) and seq.has_reference else {}
-    cur, mot, refs = [], [], {k: [] for k in REFERENCE_COMPONENTS if k in present}
+    cur, mot, guide, refs = [], [], [], {k: [] for k in REFERENCE_COMPONENTS if k in present}
     for i in range(len(seq)):
         a = seq.inputs(i)
         cur.append(np.concatenate([a[n] for n, _ in CURRENT], -1).transpose(2, 0, 1))
         mot.append(a["motion"].transpose(2, 0, 1))
+        if GUIDE.name in a:
+            guide.append(a[GUIDE.name].transpose(2, 0, 1))
         r = seq.reference(i) if refs else {}
         for k in refs:
             refs[k].append(r[k].transpose(2, 0, 1))
     return SequenceArrays(Path(path).name, np.stack(cur), np.stack(mot),
                           {k: np.stack(v) for k, v in refs.items()},
-                          [f.camera_cut for f in seq.frames], _renderer(Path(path)))
+                          [f.camera_cut for f in seq.frames], _renderer(Path(path)),
+                          np.stack(guide) if len(guide) == len(cur) else None)
 
 
 def _renderer(path: Path) -> str:
@@ -170,8 +175,9 @@ class Augment:
         return bool(self.exposure) or self.rotate_normals or self.flips or self.colours
 
     def __call__(self, sample: dict[str, np.ndarray], rng: np.random.Generator) -> dict[str, np.ndarray]:
-        """``sample``: current (T, 13, p, p), motion (T, 2, p, p) and the reference
-        components (T, 3, kp, kp); returns new arrays, never views of the sequence."""
+        """``sample``: current (T, 13, p, p), motion (T, 2, p, p), the reference components
+        (T, 3, kp, kp) and perhaps the guide albedo (T, 3, p, p); returns new arrays, never
+        views of the sequence."""
         out = {k: v.copy() for k, v in sample.items()}
         if self.exposure and rng.random() < 0.5:
             gain = np.float32(2.0 ** rng.uniform(*self.exposure))
@@ -186,6 +192,8 @@ class Augment:
             for name in (*RADIANCE, "albedo"):
                 c = channels(name)
                 out["current"][:, c] = out["current"][:, c][:, perm] * (tint if name in RADIANCE else 1)
+            if "guide" in out:  # an albedo: permuted, not tinted
+                out["guide"] = np.ascontiguousarray(out["guide"][:, perm])
             for name in (c for c in REFERENCE_COMPONENTS if c in out):  # color = albedo * diffuse + specular: tinted too
                 out[name] = np.ascontiguousarray(out[name][:, perm] * (1 if name == "albedo" else tint))
         if self.rotate_normals:
@@ -218,12 +226,15 @@ class PatchSampler:
     cut, which the evaluation sets have. With ``balance_renderers`` the windows of each
     renderer (``SequenceArrays.renderer``) together are drawn as often as another's: the
     evaluation sets are half Cycles, the training data a third. ``references=False``
-    draws the inputs only (a teacher-distilled run's targets are the teacher's outputs)."""
+    draws the inputs only (a teacher-distilled run's targets are the teacher's outputs).
+    ``guide``: the batches hold the guide albedo too (``SequenceArrays.guide``, the albedo
+    where a sequence has none), for a model that reads it (``ModelConfig.guide_albedo``)."""
 
     def __init__(self, seqs: list[SequenceArrays], patch: int, unroll: int, rng: np.random.Generator,
                  augment: Augment = Augment(), cross_cuts: bool = False, balance_renderers: bool = False,
-                 references: bool = True):
+                 references: bool = True, guide: bool = False):
         self.seqs, self.patch, self.unroll, self.rng, self.augment = seqs, patch, unroll, rng, augment
+        self.guide = guide
         self.components = REFERENCE_COMPONENTS if references else ()
         for s in seqs:
             if missing := [c for c in self.components if c not in s.ref]:
@@ -249,12 +260,12 @@ class PatchSampler:
         return self.windows[self.rng.integers(n) if self.p is None else self.rng.choice(n, p=self.p)]
 
     def batch(self, n: int, device: str | torch.device = "cpu", burn_in: int = 0) -> dict[str, torch.Tensor]:
-        """Tensors (T, N, C, H, W): current, motion (native patch), reference color,
-        diffuse, specular, albedo (target patch); ``cut`` (T, N) bool: the history restarts
+        """Tensors (T, N, C, H, W): current, motion (native patch), with ``guide`` the guide
+        albedo (native patch), reference color, diffuse, specular, albedo (target patch); ``cut`` (T, N) bool: the history restarts
         at that frame (a camera cut inside the window). ``burn_in`` frames precede each
         window (T = burn_in + unroll): the sequence's frames before it, where it has them;
         before its first frame, that frame repeated, the history restarting at the real one."""
-        out = {k: [] for k in ("current", "motion", *self.components)}
+        out = {k: [] for k in ("current", "motion", *(("guide",) if self.guide else ()), *self.components)}
         cuts = []
         for _ in range(n):
             si, t = self.window()
@@ -266,6 +277,9 @@ class PatchSampler:
             sl = np.maximum(np.arange(t - burn_in, t + self.unroll), 0)
             cuts.append([False] + [bool(s.cuts[b]) or a == b for a, b in zip(sl[:-1], sl[1:])])
             sample = {"current": s.current[sl, :, y:y + p, x:x + p], "motion": s.motion[sl, :, y:y + p, x:x + p]}
+            if self.guide:
+                g = s.guide if s.guide is not None else s.current[:, channels("albedo")]
+                sample["guide"] = g[sl, :, y:y + p, x:x + p]
             for c in self.components:
                 k = s.scale
                 sample[c] = s.ref[c][sl, :, k * y:k * (y + p), k * x:k * (x + p)]

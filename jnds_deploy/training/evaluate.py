@@ -34,7 +34,10 @@ def infer_sequence(model, seq: SequenceArrays) -> list[np.ndarray]:
         for t in range(len(seq.cuts)):
             cur, (h, w) = pad_to_multiple(torch.from_numpy(seq.current[t:t + 1]).to(dev), model.cfg.pad_multiple)
             mv, _ = pad_to_multiple(torch.from_numpy(seq.motion[t:t + 1]).to(dev), model.cfg.pad_multiple)
-            out = model(cur, mv, None if (t == 0 or seq.cuts[t]) else history)
+            guide = None
+            if model.cfg.guide_albedo and seq.guide is not None:
+                guide, _ = pad_to_multiple(torch.from_numpy(seq.guide[t:t + 1]).to(dev), model.cfg.pad_multiple)
+            out = model(cur, mv, None if (t == 0 or seq.cuts[t]) else history, guide=guide)
             history = out.history()
             outs.append(out.output[0, :, :h * s, :w * s].permute(1, 2, 0).cpu().numpy())
     return outs

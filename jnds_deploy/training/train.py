@@ -23,7 +23,7 @@ import torch
 from ..checkpoint import read_checkpoint
 from ..errors import ConfigError, TrainError
 from ..io import find_sequences
-from ..model import JNDS, ActQuant, ModelConfig, quant_ranges, set_observing, set_quantization
+from ..model import JNDS, N_GUIDE, ActQuant, ModelConfig, quant_ranges, set_observing, set_quantization
 from .config import TrainConfig
 from .data import Augment, PatchSampler, SequenceArrays, load_sequence, load_split
 from .evaluate import evaluate_model
@@ -44,7 +44,8 @@ def run_unroll(model: JNDS, batch: dict, burn_in: int = 0) -> list:
     for t in range(batch["current"].shape[0]):
         reset = cut[t] if cut is not None and t > 0 and bool(cut[t].any()) else None
         with torch.set_grad_enabled(torch.is_grad_enabled() and t >= burn_in):
-            out = model(batch["current"][t], batch["motion"][t], history, reset=reset)
+            out = model(batch["current"][t], batch["motion"][t], history, reset=reset,
+                        guide=batch["guide"][t] if "guide" in batch else None)
         if t >= burn_in:
             outs.append(out)
         history = out.history()
@@ -131,7 +132,8 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
         return list(val_seqs.values())
     sampler = PatchSampler(train_seqs, cfg.patch, cfg.unroll, rng,
                            Augment(cfg.exposure, cfg.rotate_normals, cfg.flips, cfg.colours), cross_cuts=cfg.cross_cuts,
-                           balance_renderers=cfg.balance_renderers, references=cfg.teacher is None)
+                           balance_renderers=cfg.balance_renderers, references=cfg.teacher is None,
+                           guide=model.cfg.guide_albedo)
     loss_fn = Loss(cfg, model.cfg.scale)
     teacher = _teacher(cfg, model.cfg) if cfg.teacher else None
     if cfg.channels_last:
@@ -225,6 +227,8 @@ def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
                        firefly_clamp=model.cfg.firefly_clamp, diffuse_fill=model.cfg.diffuse_fill,
                        albedo_at_holes=model.cfg.albedo_at_holes)
     weights = data["model"]
+    if model.cfg.guide_albedo and not init_cfg.guide_albedo:
+        init_cfg, weights = _guided(init_cfg, weights)
     if model.cfg.fixed_upsample and not init_cfg.fixed_upsample:
         init_cfg, weights = _without_upsample_block(init_cfg, weights)
     if init_cfg != model.cfg and _widens(init_cfg, model.cfg):
@@ -256,6 +260,18 @@ def _without_upsample_block(cfg: ModelConfig, weights: dict) -> tuple[ModelConfi
     fixed[4] = 1.0
     weights["upsample_block.fixed"] = fixed
     return replace(cfg, upsample_width=0, upsample_features=0), weights
+
+
+GUIDED = "network.input_block.project.weight"  # the convolution that reads the guide albedo
+
+
+def _guided(cfg: ModelConfig, weights: dict) -> tuple[ModelConfig, dict]:
+    """A checkpoint without the guide albedo input as one with it that computes the same
+    outputs: the projection reads the new channels (after current and history) with zero
+    weights. Its learned input range stays: the guide lies in [0, 1], as the albedo does."""
+    w = weights[GUIDED]
+    zeros = w.new_zeros(w.shape[0], N_GUIDE, *w.shape[2:])
+    return replace(cfg, guide_albedo=True), dict(weights, **{GUIDED: torch.cat([w, zeros], 1)})
 
 
 WIDTHS = ("input_width", "encoder_widths", "bottleneck_width", "output_width")

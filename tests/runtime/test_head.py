@@ -123,3 +123,28 @@ def test_pack_inputs_is_the_input_blocks_preprocessing_quantized(scale, zero_poi
     np.testing.assert_array_equal(moved[..., list(slots)], got[..., :25])
     assert (np.delete(moved, list(slots), axis=3) == zero_point).all()
     assert InputsLayout.from_json(InputsLayout(scale, zero_point, 32, slots).to_json()).slots == slots
+
+
+def test_pack_inputs_places_the_guide_albedo_after_current_and_history():
+    """A graph that reads the guide albedo (ModelConfig.guide_albedo) packs its channels
+    after current and history's, as they are (an albedo: no tonemap); one that does not
+    refuses a guide, and the other way round."""
+    rng = np.random.default_rng(3)
+    h, w = 8, 16
+    cur = (rng.random((1, 13, h, w)) * 3).astype(np.float32)
+    hist = (rng.random((1, 12, h, w)) * 3).astype(np.float32)
+    guide = rng.random((1, 3, h, w)).astype(np.float32)
+    scale, zp = 0.01, 4
+    slots = tuple(np.random.default_rng(4).permutation(32)[:28].tolist())
+    layout = InputsLayout(scale, zp, 32, slots)
+    assert layout.guided and InputsLayout.from_json(layout.to_json()) == layout
+    got = pack_inputs(cur, hist, layout, guide)
+    plain = pack_inputs(cur, hist, InputsLayout(scale, zp, 32, slots[:25]))
+    np.testing.assert_array_equal(got[..., list(slots[:25])], plain[..., list(slots[:25])])
+    want = np.clip(np.rint(guide[0] / np.float32(scale)) + zp, 0, 255).transpose(1, 2, 0)
+    np.testing.assert_array_equal(got[0][..., list(slots[25:])], want)
+    assert (np.delete(got, list(slots), axis=3) == zp).all()
+    with pytest.raises(ArtifactError, match="reads guide albedo"):
+        pack_inputs(cur, hist, layout)
+    with pytest.raises(ArtifactError, match="has no guide albedo"):
+        pack_inputs(cur, hist, InputsLayout(scale, zp, 32), guide)

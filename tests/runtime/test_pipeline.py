@@ -258,3 +258,24 @@ def test_hole_settings_match_torch(artifacts, setting):
         if setting == "diffuse_fill":
             assert frame.filled > 0
             assert np.abs(ref[i] - plain[i]).mean() / np.abs(ref[i]).mean() > 1e-4
+
+
+def test_pipeline_reads_the_guide_albedo_as_torch_does(tiny_artifacts_guided, guided_sample):
+    """A network trained with the guide albedo (ModelConfig.guide_albedo): the runtime feeds
+    it the frame's denoising_albedo, or its albedo where it has none, as the model does; the
+    guide changes the output. A misshapen guide is refused by name."""
+    path, model = tiny_artifacts_guided
+    outs = {}
+    for src in (guided_sample, SAMPLE):
+        ref = infer_sequence(model, load_sequence(src))[:3]
+        seq, pipe = open_sequence(src), Pipeline(PipelineConfig(artifacts=str(path)))
+        assert pipe.guide_albedo
+        outs[src] = [pipe(seq.inputs(i), seq.frames[i].camera_cut).output for i in range(3)]
+        for i in range(3):
+            rel = np.abs(outs[src][i] - ref[i]).mean() / np.abs(ref[i]).mean()
+            assert rel < 1e-4, (src, i, rel)
+    assert all(np.abs(a - b).mean() > 1e-3 * np.abs(b).mean() for a, b in zip(outs[guided_sample], outs[SAMPLE]))
+    layers = dict(open_sequence(guided_sample).inputs(0))
+    layers["denoising_albedo"] = layers["denoising_albedo"][:, :, :2]
+    with pytest.raises(FrameError, match="denoising_albedo"):
+        Pipeline(PipelineConfig(artifacts=str(path)))(layers)
