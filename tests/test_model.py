@@ -10,6 +10,15 @@ from jnds_deploy.model import (JNDS, N_CURRENT, ActQuant, ModelConfig, UpsampleB
                                pad_to_multiple, quantize_weight, set_quantization)
 
 
+def _data_dir(tmp_path, seq):
+    """tmp_path/data with ``seq`` as its one training and its one validation sequence."""
+    data = tmp_path / "data"
+    for split in ("train", "val"):
+        (data / split).mkdir(parents=True)
+        (data / split / seq.name).symlink_to(seq)
+    return data
+
+
 def _inputs(n, h, w, seed=0):
     g = torch.Generator().manual_seed(seed)
     x = torch.rand(n, N_CURRENT, h, w, generator=g) * 4
@@ -214,19 +223,16 @@ def test_training_resumes_from_an_init_checkpoint(tmp_path):
     from jnds_deploy.training.config import TrainConfig
     from jnds_deploy.training.train import train
     from .conftest import SAMPLE
-    data = tmp_path / "data"
-    for split in ("train", "val"):
-        (data / split).mkdir(parents=True)
-        (data / split / "sample").symlink_to(SAMPLE)
+    data = _data_dir(tmp_path, SAMPLE)
     common = dict(data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1,
                   val_every=10 ** 6, threads=1)
     first = train(TrainConfig(run=str(tmp_path / "a"), fp32_steps=2, qat_steps=1, **common), progress=False)
     a = torch.load(first, weights_only=False)
     assert a["quantized"] and a["quant_ranges"]
-    assert a["train_sequences"] == ["sample"]
+    assert a["train_sequences"] == [SAMPLE.name]
     from jnds_deploy.checkpoint import ship_checkpoint
     slim = torch.load(ship_checkpoint(first, tmp_path / "slim.pt"), weights_only=False)
-    assert slim["train_sequences"] == ["sample"] and "optimizer" not in slim
+    assert slim["train_sequences"] == [SAMPLE.name] and "optimizer" not in slim
 
     # no steps: the new run's checkpoint is the init's weights and ranges, in the QAT phase
     same = train(TrainConfig(run=str(tmp_path / "b"), fp32_steps=0, qat_steps=0, init=str(first), **common),
@@ -482,10 +488,7 @@ def test_checkpoints_hold_host_tensors_and_load_on_the_cpu(tmp_path):
     from jnds_deploy.training.config import TrainConfig
     from jnds_deploy.training.train import train
     from .conftest import SAMPLE
-    data = tmp_path / "data"
-    for split in ("train", "val"):
-        (data / split).mkdir(parents=True)
-        (data / split / "sample").symlink_to(SAMPLE)
+    data = _data_dir(tmp_path, SAMPLE)
     ckpt = train(TrainConfig(data=str(data), run=str(tmp_path / "r"), preset="tiny", patch=32, unroll=2, batch=1,
                              fp32_steps=1, qat_steps=0, val_every=10 ** 6, threads=1, device="cpu"), progress=False)
     saved = torch.load(ckpt, weights_only=False)
@@ -898,10 +901,7 @@ def test_the_guide_albedo_input_starts_at_zero_from_a_checkpoint_without_it_and_
     from jnds_deploy.training.evaluate import infer_sequence
     from jnds_deploy.training.train import GUIDED, train
     from .conftest import SAMPLE
-    data = tmp_path / "data"
-    for split in ("train", "val"):
-        (data / split).mkdir(parents=True)
-        (data / split / "guided").symlink_to(guided_sample)
+    data = _data_dir(tmp_path, guided_sample)
     common = dict(data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1,
                   val_every=10 ** 6, threads=1)
     first = train(TrainConfig(run=str(tmp_path / "a"), fp32_steps=1, qat_steps=1, **common), progress=False)
