@@ -274,8 +274,12 @@ class Pipeline:
             padded = (h + (-h) % self.multiple, w + (-w) % self.multiple)
             current = to_chw(layers, [n for n, _ in CURRENT], padded, nonfinite)
             motion = to_chw(layers, ["motion"], padded, nonfinite)
-            # the guide albedo (layout.guide_of: the albedo where the frame has none)
-            guide = to_chw({GUIDE.name: guide_of(layers)}, [GUIDE.name], padded, nonfinite) if self.guide_albedo else None
+            # the guide albedo (layout.guide_of: the albedo where the frame has none, whose
+            # non-finite values are counted once, as the albedo's)
+            guide = None
+            if self.guide_albedo:
+                guide = to_chw({GUIDE.name: guide_of(layers)}, [GUIDE.name], padded,
+                               nonfinite if GUIDE.name in layers else None)
         filled, holes = 0, None
         if self.diffuse_fill or self.albedo_at_holes:
             with t("diffuse_fill"):  # finding the holes (one pass), then filling them
