@@ -231,25 +231,30 @@ def _pack(current, history, guide, kinds, scale, zero_point, first, at, slots, p
     for y in prange(out.shape[1]):
         codes = np.empty((C, w), np.uint8)
         for c in range(kinds.shape[0]):
-            src = current[c] if c < nc else history[c - nc] if c < nc + nh else guide[c - nc - nh]
+            src = current[c, y] if c < nc else history[c - nc, y] if c < nc + nh else guide[c - nc - nh, y]
+            # the channel's slot row taken once: indexing codes[slots[c], i] in the loops below
+            # reloaded slots[c] at every value and kept them scalar (2.4x the time at 720p,
+            # benchmarks/results/pack_inputs.md)
+            row = codes[slots[c]]
             k = kinds[c]
             if k == 1:  # tonemap, through the tables
                 for i in range(w):
-                    v = min(max(src[y, i], lo), top)  # keeps -0.0: the sign bit is masked off
+                    v = min(max(src[i], lo), top)  # keeps -0.0: the sign bit is masked off
                     q = np.int64(first[np.int64((np.float32(v).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 15)])
                     # no branch: on 1-spp noise a branch here is mispredicted often
                     # (docs/performance.md, stop 40)
                     q += np.int64(v >= at[q + 1])
-                    codes[slots[c], i] = np.uint8(q)
+                    row[i] = np.uint8(q)
             else:
                 a = half if k == 2 else np.float32(1)
                 b = half if k == 2 else lo
                 for i in range(w):
-                    q = np.rint((src[y, i] * a + b) / scale) + zp
-                    codes[slots[c], i] = np.uint8(min(max(q, lo), hi))
-        for c in pads:
+                    q = np.rint((src[i] * a + b) / scale) + zp
+                    row[i] = np.uint8(min(max(q, lo), hi))
+        for j in range(pads.shape[0]):
+            pad = codes[pads[j]]
             for i in range(w):
-                codes[c, i] = np.uint8(zero_point)
+                pad[i] = np.uint8(zero_point)
         if C % 8 == 0:
             # eight channels of a pixel gathered into one 64-bit word, one store for eight
             # bytes (x86 is little-endian: channel c is byte c % 8 of its word)
