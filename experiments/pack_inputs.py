@@ -91,6 +91,8 @@ def main() -> None:
                   f"{'yes' if equal[name] else 'NO'} |")
     write_report(args.out, report, "\n".join(md) + "\n")
     print("\n".join(md))
+    for f in (ROOT / "jnds_deploy" / "runtime" / "__pycache__").glob("_reformat_*"):
+        f.unlink()  # numba's on-disk cache of the revisions' loops
 
 
 if __name__ == "__main__":
