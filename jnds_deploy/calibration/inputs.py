@@ -55,11 +55,10 @@ def quantize_inputs(src: Path, dst: Path) -> InputsLayout:
     if zp.dtype != np.uint8:
         raise CalibrationError(f"{src.name}: the input projection reads {zp.dtype} activations, expected uint8")
     w = numpy_helper.to_array(inits[w_dq.input[0]])
-    try:
-        preprocess(w.shape[1])
+    try:  # safe_slots refuses a projection of neither 25 nor 28 inputs (runtime.reformat.preprocess)
+        slots = safe_slots(w[:, :, 0, 0], scale, int(zp))
     except ArtifactError as e:
         raise CalibrationError(f"{src.name}: {e}") from e
-    slots = safe_slots(w[:, :, 0, 0], scale, int(zp))
     padded = np.zeros((w.shape[0], CHANNELS, *w.shape[2:]), w.dtype)
     padded[:, slots] = w
     w = padded
