@@ -98,7 +98,8 @@ def cmd_dataset(args) -> int:
     done = render_dataset(args.out, args.split, args.limit, variant=args.variant,
                           train_sequences=args.train_sequences, jobs=args.jobs, engine=args.engine,
                           address=args.address, progress=not args.quiet, moving_sequences=args.moving_sequences,
-                          extra_sequences=_extra_sequences(args), reference=not args.no_reference)
+                          extra_sequences=_extra_sequences(args), reference=not args.no_reference,
+                          reference_spp=args.reference_spp)
     for path, times in done:
         # None: every frame of that kind was rendered before a resume (the medians are of this run's)
         rates = ", ".join(f"{k} " + ("none rendered in this run" if v is None else f"{v:.2f} s/frame")
@@ -137,7 +138,8 @@ def cmd_train_feature_net(args) -> int:
     from .training.feature_loss import FeatureNetConfig, train_feature_net
 
     out = train_feature_net(FeatureNetConfig(data=args.data, out=args.out, steps=args.steps,
-                                             threads=args.threads), progress=not args.quiet)
+                                             threads=args.threads, clean_references=args.clean_references),
+                            progress=not args.quiet)
     print(f"feature-loss network: {out}")
     return 0
 
@@ -319,6 +321,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--no-reference", action="store_true",
                    help="inputs only (no reference frames): training data for jnds train --teacher, in a "
                         "directory of its own (--out)")
+    d.add_argument("--reference-spp", type=int, default=None, metavar="N",
+                   help="references at N samples per target pixel instead of the split's (training: 64): "
+                        "cheap references for jnds train --clean-references oidn, in a directory of their own (--out)")
     d.add_argument("--quiet", action="store_true")
     d.set_defaults(func=cmd_dataset)
 
@@ -414,6 +419,8 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--out", default="runs/feature/feature_net.pt")
     f.add_argument("--steps", type=int, default=1500)
     f.add_argument("--threads", type=int, default=2)
+    f.add_argument("--clean-references", choices=["oidn"], default=None,
+                   help="learn from the references cleaned as jnds train --clean-references cleans them")
     f.add_argument("--quiet", action="store_true")
     f.set_defaults(func=cmd_train_feature_net)
 

@@ -219,6 +219,16 @@ def test_feature_loss_network_trains_and_scores(tmp_path):
     assert torch.isfinite(net.layer_weights).all() and (net.layer_weights > 0).all()
 
 
+def test_feature_loss_network_reads_cleaned_references_when_asked(tmp_path):
+    import shutil
+    from jnds_deploy.training.feature_loss import _examples
+    from .conftest import SAMPLE
+    shutil.copytree(SAMPLE, tmp_path / "train" / "sample")  # a copy: cleaning caches beside the frames
+    (x, y), (xc, yc) = _examples(str(tmp_path)), _examples(str(tmp_path), clean="oidn")
+    np.testing.assert_array_equal(yc, y)  # the G-buffer targets are the inputs'
+    assert xc.shape == x.shape and not np.array_equal(xc, x)  # the colour is the cleaned reference's
+
+
 def test_training_resumes_from_an_init_checkpoint(tmp_path):
     from jnds_deploy.training.config import TrainConfig
     from jnds_deploy.training.train import train

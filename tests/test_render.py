@@ -292,6 +292,13 @@ def test_dataset_jobs_render_what_one_process_renders(tmp_path, monkeypatch):
     dataset.render_dataset(tmp_path / "bare", reference=False)
     assert_same_sequences(tmp_path / "one", tmp_path / "bare", [rel for rel, _ in specs], reference=False)
     assert not any(open_sequence(tmp_path / "bare" / rel).has_reference for rel, _ in specs)
+    # cheap references (jnds dataset --reference-spp): the same inputs, references of 1 sample
+    dataset.render_dataset(tmp_path / "cheap", reference_spp=1)
+    assert_same_sequences(tmp_path / "one", tmp_path / "cheap", [rel for rel, _ in specs], reference=False)
+    for rel, _ in specs:
+        assert json.loads((tmp_path / "cheap" / rel / "render.json").read_text())["config"]["spp"] == 1
+        one, cheap = open_sequence(tmp_path / "one" / rel), open_sequence(tmp_path / "cheap" / rel)
+        assert not np.array_equal(one.reference(1)["color"], cheap.reference(1)["color"])
 
 
 def test_the_test_split_is_apart_and_only_rendered_when_asked_for():

@@ -137,20 +137,26 @@ def render_dataset(out: str | Path, split: str = "all", limit: int | None = None
                    jobs: int = 1, engine: str = "mitsuba", address: str | None = None,
                    progress: bool = True, moving_sequences: int = 0,
                    extra_sequences: Mapping[str, int] | None = None,
-                   reference: bool = True) -> list[tuple[Path, dict]]:
+                   reference: bool = True, reference_spp: int | None = None) -> list[tuple[Path, dict]]:
     """Render every missing sequence of a split; ``jobs`` > 1 renders that many sequences
     at once in separate processes (Mitsuba's Python-side tracing is single-threaded, so
     many cores or a GPU are only kept busy by several sequences at a time). ``address``
     (a Ray cluster, or ``local``; ``RAY_ADDRESS`` too) renders them as Ray tasks instead
     (``jnds_deploy.cluster.render_on_ray``). ``reference=False`` renders the inputs only (the
     same inputs as with references, in minutes where the references take hours): what a
-    teacher-distilled run trains on (``jnds train --teacher``)."""
+    teacher-distilled run trains on (``jnds train --teacher``). ``reference_spp`` renders the
+    references at that many samples per target pixel instead of the split's: cheap references
+    for ``jnds train --clean-references oidn`` (cleaned, 8 samples stand about as close to
+    a full reference as its own cleaned self: docs/dataset.md, "Cheap references"), in a
+    directory of their own (``out``)."""
     todo = []
     for rel, cfg in dataset_specs(split, train_sequences, engine, moving_sequences, extra_sequences)[:limit]:
         if variant and engine == "mitsuba":
             cfg = replace(cfg, variant=variant)
         if not reference:
             cfg = replace(cfg, reference=False)
+        if reference_spp is not None:
+            cfg = replace(cfg, spp=reference_spp)
         path = Path(out) / rel
         if not (path / "sequence.json").exists():
             todo.append((cfg, path))

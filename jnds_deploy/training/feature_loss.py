@@ -109,14 +109,17 @@ class FeatureNetConfig:
     lr: float = 2e-3
     seed: int = 0
     threads: int = 2
+    # "oidn": from the references as `jnds train --clean-references oidn` cleans them (cheap
+    # references keep too much noise to read a G-buffer from, docs/dataset.md)
+    clean_references: str | None = None
 
 
-def _examples(data_root: str):
+def _examples(data_root: str, clean: str | None = None):
     """(tonemapped native-resolution reference colour, G-buffer target) per frame."""
     from .data import load_split
 
     xs, ys = [], []
-    for s in load_split(Path(data_root) / "train"):
+    for s in load_split(Path(data_root) / "train", clean=clean):
         k = s.scale
         color = torch.from_numpy(s.ref["color"])
         xs.append(filters.tonemap(F.avg_pool2d(color, k)).numpy())
@@ -134,7 +137,7 @@ def train_feature_net(cfg: FeatureNetConfig, progress: bool = True) -> Path:
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
-    x, y = _examples(cfg.data)
+    x, y = _examples(cfg.data, cfg.clean_references)
     net = FeatureNet()
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     n, _, h, w = x.shape
