@@ -5,7 +5,9 @@
 # per target pixel, cleaned by OIDN as `--clean-references oidn` cleans them: docs/dataset.md,
 # "Cheap references"), seed 31. Written in stop 62 with its rule (docs/training.md, "`gen31`"),
 # before anything of it was trained or scored. Needs scripts/chain62.sh's data. `gen31.sh`
-# trains; `gen31.sh eval` scores it against the shipped model, once both holdouts are rendered.
+# trains, then scores it against the shipped model on the first holdout and validation (two of
+# its rule's clauses, while holdout2 is still rendering); `gen31.sh eval` scores it on both
+# holdouts and validation, the whole rule, once holdout2 is rendered.
 # Run it in its own session, niced, e.g.
 #   setsid nohup nice bash scripts/gen31.sh > runs/gen31.log 2>&1 &
 set -ex
@@ -32,3 +34,5 @@ $J train --data runs/gen31/data --run runs/gen31 --init jnds_deploy/checkpoints/
     --albedo-at-holes --guide-albedo --clean-references oidn --fp32-steps 2000 --qat-steps 200 --lr 1e-4 \
     --qat-lr 2e-5 --spatial-loss l1+feature --feature-net runs/feature-spp8/feature_net.pt --lowfreq-loss 2.0 \
     --val-every 100000 --threads 2 --seed 31 --exposure -4 8 --rotate-normals --flips --balance-renderers
+[ -f runs/gen31/eval-holdout-val.json ] || $J evaluate --checkpoint jnds_deploy/checkpoints/jnds.pt \
+    runs/gen31/checkpoint.pt --data data/holdout data/val --baselines --threads 2 --out runs/gen31/eval-holdout-val.json
