@@ -83,6 +83,18 @@ class SplitPathTracer:
                 table[reg_id] = rough.get(shape.id(), 1.0)
                 self._index_by_reg[reg_id] = k
             self._rough_table = mi.Float(table)
+        # the emitters in a fixed order: Mitsuba orders a loaded scene's emitters differently
+        # from one load to the next, and its emitter sampling picks by that order, so the same
+        # random numbers lit a pixel from another light in another process (docs/dataset.md)
+        emitters = list(self.scene.emitters())
+        keys = [e.get_shape().id() if e.get_shape() is not None else e.id() for e in emitters]
+        if len(set(keys)) != len(keys):
+            raise RenderError(f"emitters without unique ids ({sorted(keys)}): their order, and so the render, "
+                              "would change from one load of the scene to the next")
+        order = sorted(range(len(emitters)), key=keys.__getitem__)
+        self._emitter_list = [emitters[k] for k in order]
+        if self.vectorized and emitters:
+            self._emitters = dr.gather(mi.EmitterPtr, self.scene.emitters_dr(), mi.UInt32(order))
 
     # -- public ---------------------------------------------------------------------
     def trace(self, origins: np.ndarray, directions: np.ndarray, seed: int) -> Samples:
@@ -140,12 +152,34 @@ class SplitPathTracer:
             return em.eval(si, active) if (em is not None and active) else mi.Color3f(0.0)
         return em.eval(si, active)
 
+    def _sample_emitter_direction(self, si, sample, active):
+        """``Scene.sample_emitter_direction`` with the visibility test: an emitter picked
+        uniformly by ``sample.x`` from ``_emitter_list`` (a fixed order, not the scene's), the
+        rest of ``sample.x`` reused for the point on it; (DirectionSample3f, emitted radiance
+        over the pdf, 0 where occluded)."""
+        mi, dr = self.mi, self.dr
+        n = len(self._emitter_list)
+        if n == 0:
+            return dr.zeros(mi.DirectionSample3f), mi.Color3f(0.0)
+        scaled = sample.x * n
+        if self.vectorized:
+            index = dr.minimum(mi.UInt32(scaled), n - 1)
+            emitter = dr.gather(mi.EmitterPtr, self._emitters, index, active)
+        else:
+            index = min(int(scaled), n - 1)
+            emitter = self._emitter_list[index]
+        ds, spec = emitter.sample_direction(si, mi.Point2f(scaled - index, sample.y), active)
+        ds.pdf *= 1.0 / n
+        active = active & (ds.pdf != 0.0)
+        occluded = self.scene.ray_test(si.spawn_ray_to(ds.p), active)
+        ds.pdf = dr.select(occluded, 0.0, ds.pdf)
+        return ds, dr.select(active & ~occluded, spec * n, 0.0)
+
     def _nee(self, si, bsdf, rng, active, masks):
         """Next-event estimate per BSDF lobe mask, MIS-weighted against BSDF sampling."""
         mi, dr = self.mi, self.dr
         active = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        ds, em_w = self.scene.sample_emitter_direction(
-            si, mi.Point2f(rng.next_float32(), rng.next_float32()), True, active)
+        ds, em_w = self._sample_emitter_direction(si, mi.Point2f(rng.next_float32(), rng.next_float32()), active)
         active = active & (ds.pdf != 0.0)
         wo = si.to_local(ds.d)
         pdf_b = bsdf.pdf(mi.BSDFContext(), si, wo, active)
