@@ -245,13 +245,12 @@ def test_the_scene_renders_the_same_in_whatever_order_mitsuba_loads_its_emitters
     """Mitsuba orders a loaded scene's emitters differently from one load to the next (2 of
     the 4 emitters swapped in 4 of 12 loads when measured); the tracer picks emitters in a
     fixed order, so every load renders the same samples."""
-    from jnds_deploy.render.integrator import SplitPathTracer, load_mitsuba
+    from jnds_deploy.render.integrator import SplitPathTracer, emitter_id as name, load_mitsuba
     from jnds_deploy.render.scene import build_scene
     from jnds_deploy.render.sequence import RenderConfig, render_inputs
     mi, dr = load_mitsuba()
     cfg = RenderConfig(size=(24, 14), spp_input=2)
     cam = camera_path("static", 1, np.random.default_rng(4))[0][0]
-    name = lambda e: e.get_shape().id() if e.get_shape() is not None else e.id()  # noqa: E731
     outs = []
     for _ in range(6):
         tracer = SplitPathTracer(mi, dr, *build_scene(mi, 1000, "procedural"))

@@ -59,6 +59,12 @@ class Samples:
     depth: np.ndarray
 
 
+def emitter_id(emitter) -> str:
+    """An emitter's name in the scene dict: its shape's id for an area light, else its own."""
+    shape = emitter.get_shape()
+    return shape.id() if shape is not None else emitter.id()
+
+
 def _mis(a, b, dr):
     a2 = a * a
     return dr.select(a > 0, a2 / dr.maximum(a2 + b * b, 1e-30), 0.0)
@@ -87,7 +93,7 @@ class SplitPathTracer:
         # from one load to the next, and its emitter sampling picks by that order, so the same
         # random numbers lit a pixel from another light in another process (docs/dataset.md)
         emitters = list(self.scene.emitters())
-        keys = [e.get_shape().id() if e.get_shape() is not None else e.id() for e in emitters]
+        keys = [emitter_id(e) for e in emitters]
         if len(set(keys)) != len(keys):
             raise RenderError(f"emitters without unique ids ({sorted(keys)}): their order, and so the render, "
                               "would change from one load of the scene to the next")
