@@ -117,6 +117,7 @@ def cmd_train(args) -> int:
                       upsample_root=args.upsample_root,
                       firefly_clamp=args.firefly_clamp, diffuse_fill=args.diffuse_fill,
                       albedo_at_holes=args.albedo_at_holes, guide_albedo=args.guide_albedo,
+                      guide_init=args.guide_init,
                       patch=args.patch, unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
                       qat_steps=args.qat_steps, lr=args.lr, qat_lr=args.qat_lr, spatial_loss=args.spatial_loss,
                       feature_net=args.feature_net, init=args.init, deepen_blend=args.deepen_blend,
@@ -348,7 +349,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--guide-albedo", action="store_true",
                    help="the network also reads the guide albedo (the optional layer denoising_albedo, the albedo "
                         "where a frame has none; model.ModelConfig.guide_albedo); --init from a checkpoint without "
-                        "it adds the input with zero weights")
+                        "it adds the input with zero weights (see --guide-init)")
+    t.add_argument("--guide-init", choices=("zero", "split"), default="zero",
+                   help="how --guide-albedo --init from a checkpoint without the input starts its weights: zero (the "
+                        "same outputs), or split (the albedo's weights halved and shared with the guide: the same "
+                        "outputs where the two agree, the guide in use from the first step)")
     t.add_argument("--fixed-upsample", action="store_true",
                    help="one learned upsample kernel for every pixel instead of the upsample block's "
                         "per-pixel prediction (no upsample graph; --init from a predicting checkpoint "

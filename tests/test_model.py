@@ -940,3 +940,40 @@ def test_the_guide_albedo_input_starts_at_zero_from_a_checkpoint_without_it_and_
                                          init=str(guided), guide_albedo=True, **common), progress=False),
                        weights_only=False)
     assert tuned["model"][GUIDED][:, 25:].abs().max() > 0
+
+
+def test_the_guide_albedo_input_split_from_the_albedo_reads_both_and_agrees_where_they_agree(tmp_path, guided_sample):
+    """``--guide-init split``: the projection's current-albedo weights halved and shared with
+    the guide, so the network reads the guide from the first step and computes the init's
+    outputs (fp32) where the guide is the albedo (a sequence without the layer), not where it
+    differs (this sequence's guide is 1 - albedo)."""
+    from jnds_deploy.checkpoint import load_model
+    from jnds_deploy.errors import ConfigError
+    from jnds_deploy.model import set_quantization
+    from jnds_deploy.training.config import TrainConfig
+    from jnds_deploy.training.data import load_sequence
+    from jnds_deploy.training.evaluate import infer_sequence
+    from jnds_deploy.training.train import GUIDED, train
+    from .conftest import SAMPLE
+    data = _data_dir(tmp_path, guided_sample)
+    common = dict(data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1,
+                  val_every=10 ** 6, threads=1)
+    first = train(TrainConfig(run=str(tmp_path / "a"), fp32_steps=1, qat_steps=1, **common), progress=False)
+    split = train(TrainConfig(run=str(tmp_path / "b"), fp32_steps=0, qat_steps=0, init=str(first),
+                              guide_albedo=True, guide_init="split", **common), progress=False)
+    a, b = (torch.load(p, weights_only=False)["model"][GUIDED] for p in (first, split))
+    torch.testing.assert_close(b[:, 6:9], a[:, 6:9] / 2)  # layout.CURRENT: the albedo is 6:9
+    torch.testing.assert_close(b[:, 25:], a[:, 6:9] / 2)
+    assert b[:, 25:].abs().max() > 0
+    torch.testing.assert_close(torch.cat([b[:, :6], b[:, 9:25]], 1), torch.cat([a[:, :6], a[:, 9:]], 1))
+
+    models = [load_model(p) for p in (first, split)]
+    for m in models:
+        set_quantization(m, False)  # the halved weights may change an int8 weight scale
+    same, other = (infer_sequence(m, load_sequence(SAMPLE)) for m in models)
+    for x, y in zip(same[:2], other[:2]):
+        np.testing.assert_allclose(x, y, atol=1e-5)
+    same, other = (infer_sequence(m, load_sequence(guided_sample)) for m in models)
+    assert np.abs(same[1] - other[1]).max() > 1e-4
+    with pytest.raises(ConfigError, match="guide_init"):
+        TrainConfig(run=str(tmp_path / "c"), guide_init="copy", **common)

@@ -21,8 +21,9 @@ class TrainConfig:
     diffuse_fill: bool = False  # ModelConfig.diffuse_fill of the trained model
     albedo_at_holes: bool = False  # ModelConfig.albedo_at_holes of the trained model
     # ModelConfig.guide_albedo of the trained model; --init from a checkpoint without it adds the
-    # input with zero weights (train._guided)
+    # input with zero weights, or with "split" half of the albedo's (train._guided)
     guide_albedo: bool = False
+    guide_init: str = "zero"
     # one learned upsample kernel for every pixel (ModelConfig.upsample_width 0)
     fixed_upsample: bool = False
     patch: int = 64  # native patch side, a multiple of the model's pad multiple
@@ -101,6 +102,8 @@ class TrainConfig:
         self.train_only = tuple(self.train_only)  # a list when read from config.json
         if self.teacher and self.clean_references:
             raise ConfigError("teacher and clean_references exclude each other: a distilled run has no reference")
+        if self.guide_init not in ("zero", "split"):
+            raise ConfigError(f"guide_init must be 'zero' or 'split', got {self.guide_init!r}")
         if self.clean_references not in (None, "oidn"):
             raise ConfigError(f"clean_references must be None or 'oidn', got {self.clean_references!r}")
         if not 0 <= self.warmup_steps <= self.fp32_steps:

@@ -23,6 +23,7 @@ import torch
 from ..checkpoint import read_checkpoint
 from ..errors import ConfigError, TrainError
 from ..io import find_sequences
+from ..layout import channels
 from ..model import JNDS, N_GUIDE, ActQuant, ModelConfig, quant_ranges, set_observing, set_quantization
 from .config import TrainConfig
 from .data import Augment, PatchSampler, SequenceArrays, load_sequence, load_split
@@ -228,7 +229,7 @@ def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
                        albedo_at_holes=model.cfg.albedo_at_holes)
     weights = data["model"]
     if model.cfg.guide_albedo and not init_cfg.guide_albedo:
-        init_cfg, weights = _guided(init_cfg, weights)
+        init_cfg, weights = _guided(init_cfg, weights, cfg.guide_init)
     if model.cfg.fixed_upsample and not init_cfg.fixed_upsample:
         init_cfg, weights = _without_upsample_block(init_cfg, weights)
     if init_cfg != model.cfg and _widens(init_cfg, model.cfg):
@@ -265,13 +266,22 @@ def _without_upsample_block(cfg: ModelConfig, weights: dict) -> tuple[ModelConfi
 GUIDED = "network.input_block.project.weight"  # the convolution that reads the guide albedo
 
 
-def _guided(cfg: ModelConfig, weights: dict) -> tuple[ModelConfig, dict]:
-    """A checkpoint without the guide albedo input as one with it that computes the same
-    outputs: the projection reads the new channels (after current and history) with zero
-    weights. Its learned input range stays: the guide lies in [0, 1], as the albedo does."""
+def _guided(cfg: ModelConfig, weights: dict, init: str = "zero") -> tuple[ModelConfig, dict]:
+    """A checkpoint without the guide albedo input as one with it: the projection reads the new
+    channels after current and history. ``init`` "zero": with zero weights, the same outputs;
+    "split": the current albedo's weights halved and the other half given to the guide, the
+    same outputs where guide and albedo agree (every frame without the layer) and the guide in
+    use from the first step (from zero, `gen31` left it unlearned: docs/training.md, "`gen33`").
+    Its learned input range stays: the guide lies in [0, 1], as the albedo does."""
     w = weights[GUIDED]
-    zeros = w.new_zeros(w.shape[0], N_GUIDE, *w.shape[2:])
-    return replace(cfg, guide_albedo=True), dict(weights, **{GUIDED: torch.cat([w, zeros], 1)})
+    if init == "split":
+        albedo = channels("albedo")  # the projection reads the current inputs first
+        w = w.clone()
+        w[:, albedo] /= 2
+        new = w[:, albedo].clone()
+    else:
+        new = w.new_zeros(w.shape[0], N_GUIDE, *w.shape[2:])
+    return replace(cfg, guide_albedo=True), dict(weights, **{GUIDED: torch.cat([w, new], 1)})
 
 
 WIDTHS = ("input_width", "encoder_widths", "bottleneck_width", "output_width")
