@@ -260,6 +260,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .render.dataset import EXTRA_SEEDS, TRAIN_SEQUENCES
     from .render.scene import SCENE_KINDS
     from .render.sequence import ENGINES
+    from .training.config import GUIDE_INITS, SPATIAL_LOSSES
 
     p = argparse.ArgumentParser(prog="jnds", description="Joint neural denoising and supersampling, deployed.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -350,7 +351,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the network also reads the guide albedo (the optional layer denoising_albedo, the albedo "
                         "where a frame has none; model.ModelConfig.guide_albedo); --init from a checkpoint without "
                         "it adds the input with zero weights (see --guide-init)")
-    t.add_argument("--guide-init", choices=("zero", "split"), default="zero",
+    t.add_argument("--guide-init", choices=GUIDE_INITS, default=GUIDE_INITS[0],
                    help="how --guide-albedo --init from a checkpoint without the input starts its weights: zero (the "
                         "same outputs), or split (the albedo's weights halved and shared with the guide: the same "
                         "outputs where the two agree, the guide in use from the first step)")
@@ -368,7 +369,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--warmup-steps", type=int, default=0, metavar="N",
                    help="the fp32 learning rate rises linearly over the first N steps (a fine-tune's fresh "
                         "optimizer moments otherwise move every weight by a full step at once)")
-    t.add_argument("--spatial-loss", default="l1", choices=("l1", "feature", "l1+feature"))
+    t.add_argument("--spatial-loss", default="l1", choices=SPATIAL_LOSSES)
     t.add_argument("--feature-net", default=None, help="feature-loss network checkpoint")
     t.add_argument("--lowfreq-loss", type=float, default=0.0, metavar="W",
                    help="add W x the L1 of 4-, 8- and 16-pixel box averages (target pixels) of output and "

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 from ..errors import ConfigError
 
 SPATIAL_LOSSES = ("l1", "feature", "l1+feature")
+# how --init starts the guide input's weights (train._guided), the first the default
+GUIDE_INITS = ("zero", "split")
 
 
 @dataclass
@@ -102,8 +104,8 @@ class TrainConfig:
         self.train_only = tuple(self.train_only)  # a list when read from config.json
         if self.teacher and self.clean_references:
             raise ConfigError("teacher and clean_references exclude each other: a distilled run has no reference")
-        if self.guide_init not in ("zero", "split"):
-            raise ConfigError(f"guide_init must be 'zero' or 'split', got {self.guide_init!r}")
+        if self.guide_init not in GUIDE_INITS:
+            raise ConfigError(f"guide_init must be one of {', '.join(GUIDE_INITS)}, got {self.guide_init!r}")
         if self.clean_references not in (None, "oidn"):
             raise ConfigError(f"clean_references must be None or 'oidn', got {self.clean_references!r}")
         if not 0 <= self.warmup_steps <= self.fp32_steps:
