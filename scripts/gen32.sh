@@ -28,6 +28,8 @@ $J train --data runs/gen32/data --run runs/gen32 --init runs/gen32/init.pt --pre
     --albedo-at-holes $guide --clean-references oidn --fp32-steps 2000 --qat-steps 200 --lr 1e-4 \
     --qat-lr 2e-5 --spatial-loss l1+feature --feature-net runs/feature-spp8/feature_net.pt --lowfreq-loss 2.0 \
     --val-every 100000 --threads 2 --seed 32 --exposure -4 8 --rotate-normals --flips --balance-renderers
+# `gen32.sh train` stops here (added in stop 65, when the evaluation sets were rendered after it)
+[ "${1:-}" = train ] && exit 0
 [ -f runs/gen32/eval.json ] || $J evaluate --checkpoint runs/gen32/init.pt runs/gen32/checkpoint.pt \
     --data data/holdout data/holdout2 data/val --baselines --threads 2 \
     --out runs/gen32/eval.json --sheet runs/gen32/eval.jpg

@@ -1,0 +1,24 @@
+#!/usr/bin/env bash
+# Stop 65: a fresh machine with no data/ and no runs/. What the next sessions on this machine run,
+# in order, unattended, each step resuming where it stopped (background processes die with a
+# session: start this again in the next). gen21's training set with cheap references (as
+# scripts/chain62.sh rendered it), gen31's feature-loss network on it, `gen32`'s training
+# (docs/training.md, "`gen32`"; its init is gen21 as before), then the evaluation sets gen32's
+# rule scores on (validation, the two holdouts) and its score. Run it in its own session, niced:
+#   (setsid nohup bash -c 'echo $$ > /tmp/chain65.sid; exec nice bash scripts/chain65.sh' >> runs/chain65.log 2>&1 &)
+# Pause it with `pkill -STOP -s $(cat /tmp/chain65.sid)`, go on with -CONT.
+set -ex
+cd "$(dirname "$0")/.."
+J=.venv/bin/jnds
+export DRJIT_LIBLLVM_PATH=${DRJIT_LIBLLVM_PATH:-/usr/lib/x86_64-linux-gnu/libLLVM-19.so}
+$J dataset --out data/spp8 --split train --reference-spp 8 --train-sequences 24 --moving-sequences 8 --jobs 2
+$J dataset --out data/spp8 --split train --reference-spp 8 --engine cycles --train-sequences 8 \
+    --mixed-sequences 24 --lights-sequences 24 --interior-sequences 12 --detail-sequences 16 \
+    --layers-sequences 16 --jobs 2
+[ -f runs/feature-spp8/feature_net.pt ] || $J train-feature-net --data data/spp8 --clean-references oidn \
+    --out runs/feature-spp8/feature_net.pt --quiet
+bash scripts/gen32.sh train
+for e in mitsuba cycles; do $J dataset --out data --split val --engine $e --jobs 2; done
+$J dataset --out data --split holdout --engine cycles --jobs 2
+$J dataset --out data --split holdout2 --engine cycles --jobs 2
+bash scripts/gen32.sh
