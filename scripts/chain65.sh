@@ -2,9 +2,11 @@
 # Stop 65: a fresh machine with no data/ and no runs/. What the next sessions on this machine run,
 # in order, unattended, each step resuming where it stopped (background processes die with a
 # session: start this again in the next). gen21's training set with cheap references (as
-# scripts/chain62.sh rendered it), gen31's feature-loss network on it, `gen32`'s training
-# (docs/training.md, "`gen32`"; its init is gen21 as before), then the evaluation sets gen32's
-# rule scores on (validation, the two holdouts) and its score. Run it in its own session, niced:
+# scripts/chain62.sh rendered it), gen31's feature-loss network on it, `gen33`'s training (issue
+# 24's guide input, docs/training.md, "`gen33`"; before `gen32`, whose step-600 checkpoint went
+# with the Zen 3's runs/), the evaluation sets their rules score on (validation, the two
+# holdouts) and `gen33`'s score. `gen32` (docs/training.md, "`gen32`") is started by hand after
+# `gen33`'s verdict, from the checkpoint shipped then. Run it in its own session, niced:
 #   (setsid nohup bash -c 'echo $$ > /tmp/chain65.sid; exec nice bash scripts/chain65.sh' >> runs/chain65.log 2>&1 &)
 # Pause it with `pkill -STOP -s $(cat /tmp/chain65.sid)`, go on with -CONT.
 set -ex
@@ -17,8 +19,8 @@ $J dataset --out data/spp8 --split train --reference-spp 8 --engine cycles --tra
     --layers-sequences 16 --jobs 2
 [ -f runs/feature-spp8/feature_net.pt ] || $J train-feature-net --data data/spp8 --clean-references oidn \
     --out runs/feature-spp8/feature_net.pt --quiet
-bash scripts/gen32.sh train
+bash scripts/gen33.sh train
 for e in mitsuba cycles; do $J dataset --out data --split val --engine $e --jobs 2; done
 $J dataset --out data --split holdout --engine cycles --jobs 2
 $J dataset --out data --split holdout2 --engine cycles --jobs 2
-bash scripts/gen32.sh
+bash scripts/gen33.sh

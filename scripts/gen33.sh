@@ -5,8 +5,8 @@
 # half to the guide (from zero weights, gen31 left it unlearned), seed 33, from the checkpoint
 # shipped when it starts (its output block width kept: gen32's 16 if that one shipped). Written
 # in stop 64 with its rule (docs/training.md, "`gen33`"), before anything of it was trained or
-# scored. Start it after gen32's verdict: the two runs would share the two cores. Needs
-# scripts/chain62.sh's data and the feature net it trained.
+# scored. Not beside gen32: the two runs would share the two cores (stop 65 runs it first,
+# scripts/chain65.sh). Needs scripts/chain62.sh's data and the feature net it trained.
 # Run it in its own session, niced, e.g.
 #   setsid nohup nice bash scripts/gen33.sh > runs/gen33.log 2>&1 &
 set -ex
@@ -29,6 +29,8 @@ $J train --data runs/gen33/data --run runs/gen33 --init runs/gen33/init.pt --pre
     --albedo-at-holes --guide-albedo --guide-init split --clean-references oidn --fp32-steps 2000 --qat-steps 200 \
     --lr 1e-4 --qat-lr 2e-5 --spatial-loss l1+feature --feature-net runs/feature-spp8/feature_net.pt --lowfreq-loss 2.0 \
     --val-every 100000 --threads 2 --seed 33 --exposure -4 8 --rotate-normals --flips --balance-renderers
+# `gen33.sh train` stops here (added in stop 65, when the evaluation sets were rendered after it)
+[ "${1:-}" = train ] && exit 0
 [ -f runs/gen33/eval.json ] || $J evaluate --checkpoint runs/gen33/init.pt runs/gen33/checkpoint.pt \
     --data data/holdout data/holdout2 data/val --baselines --threads 2 \
     --out runs/gen33/eval.json --sheet runs/gen33/eval.jpg
