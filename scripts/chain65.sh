@@ -5,8 +5,8 @@
 # scripts/chain62.sh rendered it), gen31's feature-loss network on it, `gen33`'s training (issue
 # 24's guide input, docs/training.md, "`gen33`"; before `gen32`, whose step-600 checkpoint went
 # with the Zen 3's runs/), the evaluation sets their rules score on (validation, the two
-# holdouts) and `gen33`'s score. `gen32` (docs/training.md, "`gen32`") is started by hand after
-# `gen33`'s verdict, from the checkpoint shipped then. Run it in its own session, niced:
+# holdouts) and `gen33`'s score, then `gen32` (docs/training.md, "`gen32`"), added once `gen33`'s
+# verdict was in (not shipped: `gen32` starts from `gen21`). Run it in its own session, niced:
 #   (setsid nohup bash -c 'echo $$ > /tmp/chain65.sid; exec nice bash scripts/chain65.sh' >> runs/chain65.log 2>&1 &)
 # Pause it with `pkill -STOP -s $(cat /tmp/chain65.sid)`, go on with -CONT.
 set -ex
@@ -24,3 +24,4 @@ for e in mitsuba cycles; do $J dataset --out data --split val --engine $e --jobs
 $J dataset --out data --split holdout --engine cycles --jobs 2
 $J dataset --out data --split holdout2 --engine cycles --jobs 2
 bash scripts/gen33.sh
+bash scripts/gen32.sh
