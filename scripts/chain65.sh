@@ -3,8 +3,8 @@
 # in order, unattended, each step resuming where it stopped (background processes die with a
 # session: start this again in the next). gen21's training set with cheap references (as
 # scripts/chain62.sh rendered it), gen31's feature-loss network on it, the evaluation sets the
-# rules score on (validation, the two holdouts), `gen33`'s scores for the record, then `gen32`
-# (docs/training.md, "`gen32`"). Stop 65 trained `gen33` (issue 24's guide input, "`gen33`")
+# rules score on (validation, the two holdouts), `gen33`'s scores for the record, `gen34` (its
+# control), then `gen32` (docs/training.md, "`gen34`", "`gen32`"). Stop 65 trained `gen33` (issue 24's guide input, "`gen33`")
 # after the feature net, before `gen32`, whose step-600 checkpoint went with the Zen 3's runs/;
 # once `gen33`'s verdict was in (not shipped: `gen32` starts from `gen21`), its training step left
 # this script and `gen32` joined it. Run it in its own session, niced:
@@ -26,4 +26,6 @@ $J dataset --out data --split holdout2 --engine cycles --jobs 2
 # gen33 was trained in stop 65 and not shipped (docs/training.md): scored for the record where its
 # run is still here, not trained again where it is gone
 [ ! -f runs/gen33/checkpoint.pt ] || bash scripts/gen33.sh
+# gen33's control (docs/training.md, "`gen34`"), where gen33's run is here
+[ ! -f runs/gen33/checkpoint.pt ] || bash scripts/gen34.sh
 bash scripts/gen32.sh
