@@ -719,6 +719,27 @@ def test_clean_references_denoise_recompose_and_cache(tmp_path, monkeypatch):
         load_sequence(path, clean="median")
 
 
+def test_recomposed_reference_batches_equal_a_held_colour(tmp_path):
+    """A cleaned reference computes its colour per window (``Recomposed``, a quarter less
+    memory): the batches, augmented, are bit-equal to those of the same reference with the
+    colour held as one array."""
+    from dataclasses import replace
+    from jnds_deploy.training.data import Augment, PatchSampler, Recomposed, load_sequence
+    from .conftest import SAMPLE
+    raw = load_sequence(SAMPLE)
+    lazy = replace(raw, ref=Recomposed(raw.ref["albedo"], raw.ref["diffuse"], raw.ref["specular"]))
+    held = replace(raw, ref={**lazy.ref})  # the colour computed once, whole
+    assert set(held.ref) == set(raw.ref) and "color" in lazy.ref and "depth" not in lazy.ref
+    assert lazy.scale == raw.scale == 2
+    np.testing.assert_array_equal(held.ref["color"], raw.ref["albedo"] * raw.ref["diffuse"] + raw.ref["specular"])
+    aug = Augment(exposure=(-4, 8), rotate_normals=True, flips=True, colours=True)
+    a, b = (PatchSampler([s], patch=32, unroll=3, rng=np.random.default_rng(5), augment=aug).batch(4, burn_in=1)
+            for s in (lazy, held))
+    assert a.keys() == b.keys() and "color" in a
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+
+
 def filters_upsampled(comp, cfg):
     """The upsample filter's bilinear upsampling alone (root ``cfg.upsample_root``)."""
     from jnds_deploy import filters

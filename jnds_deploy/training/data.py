@@ -3,6 +3,7 @@ consecutive frames drawn from them."""
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -26,14 +27,16 @@ class SequenceArrays:
     name: str
     current: np.ndarray
     motion: np.ndarray
-    ref: dict[str, np.ndarray]
+    ref: Mapping[str, np.ndarray]  # a dict, or ``Recomposed`` for a cleaned reference
     cuts: list[bool]
     renderer: str = "unknown"  # render.json's engine (mitsuba, cycles) where the sequence has one
     guide: np.ndarray | None = None
 
     @property
     def scale(self) -> int:
-        return self.ref["color"].shape[-1] // self.current.shape[-1]
+        # from the albedo where the colour is computed on reading (``Recomposed``)
+        ref = self.ref["albedo"] if isinstance(self.ref, Recomposed) else self.ref["color"]
+        return ref.shape[-1] // self.current.shape[-1]
 
 
 def load_sequence(path: str | Path, clean: str | None = None) -> SequenceArrays:
@@ -145,9 +148,42 @@ def oidn_version() -> str:
 
 
 def _recomposed(seq: SequenceArrays, diffuse: np.ndarray, specular: np.ndarray) -> SequenceArrays:
-    ref = dict(seq.ref, diffuse=diffuse, specular=specular,
-               color=(seq.ref["albedo"] * diffuse + specular).astype(np.float32))
-    return replace(seq, ref=ref)
+    return replace(seq, ref=Recomposed(seq.ref["albedo"], diffuse, specular))
+
+
+class Recomposed(Mapping):
+    """A cleaned reference's components: albedo, diffuse and specular held, the colour (Eq. 2:
+    albedo * diffuse + specular) computed where it is read rather than held, a quarter of
+    a sequence's memory (a training run holds every sequence: 132 took 10 GB). ``window``
+    gives a component's frames and crop, the colour computed on those pixels alone: the
+    same float32 values, element by element, as the whole array's."""
+
+    def __init__(self, albedo: np.ndarray, diffuse: np.ndarray, specular: np.ndarray):
+        self._parts = {"albedo": albedo, "diffuse": diffuse, "specular": specular}
+
+    def window(self, name: str, index) -> np.ndarray:
+        """``self[name][index]``, without computing the whole colour."""
+        if name != "color":
+            return self._parts[name][index]
+        a, d, s = (self._parts[c][index] for c in ("albedo", "diffuse", "specular"))
+        return (a * d + s).astype(np.float32)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.window(name, ...) if name == "color" else self._parts[name]
+
+    def __contains__(self, name) -> bool:
+        return name in REFERENCE_COMPONENTS
+
+    def __iter__(self):
+        return iter(REFERENCE_COMPONENTS)
+
+    def __len__(self) -> int:
+        return len(REFERENCE_COMPONENTS)
+
+
+def _window(ref: Mapping, name: str, index) -> np.ndarray:
+    """``ref[name][index]``: a ``Recomposed`` reference computes only the window's colour."""
+    return ref.window(name, index) if isinstance(ref, Recomposed) else ref[name][index]
 
 
 @dataclass(frozen=True)
@@ -282,7 +318,7 @@ class PatchSampler:
                 sample["guide"] = g[sl, :, y:y + p, x:x + p]
             for c in self.components:
                 k = s.scale
-                sample[c] = s.ref[c][sl, :, k * y:k * (y + p), k * x:k * (x + p)]
+                sample[c] = _window(s.ref, c, (sl, slice(None), slice(k * y, k * (y + p)), slice(k * x, k * (x + p))))
             if self.augment:
                 sample = self.augment(sample, self.rng)
             for key, value in sample.items():
