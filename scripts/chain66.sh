@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Stop 66: what follows scripts/chain65.sh, which ran here until it reached `gen33`'s record score
-# (that score is in `gen34`'s, which scores `gen33` too) and was stopped there for this. Each
+# Stop 66: what follows scripts/chain65.sh, which it replaced in the middle of the holdout's
+# render; it leaves out `gen33`'s record score (`gen34`'s score has `gen33` too). Each
 # step resumes where it stopped or is skipped when done (background processes die with a
 # session: start this again in the next). chain65's data steps first (no-ops where rendered: a
 # fresh machine renders them), then `gen34` and its score, then `gen35`'s training set (gen21's
