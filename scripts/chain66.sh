@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Stop 66: what follows scripts/chain65.sh, which it replaced in the middle of the holdout's
-# render; it leaves out `gen33`'s record score (`gen34`'s score has `gen33` too). Each
+# Stop 66: what follows scripts/chain65.sh, which it replaced at 22:43 in the middle of the holdout's
+# render; it leaves out `gen33`'s record score (`gen34`'s own score has `gen33` too). Each
 # step resumes where it stopped or is skipped when done (background processes die with a
 # session: start this again in the next). chain65's data steps first (no-ops where rendered: a
 # fresh machine renders them), then `gen34` and its score, then `gen35`'s training set (gen21's
