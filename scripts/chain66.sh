@@ -3,9 +3,10 @@
 # render; it leaves out `gen33`'s record score (`gen34`'s own score has `gen33` too). Each
 # step resumes where it stopped or is skipped when done (background processes die with a
 # session: start this again in the next). chain65's data steps first (no-ops where rendered: a
-# fresh machine renders them), then `gen34` and its score, then `gen35`'s training set (gen21's
-# 132 sequences linked, 124 more seeds of the same kinds rendered beside them: docs/dataset.md,
-# "Stop 66"), `gen35`, then `gen32` (docs/training.md, "`gen35`", "`gen32`"). Run it in its own
+# fresh machine renders them), then `gen34` and its score, `gen36` (`gen34` with a warm-up), then
+# `gen35`'s training set (gen21's 132 sequences linked, 124 more seeds of the same kinds rendered
+# beside them: docs/dataset.md, "Stop 66"), `gen35`, then `gen32` (docs/training.md, "`gen36`",
+# "`gen35`", "`gen32`"). Don't edit it while it runs (bash reads it as it goes). Run it in its own
 # session, niced:
 #   (setsid nohup bash -c 'echo $$ > /tmp/chain66.sid; exec nice bash scripts/chain66.sh' >> runs/chain66.log 2>&1 &)
 # Pause it with `pkill -STOP -s $(cat /tmp/chain66.sid)`, go on with -CONT.
@@ -23,8 +24,10 @@ for e in mitsuba cycles; do $J dataset --out data --split val --engine $e --jobs
 $J dataset --out data --split holdout --engine cycles --jobs 2
 $J dataset --out data --split holdout2 --engine cycles --jobs 2
 # gen34 needs gen33's run (its init and the score's third checkpoint): where that is gone, so is
-# the control gen35 is read against
+# the control gen35 and gen36 are read against
 [ ! -f runs/gen33/checkpoint.pt ] || bash scripts/gen34.sh
+# gen34 with a warm-up (docs/training.md, "`gen36`"): no new data needed, so before gen35's
+[ ! -f runs/gen34/checkpoint.pt ] || bash scripts/gen36.sh
 # gen35's 256 sequences: the 132 as links (data/spp8/train stays what gen31-gen34 and gen32 read),
 # the new seeds rendered into data/spp8-256/train itself
 mkdir -p data/spp8-256/train

@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# The gen36 run from wherever it stopped, unattended; every step resumes or is skipped when
+# done. A warm-up for the fine-tune: `gen34`'s command with `--warmup-steps 200`, the same seed
+# (33: the same patches in the same order), data, init (`gen33`'s frozen runs/gen33/init.pt, the
+# shipped `gen21`) and feature-loss network, so that `gen34` and it differ in the first 200 steps'
+# learning rate alone. Written in stop 66 with its rules (docs/training.md, "`gen36`"), before any
+# of it was trained or scored. Needs `gen34`'s run (its control). Run it in its own session,
+# niced, e.g.
+#   setsid nohup nice bash scripts/gen36.sh > runs/gen36.log 2>&1 &
+set -ex
+cd "$(dirname "$0")/.."
+J=.venv/bin/jnds
+[ -f runs/gen33/init.pt ] && [ -f runs/gen34/checkpoint.pt ]
+mkdir -p runs/gen36/data/train
+for d in data/spp8/train/*/; do
+    ln -sfn "$PWD/$d" "runs/gen36/data/train/$(basename "$d")"
+done
+ln -sfn "$PWD/data/val" runs/gen36/data/val
+[ "$(ls runs/gen36/data/train | wc -l)" = 132 ]
+[ -f runs/feature-spp8/feature_net.pt ]
+$J train --data runs/gen36/data --run runs/gen36 --init runs/gen33/init.pt --preset large --output-width 24 \
+    --fixed-upsample --cross-cuts --upsample-root 4 --patch 80 --unroll 8 --firefly-clamp 16 --diffuse-fill \
+    --albedo-at-holes --clean-references oidn --fp32-steps 2000 --qat-steps 200 --warmup-steps 200 \
+    --lr 1e-4 --qat-lr 2e-5 --spatial-loss l1+feature --feature-net runs/feature-spp8/feature_net.pt --lowfreq-loss 2.0 \
+    --val-every 100000 --threads 2 --seed 33 --exposure -4 8 --rotate-normals --flips --balance-renderers
+[ "${1:-}" = train ] && exit 0
+# the three in one run: the init, the control, gen36
+[ -f runs/gen36/eval.json ] || $J evaluate --checkpoint runs/gen33/init.pt runs/gen34/checkpoint.pt \
+    runs/gen36/checkpoint.pt --data data/holdout data/holdout2 data/val --baselines --threads 2 \
+    --out runs/gen36/eval.json --sheet runs/gen36/eval.jpg
