@@ -153,8 +153,9 @@ def _recomposed(seq: SequenceArrays, diffuse: np.ndarray, specular: np.ndarray) 
 
 class Recomposed(Mapping):
     """A cleaned reference's components: albedo, diffuse and specular held, the colour (Eq. 2:
-    albedo * diffuse + specular) computed where it is read rather than held, a quarter of
-    a sequence's memory (a training run holds every sequence: 132 took 10 GB). ``window``
+    albedo * diffuse + specular) computed where it is read rather than held: a quarter of
+    the reference's memory, 18 % of a Cycles sequence's (a training run holds every sequence:
+    132 took 10 GB). ``window``
     gives a component's frames and crop, the colour computed on those pixels alone: the
     same float32 values, element by element, as the whole array's."""
 
