@@ -1,18 +1,21 @@
 """Where a training step's time goes on this CPU, and patches per second.
 
-    .venv/bin/python benchmarks/train_throughput.py [--data data] [--sequences 4] [--patch 96] [--unroll 6]
-        [--batch 4] [--threads 2] [--steps 8] [--feature-net runs/feature/feature_net.pt]
+    .venv/bin/python benchmarks/train_throughput.py [--data data/spp8] [--sequences 12] [--steps 8]
+        [--threads 2] [--feature-net runs/feature-spp8/feature_net.pt] [--clean-references oidn]
         [--out benchmarks/results/train_throughput]
 
-The step of `jnds train` (training.train), taken apart with the same components: the
-shipped checkpoint's weights, --sequences training sequences decoded into memory (the
-time per sequence is reported), PatchSampler batches with the augmentations of issue 24
-(exposure, normal rotation, flips), the L1 + feature loss, AdamW. Each step is timed by
-phase (sampling the batch, the unrolled forward, the loss, backward, the optimizer),
-before and after stop 30's changes (NCHW convolutions and autograd's L1; NHWC and a
-one-pass L1) on the same batches; medians over --steps steps after 2 warm-up steps. A patch is one native patch of one
-frame, so a step trains batch x unroll patches. Writes
-benchmarks/results/train_throughput.md and .json.
+The step of `jnds train` (training.train) with the recipe the shipped checkpoint was trained
+with (its `train_config`: model, patch, unroll, batch, losses, augmentations; the feature-loss
+network and the references as given here), taken apart with the same components: the
+shipped weights, --sequences training sequences decoded into memory (every n-th of the
+split; the time per sequence is reported), PatchSampler batches, the loss, AdamW with
+gradient clipping. Each step is timed by phase (sampling the batch, the unrolled forward,
+the loss, backward, clipping and the optimizer) for two variants on the same batches, one
+after the other: `grid_sample`, the history warps' input gradient by autograd through
+PyTorch's bicubic `grid_sample` (jnds train until stop 67); `own`, by `filters.warp`'s own
+adjoint (`filters._WarpCPU`, since stop 67). Medians over --steps steps after 2 warm-up
+steps. A patch is one native patch of one frame, so a step trains batch x unroll patches.
+Writes benchmarks/results/train_throughput.md and .json.
 """
 from __future__ import annotations
 
@@ -22,74 +25,76 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
 from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info,  # noqa: E402
                                write_report)
+from jnds_deploy import filters  # noqa: E402
 from jnds_deploy.checkpoint import default_checkpoint, read_checkpoint  # noqa: E402
 from jnds_deploy.io import find_sequences  # noqa: E402
 from jnds_deploy.model import JNDS, ModelConfig  # noqa: E402
 from jnds_deploy.training.config import TrainConfig  # noqa: E402
 from jnds_deploy.training.data import Augment, PatchSampler, load_sequence  # noqa: E402
-from jnds_deploy.training import feature_loss, losses  # noqa: E402
 from jnds_deploy.training.losses import Loss  # noqa: E402
 from jnds_deploy.training.train import run_unroll  # noqa: E402
 
 PHASES = ("batch", "forward", "loss", "backward", "optimizer")
-VARIANTS = ("before", "after")  # NCHW + autograd's abs().mean(); NHWC + the one-pass L1 (jnds train)
+VARIANTS = ("grid_sample", "own")
+OWN_WARP = filters.warp
 
 
-ONE_PASS_L1 = feature_loss.l1
-
-
-def _autograd_l1(a, b):
-    return (a - b).abs().mean()
+def _grid_sample_warp(x: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
+    """``filters.warp`` as it was until stop 67: autograd through ``grid_sample``."""
+    n, _, h, w = x.shape
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=x.dtype), torch.arange(w, dtype=x.dtype), indexing="ij")
+    grid = torch.stack([2 * (xs + 0.5 + motion[:, 0]) / w - 1, 2 * (ys + 0.5 + motion[:, 1]) / h - 1], dim=-1)
+    return F.grid_sample(x, grid, mode="bicubic", padding_mode="border", align_corners=False)
 
 
 def main() -> None:
     ap = arguments(__doc__, RESULTS / "train_throughput")
-    ap.add_argument("--data", default=str(ROOT / "data"))
-    ap.add_argument("--sequences", type=int, default=4)
-    ap.add_argument("--patch", type=int, default=96)
-    ap.add_argument("--unroll", type=int, default=6)
-    ap.add_argument("--batch", type=int, default=4)
+    ap.add_argument("--data", default=str(ROOT / "data" / "spp8"))
+    ap.add_argument("--sequences", type=int, default=12)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--steps", type=int, default=8)
-    ap.add_argument("--feature-net", default=str(ROOT / "runs" / "feature" / "feature_net.pt"))
+    ap.add_argument("--feature-net", default=str(ROOT / "runs" / "feature-spp8" / "feature_net.pt"))
+    ap.add_argument("--clean-references", choices=("oidn",), default=None)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
 
-    paths = find_sequences(Path(args.data) / "train")[:: max(1, len(find_sequences(Path(args.data) / "train"))
-                                                           // args.sequences)][:args.sequences]
+    every = find_sequences(Path(args.data) / "train")
+    paths = every[:: max(1, len(every) // args.sequences)][:args.sequences]
     t0 = time.perf_counter()
-    seqs = [load_sequence(p) for p in paths]
+    seqs = [load_sequence(p, args.clean_references) for p in paths]
     load_s = (time.perf_counter() - t0) / len(seqs)
 
     ckpt = read_checkpoint(default_checkpoint())
-    cfg = TrainConfig(patch=args.patch, unroll=args.unroll, batch=args.batch, spatial_loss="l1+feature",
-                      feature_net=args.feature_net)
-    layouts = {}
-    for name in VARIANTS:
-        model = JNDS(ModelConfig(**ckpt["model_config"]))
-        model.load_state_dict(ckpt["model"])
-        loss_fn = Loss(cfg, model.cfg.scale)
-        if name == "after":
-            model.to(memory_format=torch.channels_last)
-            loss_fn.to(memory_format=torch.channels_last)
-        model.train()
-        layouts[name] = (model, loss_fn, torch.optim.AdamW(model.parameters(), lr=1e-5, weight_decay=0.0))
-    sampler = PatchSampler(seqs, args.patch, args.unroll, np.random.default_rng(0),
-                           Augment(exposure=(-4, 8), rotate_normals=True, flips=True))
+    known = set(TrainConfig.__dataclass_fields__)
+    recipe = {k: v for k, v in ckpt["train_config"].items() if k in known}
+    cfg = TrainConfig(**{**recipe, "feature_net": args.feature_net, "init": None, "threads": args.threads})
+    model = JNDS(ModelConfig(**ckpt["model_config"]))
+    model.load_state_dict(ckpt["model"])
+    loss_fn = Loss(cfg, model.cfg.scale)
+    if cfg.channels_last:
+        model.to(memory_format=torch.channels_last)
+        loss_fn.to(memory_format=torch.channels_last)
+    model.train()
+    start = {k: v.clone() for k, v in model.state_dict().items()}
+    opt = torch.optim.AdamW(model.parameters(), lr=1e-5, weight_decay=0.0)
+    sampler = PatchSampler(seqs, cfg.patch, cfg.unroll, np.random.default_rng(0),
+                           Augment(cfg.exposure, cfg.rotate_normals, cfg.flips, cfg.colours),
+                           cross_cuts=cfg.cross_cuts, balance_renderers=cfg.balance_renderers)
     rows = {name: [] for name in VARIANTS}
     for step in range(args.steps + 2):
         t_batch = time.perf_counter()
-        batch = sampler.batch(args.batch)
+        batch = sampler.batch(cfg.batch)
         t_batch = time.perf_counter() - t_batch
-        for name, (model, loss_fn, opt) in layouts.items():  # the same batch, one variant after the other
-            for module in (losses, feature_loss):
-                module.l1 = ONE_PASS_L1 if name == "after" else _autograd_l1
+        for name in VARIANTS:  # the same batch and weights, one variant after the other
+            filters.warp = OWN_WARP if name == "own" else _grid_sample_warp
+            model.load_state_dict(start)
             t = [time.perf_counter()]
             outs = run_unroll(model, batch)
             t.append(time.perf_counter())
@@ -104,17 +109,20 @@ def main() -> None:
             if step >= 2:
                 rows[name].append({"batch": t_batch, **{p: t[i + 1] - t[i] for i, p in enumerate(PHASES[1:])}})
             print(step, name, f"{t[-1] - t[0] + t_batch:.2f} s", flush=True)
+    filters.warp = OWN_WARP
     med = {n: {p: float(np.median([r[p] for r in rs])) for p in PHASES} for n, rs in rows.items()}
     step_s = {n: float(np.median([sum(r.values()) for r in rs])) for n, rs in rows.items()}
-    patches = args.batch * args.unroll
+    patches = cfg.batch * cfg.unroll
     info = machine_info()
     md = ["# Training throughput\n", f"`{command_line()}`\n",
-          f"Machine: {cpu_line(info)}, {args.threads} torch threads. Patch {args.patch}x{args.patch} native, "
-          f"unroll {args.unroll}, batch {args.batch} ({patches} patches a step), L1 + feature loss, augmentations "
-          f"on; medians of {args.steps} steps. Two variants train on the same batches, one after the other in "
-          "each step: `before`, convolutions in NCHW memory and autograd's `abs().mean()` as the L1 (jnds train "
-          "until stop 29); `after`, NHWC (channels_last) and the one-pass L1 of `training.feature_loss.l1` "
-          "(jnds train since stop 30).\n",
+          f"Machine: {cpu_line(info)}, {args.threads} torch threads. The shipped checkpoint's recipe "
+          f"(`{recipe.get('run')}`: `{recipe.get('preset')}` preset, patch {cfg.patch}x{cfg.patch} native, "
+          f"unroll {cfg.unroll}, batch {cfg.batch}, {patches} patches a step, loss {cfg.spatial_loss} with the "
+          f"low-frequency term at {cfg.lowfreq_loss}, augmentations as trained) on {len(seqs)} sequences of "
+          f"`{args.data}` (references {args.clean_references or 'as rendered'}); medians of {args.steps} steps. "
+          "Two variants train on the same batches from the same weights, one after the other in each step: "
+          "`grid_sample`, the warps' input gradient by autograd through PyTorch's bicubic `grid_sample` (jnds "
+          "train until stop 67); `own`, by `filters.warp`'s own adjoint (since stop 67).\n",
           "| phase | " + " | ".join(f"{n} s per step | share" for n in VARIANTS) + " |",
           "| --- |" + " ---: | ---: |" * len(VARIANTS)]
     for p in PHASES:
@@ -123,9 +131,10 @@ def main() -> None:
     md += ["| **step** | " + " | ".join(f"**{step_s[n]:.3f}** | " for n in VARIANTS) + "|", ""]
     md += [f"- {n}: {patches / step_s[n]:.1f} patches per second ({1 / step_s[n]:.3f} steps per second)."
            for n in VARIANTS]
-    md += [f"- after over before: {step_s['before'] / step_s['after']:.2f}x.",
+    md += [f"- own over grid_sample: {step_s['grid_sample'] / step_s['own']:.2f}x.",
            f"- Decoding a training sequence into memory (once per run): {load_s:.2f} s."]
-    write_report(Path(args.out), {"machine": info, "command": command_line(), "phases_s": med, "step_s": step_s,
+    write_report(Path(args.out), {"machine": info, "command": command_line(), "recipe": recipe,
+                                  "phases_s": med, "step_s": step_s,
                                   "patches_per_s": {n: patches / s for n, s in step_s.items()},
                                   "load_s_per_sequence": load_s, "steps": rows}, "\n".join(md) + "\n")
     print("\n".join(md))

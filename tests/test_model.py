@@ -123,6 +123,30 @@ def test_warp_zero_motion_is_identity_and_integer_motion_shifts():
     torch.testing.assert_close(filters.warp(x, mv)[..., :-2], x[..., 2:], atol=1e-5, rtol=0)
 
 
+@pytest.mark.parametrize("channels_last", [False, True])
+def test_warp_gradient_equals_grid_samples(channels_last):
+    # filters.warp's own input gradient (_WarpCPU) against autograd through grid_sample,
+    # with motion far outside the frame, fractional, and on odd sizes
+    g = torch.Generator().manual_seed(3)
+    x = torch.rand(3, 5, 13, 17, generator=g)
+    if channels_last:
+        x = x.to(memory_format=torch.channels_last)
+    x.requires_grad_()
+    mv = torch.randn(3, 2, 13, 17, generator=g) * 4
+    mv[0, :, :4] = 60.0
+    mv[1, 0, 5:] = -35.5
+    w = torch.randn(3, 5, 13, 17, generator=g)
+    n, _, h, wd = x.shape
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=x.dtype), torch.arange(wd, dtype=x.dtype), indexing="ij")
+    grid = torch.stack([2 * (xs + 0.5 + mv[:, 0]) / wd - 1, 2 * (ys + 0.5 + mv[:, 1]) / h - 1], dim=-1)
+    ref = torch.nn.functional.grid_sample(x, grid, mode="bicubic", padding_mode="border", align_corners=False)
+    out = filters.warp(x, mv)
+    torch.testing.assert_close(out, ref, rtol=0, atol=0)
+    (want,) = torch.autograd.grad((ref * w).sum(), x)
+    (got,) = torch.autograd.grad((out * w).sum(), x)
+    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-5)
+
+
 def test_tonemap_matches_eq1_and_clamps():
     x = torch.tensor([0.0, 1.0, 100.0, 1e6, -5.0])
     y = filters.tonemap(x)
