@@ -8,6 +8,8 @@ Borders replicate the edge pixel everywhere (padding, warping, upsampling).
 """
 from __future__ import annotations
 
+import functools
+
 import torch
 import torch.nn.functional as F
 
@@ -57,9 +59,9 @@ def warp(x: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
 
 class _WarpCPU(torch.autograd.Function):
     """``grid_sample`` (bicubic, border, align_corners=False) with its input gradient from
-    ``_warp_input_grad``: PyTorch's CPU backward of it took 7x its forward, about a sixth
-    of a training step (docs/training.md, "Training throughput"). The grid gets no
-    gradient (warp's motion is an input)."""
+    ``_warp_input_grad``: PyTorch's CPU backward of it was the largest single cost of a
+    training step after the convolutions (benchmarks/results/train_throughput.md). The grid
+    gets no gradient (warp's motion is an input)."""
 
     @staticmethod
     def forward(ctx, x, grid):
@@ -76,65 +78,55 @@ class _WarpCPU(torch.autograd.Function):
         return out, None
 
 
-_WARP_INPUT_GRAD = None
-
-
+@functools.cache
 def _warp_input_grad():
     """The numba kernel (compiled on first use; numba is the runtime's, not the model's,
     dependency): the adjoint of PyTorch's bicubic ``grid_sample`` (aten's
     GridSamplerKernel.cpp: the source coordinate (g + 1) * size / 2 - 0.5, the cubic
-    convolution of A = -0.75, each of the 4x4 taps clamped to the border), scattering each
-    output's gradient onto its 16 taps, the 16 weights computed once per output pixel for
-    every channel. Images in parallel, so no two threads add to one value. Written here:
-    PyTorch has no faster adjoint of it on the CPU."""
-    global _WARP_INPUT_GRAD
-    if _WARP_INPUT_GRAD is None:
-        import numpy as np
-        from numba import njit, prange
+    convolution of A = -0.75 as the runtime's warp weighs it, ``runtime.filters._cubic``,
+    each of the 4x4 taps clamped to the border), scattering each output's gradient onto its
+    16 taps, the 16 weights computed once per output pixel for every channel. Images in
+    parallel, so no two threads add to one value. Written here: PyTorch has no faster
+    adjoint of it on the CPU."""
+    import numpy as np
+    from numba import njit, prange
 
-        @njit(inline="always")
-        def cc1(t, a):
-            return ((a + np.float32(2)) * t - (a + np.float32(3))) * t * t + np.float32(1)
+    from .runtime.filters import _cubic  # the runtime warp's weights, the same cubic
 
-        @njit(inline="always")
-        def cc2(t, a):
-            return ((a * t - np.float32(5) * a) * t + np.float32(8) * a) * t - np.float32(4) * a
+    @njit(parallel=True, cache=True)
+    def kernel(g, grid, out):
+        n_img, n_ch, ho, wo = g.shape
+        hi, wi = out.shape[2], out.shape[3]
+        sx, sy = np.float32(wi / 2), np.float32(hi / 2)
+        one, half = np.float32(1), np.float32(0.5)
+        for n in prange(n_img):
+            wx, wy = np.empty(4, np.float32), np.empty(4, np.float32)
+            cols, rows = np.empty(4, np.int64), np.empty(4, np.int64)
+            for y in range(ho):
+                for x in range(wo):
+                    fx = (grid[n, y, x, 0] + one) * sx - half
+                    fy = (grid[n, y, x, 1] + one) * sy - half
+                    # far outside, every tap is the border pixel whatever the fraction:
+                    # clamped first so that the integer conversion stays defined
+                    fx = min(max(fx, np.float32(-4)), np.float32(wi + 3)) if fx == fx else np.float32(0)
+                    fy = min(max(fy, np.float32(-4)), np.float32(hi + 3)) if fy == fy else np.float32(0)
+                    x0, y0 = np.floor(fx), np.floor(fy)
+                    tx, ty = fx - x0, fy - y0
+                    wx[0], wx[1], wx[2], wx[3] = _cubic(tx)
+                    wy[0], wy[1], wy[2], wy[3] = _cubic(ty)
+                    for k in range(4):
+                        cols[k] = min(max(np.int64(x0) - 1 + k, 0), wi - 1)
+                        rows[k] = min(max(np.int64(y0) - 1 + k, 0), hi - 1)
+                    for c in range(n_ch):
+                        v = g[n, c, y, x]
+                        plane = out[n, c]
+                        for j in range(4):
+                            vy = wy[j] * v
+                            r = plane[rows[j]]
+                            for i in range(4):
+                                r[cols[i]] += wx[i] * vy
 
-        @njit(parallel=True, cache=True)
-        def kernel(g, grid, out):
-            n_img, n_ch, ho, wo = g.shape
-            hi, wi = out.shape[2], out.shape[3]
-            sx, sy = np.float32(wi / 2), np.float32(hi / 2)
-            a, one, half = np.float32(-0.75), np.float32(1), np.float32(0.5)
-            for n in prange(n_img):
-                wx, wy = np.empty(4, np.float32), np.empty(4, np.float32)
-                cols, rows = np.empty(4, np.int64), np.empty(4, np.int64)
-                for y in range(ho):
-                    for x in range(wo):
-                        fx = (grid[n, y, x, 0] + one) * sx - half
-                        fy = (grid[n, y, x, 1] + one) * sy - half
-                        # far outside, every tap is the border pixel whatever the fraction:
-                        # clamped first so that the integer conversion stays defined
-                        fx = min(max(fx, np.float32(-4)), np.float32(wi + 3)) if fx == fx else np.float32(0)
-                        fy = min(max(fy, np.float32(-4)), np.float32(hi + 3)) if fy == fy else np.float32(0)
-                        x0, y0 = np.floor(fx), np.floor(fy)
-                        tx, ty = fx - x0, fy - y0
-                        wx[0], wx[1], wx[2], wx[3] = cc2(tx + one, a), cc1(tx, a), cc1(one - tx, a), cc2(one - tx + one, a)
-                        wy[0], wy[1], wy[2], wy[3] = cc2(ty + one, a), cc1(ty, a), cc1(one - ty, a), cc2(one - ty + one, a)
-                        for k in range(4):
-                            cols[k] = min(max(np.int64(x0) - 1 + k, 0), wi - 1)
-                            rows[k] = min(max(np.int64(y0) - 1 + k, 0), hi - 1)
-                        for c in range(n_ch):
-                            v = g[n, c, y, x]
-                            plane = out[n, c]
-                            for j in range(4):
-                                vy = wy[j] * v
-                                r = plane[rows[j]]
-                                for i in range(4):
-                                    r[cols[i]] += wx[i] * vy
-
-        _WARP_INPUT_GRAD = kernel
-    return _WARP_INPUT_GRAD
+    return kernel
 
 
 # Geometric history rejection, not in the paper (its network gets the warped history and
