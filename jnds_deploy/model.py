@@ -135,7 +135,9 @@ class ModelConfig:
             "deep": dict(encoder_widths=(48, 64, 96), bottleneck_width=128, output_width=24, filter_levels=4),
             # "large" with its coarser half wider (the second encoder block 96, the bottleneck
             # 192; about 77 GMAC at 720p): the capacity where the model's excess error over OIDN
-            # lies, at 2-32 pixels (docs/model-gap.md); widened from "large" (docs/training.md, gen38)
+            # lies, at 2-32 pixels (docs/model-gap.md). Widened from "large" it gained nothing in a
+            # fine-tune, and on an AVX2 CPU it is over the time allowed beside OIDN: a probe, not
+            # shipped (docs/training.md, gen38)
             "wide": dict(encoder_widths=(48, 96), bottleneck_width=192, output_width=24),
             # deeper and wider, closer to the paper's network (whose exact widths are in its
             # Fig. 3, not in the text we have): for GPUs and quality comparisons

@@ -343,7 +343,7 @@ def test_init_widens_a_checkpoint_to_a_wider_preset_computing_the_same(fixed, na
             assert torch.allclose(a[k], b[k], rtol=0, atol=1e-12), k
         assert torch.allclose(old(x, mv, None).output, new(x, mv, None).output, rtol=0, atol=1e-10)
         # the new channels are live: they compute features the old channels may learn to read
-        assert new.network.feature_extractor.bottleneck.a.weight[48:].abs().sum() > 0
+        assert new.network.feature_extractor.bottleneck.a.weight[lo.bottleneck_width:].abs().sum() > 0
 
 
 def test_init_narrows_the_output_block_keeping_the_channels_that_matter():
