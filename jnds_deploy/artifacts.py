@@ -89,6 +89,8 @@ class Int8Graph:
     # the upsamplings and concatenations (decoder blocks, output block): in the graph, or
     # between runs of it (calibration.block, runtime.reformat.block_input)
     block: str = "in the graph"
+    # the feature extractor's level heads: float outputs, or one u8 tensor each (calibration.head.code_levels)
+    levels: str = "float"
 
 
 @dataclass

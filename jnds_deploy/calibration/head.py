@@ -21,6 +21,7 @@ apart (kernels are clamped to [-1, 1], a sigmoid is flat beyond +-12, a ReLU bel
 from __future__ import annotations
 
 import itertools
+import json
 import os
 import tempfile
 from pathlib import Path
@@ -31,7 +32,7 @@ from onnx import helper, numpy_helper
 
 from ..errors import CalibrationError
 from ..layout import channels, head_kind
-from ..runtime.head import HEAD, LAYOUT_KEY, HeadLayout
+from ..runtime.head import HEAD, LAYOUT_KEY, LEVELS_KEY, HeadLayout
 from .reader import exposed
 
 HEAD_NODE = "/network/output_block/head/Conv"
@@ -178,6 +179,84 @@ def quantize_head(src: Path, dst: Path, ranges: dict[str, dict[str, list[float]]
                         tuple(float(v) for v in m), ZERO_POINT, c)
     save_extracted(model, dst, [i.name for i in g.input], keep + [HEAD], {LAYOUT_KEY: layout.to_json()})
     return layout
+
+
+def _constant(graph: onnx.GraphProto, name: str) -> np.ndarray | None:
+    for i in graph.initializer:
+        if i.name == name:
+            return numpy_helper.to_array(i)
+    for n in graph.node:
+        if n.op_type == "Constant" and n.output[0] == name:
+            return numpy_helper.to_array(next(a.t for a in n.attribute if a.name == "value"))
+    return None
+
+
+def code_levels(src: Path, dst: Path) -> dict[str, HeadLayout]:
+    """Write ``src`` (an int8 network graph or pruned variant) with each of the feature
+    extractor's level heads ending in its u8 output, to ``dst`` (atomically): output
+    ``<path>.level<k>`` (N, C, h, w) in place of the outputs ``<path>.level<k>.<part>`` its
+    dequantization, split, clamps and sigmoid fed (about 5 ms of ONNX Runtime's time a 720p
+    frame on the Zen 5 of stop 69, docs/performance.md). The codes are the ones the head's
+    quantized convolution wrote; ``runtime.head`` decodes them in the filter loops as those
+    nodes did, so nothing is requantized. Returns {output: layout}, also in the graph's
+    metadata (``LEVELS_KEY``); none for a graph without level heads (written as it is)."""
+    model = onnx.load(str(src))
+    g = model.graph
+    producers = {o: n for n in g.node for o in n.output}
+    groups: dict[str, list[tuple[str, int]]] = {}  # Split output... by the u8 tensor they come from
+    found: dict[str, tuple] = {}
+    for out in g.output:
+        name = out.name
+        head, _, part = name.rpartition(".")
+        if ".level" not in head:
+            continue
+        t, chain = name, []
+        while t in producers and producers[t].op_type in ("Clip", "Sigmoid"):
+            chain.append(producers[t])
+            t = producers[t].input[0]
+        split = producers.get(t)
+        dq = producers.get(split.input[0]) if split is not None and split.op_type == "Split" else None
+        q = producers.get(dq.input[0]) if dq is not None and dq.op_type == "DequantizeLinear" else None
+        kind = head_kind(name)
+        want = {"kernel": ["Clip"], "blend": ["Sigmoid"]}.get(kind)
+        if q is None or q.op_type != "QuantizeLinear" or [n.op_type for n in chain] != want:
+            raise CalibrationError(f"{src.name}: level output {name} is not a {kind} of a quantized head "
+                                   f"(QuantizeLinear, DequantizeLinear, Split, {' '.join(want or ['?'])})")
+        if kind == "kernel":
+            bounds = [_constant(g, i) for i in chain[0].input[1:]]
+            if any(b is None for b in bounds) or [float(b) for b in bounds] != list(BOUNDS["kernel"]):
+                raise CalibrationError(f"{src.name}: {name}'s clamp is not {BOUNDS['kernel']}")
+        found[head] = (q, dq, split)
+        groups.setdefault(head, []).append((name, list(split.output).index(t)))
+    layouts = {}
+    for head, parts in groups.items():
+        q, dq, split = found[head]
+        sizes = _split_sizes(g, split)
+        parts.sort(key=lambda p: p[1])
+        if [i for _, i in parts] != list(range(len(sizes))):
+            raise CalibrationError(f"{src.name}: {split.name}'s parts {[i for _, i in parts]} do not each reach "
+                                   f"one output")
+        scale, zp = _constant(g, dq.input[1]), _constant(g, dq.input[2])
+        if scale is None or zp is None or zp.dtype != np.uint8 or scale.size != 1:
+            raise CalibrationError(f"{src.name}: {dq.name} is not a u8 per-tensor dequantization")
+        n = sum(sizes)
+        layouts[head] = HeadLayout(tuple((p, c) for (p, _), c in zip(parts, sizes)), (float(scale),) * n,
+                                   (0.0,) * n, int(zp), n)
+        old = q.output[0]
+        q.output[0] = head  # the u8 tensor is the output (its dequantization goes with the rest)
+        for node in g.node:
+            node.input[:] = [head if i == old else i for i in node.input]
+    if not layouts:  # a variant that filters neither path has no level heads
+        if Path(src).resolve() != Path(dst).resolve():
+            onnx.save(onnx.load(str(src)), str(dst))
+        return {}
+    gone = {p for lay in layouts.values() for p, _ in lay.parts}
+    keep = [o.name for o in g.output if o.name not in gone]
+    g.output.extend(helper.make_tensor_value_info(h, onnx.TensorProto.UINT8, ["N", lay.channels, f"h{h}", f"w{h}"])
+                    for h, lay in layouts.items())
+    props = {LEVELS_KEY: json.dumps({h: json.loads(lay.to_json()) for h, lay in layouts.items()})}
+    save_extracted(model, dst, [i.name for i in g.input], keep + list(layouts), props)
+    return layouts
 
 
 def save_extracted(model: onnx.ModelProto, dst: Path, inputs: list[str], outputs: list[str], props: dict,

@@ -35,7 +35,7 @@ from ..artifacts import MANIFEST, Int8Graph, Manifest, file_hash, write_json
 from ..errors import CalibrationError
 from ..export.prune import INT8_VARIANT_TOL, validate_variant, write_variants
 from .block import cut_blocks
-from .head import HEAD_NODE, RADIANCE, STOPS, channel_ranges, quantize_head, raw_ranges
+from .head import HEAD_NODE, RADIANCE, STOPS, channel_ranges, code_levels, quantize_head, raw_ranges
 from .inputs import quantize_inputs
 from .reader import FeedReader, collect_feeds
 from .rewrite import pools_as_convolutions, resizes_into_concat_scale
@@ -249,6 +249,7 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
             for f in [file] + [v.file for v in variants.values()]:
                 quantize_head(root / f, root / f, head)
                 quantize_inputs(root / f, root / f)
+                code_levels(root / f, root / f)
                 cut_blocks(root / f, root / f, manifest.pad_multiple)
         for v in variants.values():
             vrows += validate_variant(root / file, root / v.file, feeds[name][0], *INT8_VARIANT_TOL)
@@ -260,7 +261,8 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
             ranges=f"calibration.{cfg.method}.json", variants=variants,
             head="u8, channels last, a range per channel (calibration.head)" if head else "float",
             inputs="u8, channels last, preprocessed (calibration.inputs)" if head else "float",
-            block="between the graph's runs, u8 (calibration.block)" if head else "in the graph")
+            block="between the graph's runs, u8 (calibration.block)" if head else "in the graph",
+            levels="u8 planes, the heads' own codes (calibration.head.code_levels)" if head else "float")
     write_json(root / f"calibration.{cfg.method}.json",
                {"method": cfg.method, "activation_type": cfg.activation_type,
                 "data": [str(d) for d in cfg.data], "frames_per_sequence": cfg.frames,

@@ -224,17 +224,37 @@ def empty_tiles(current, history, tile, flat):
     return out
 
 
-@njit(parallel=True, cache=True)
-def _pool_taps(x, k, out):
-    """out = relu(kernel k on the 2x2 average pool of x)."""
-    C, H, W = out.shape
-    pooled = np.empty((C, H, W), np.float32)
+@njit(inline="always")
+def _pool(x, pooled):
+    C, H, W = pooled.shape
     for y in prange(H):
         for c in range(C):
             for i in range(W):
                 pooled[c, y, i] = (x[c, 2 * y, 2 * i] + x[c, 2 * y, 2 * i + 1] + x[c, 2 * y + 1, 2 * i]
                                    + x[c, 2 * y + 1, 2 * i + 1]) * np.float32(0.25)
+
+
+@njit(parallel=True, cache=True)
+def _pool_taps(x, k, out):
+    """out = relu(kernel k on the 2x2 average pool of x)."""
+    pooled = np.empty(out.shape, np.float32)
+    _pool(x, pooled)
     _apply(pooled, k, out, True)
+
+
+@njit(parallel=True, cache=True)
+def _pool_coded(x, q, c0, kinds, scale, offset, table, out):
+    """_pool_taps with its kernel read from planes c0..c0+9 of a u8 head's planes q
+    (runtime.head), decoded row by row as _lerp_coded does."""
+    C, H, W = out.shape
+    pooled = np.empty(out.shape, np.float32)
+    _pool(x, pooled)
+    for y in prange(H):
+        k = np.empty((9, 1, W), np.float32)
+        _decode_row(q, y, c0, 9, kinds, scale, offset, table, k, 0)
+        ya, yc = max(y - 1, 0), min(y + 1, H - 1)
+        for c in range(C):
+            _apply_row(pooled, k, 0, out, True, c, ya, y, yc)
 
 
 _NONE = np.empty((0, 1, 1), np.float32)
@@ -827,6 +847,13 @@ def spatiotemporal(x, history, k_spatial, k_temporal, blend, skip=None, tile: in
 
 def down_level(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     """One level down: relu(kernel on the 2x2 average pool of x)."""
+    if isinstance(kernel, Coded) and _fast(x):
+        c, h, w = x.shape
+        out = np.empty((c, h // 2, w // 2), np.float32)
+        k = kernel.head
+        _pool_coded(x, kernel.q, kernel.c0, k.kinds, k.scale, k.offset, k.table, out)
+        return out
+    kernel, = _decoded(kernel)
     if _fast(x, kernel):
         c, h, w = x.shape
         out = np.empty((c, h // 2, w // 2), np.float32)

@@ -29,6 +29,10 @@ from ..layout import HEAD_KINDS, head_kind
 
 HEAD = "head"  # the graph output
 LAYOUT_KEY = "jnds.head"  # its layout, JSON in the ONNX model's metadata_props
+# the feature extractor's level heads end in u8 too (``calibration.head.code_levels``): one
+# output per head, ``<path>.level<k>``, (1, C, h, w) planes as the head's QLinearConv wrote
+# them, one scale for its channels. Their layouts: JSON {output: layout} under this key
+LEVELS_KEY = "jnds.levels"
 # a channel's kind as _decode_row reads it: kernel 0 and relu 3 are computed in the loop (an
 # affine map and a clamp vectorize), blend 1 (sigmoid) and normalized 2 (exp) looked up
 _KIND_CODE = {k: i for i, k in enumerate(HEAD_KINDS)}
@@ -73,6 +77,18 @@ class HeadLayout:
         """The layout of an ONNX Runtime session whose graph ends in a u8 head, else None."""
         text = sess.get_modelmeta().custom_metadata_map.get(LAYOUT_KEY)
         return None if text is None else cls.from_json(text)
+
+    @staticmethod
+    def levels_of_session(sess) -> dict[str, HeadLayout]:
+        """{graph output: layout} of a session's u8 level heads (none if it has none)."""
+        text = sess.get_modelmeta().custom_metadata_map.get(LEVELS_KEY)
+        if text is None:
+            return {}
+        try:
+            d = json.loads(text)
+            return {str(k): HeadLayout.from_json(json.dumps(v)) for k, v in d.items()}
+        except (ValueError, AttributeError) as exc:
+            raise ArtifactError(f"level head metadata {LEVELS_KEY!r} malformed ({exc!r})") from exc
 
     def tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Per channel: kind code, scale and offset (raw = q * scale + offset, float32), and
@@ -201,6 +217,14 @@ class Head:
             planes = np.empty((-(-used // 8) * 8, q.shape[0], q.shape[1]), np.uint8)
             _planes(q, planes)
         return {name: Coded(planes, c0, c, self) for name, (c0, c) in self.slices.items()}
+
+    def planar(self, q: np.ndarray) -> dict[str, "Coded"]:
+        """Every output of a u8 level head given as planes, (1, C, h, w) or (C, h, w): no copy."""
+        q = q[0] if q.ndim == 4 else q
+        if q.dtype != np.uint8 or q.ndim != 3 or q.shape[0] != self.layout.channels:
+            raise ArtifactError(f"level head: expected u8 ({self.layout.channels}, h, w), got {q.dtype} {q.shape}")
+        q = np.ascontiguousarray(q)
+        return {name: Coded(q, c0, c, self) for name, (c0, c) in self.slices.items()}
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,8 @@ the graph's precision at its edges.
 
 An int8 network graph from ``jnds calibrate`` starts at the input block's first
 convolution (``calibration.inputs``: input ``inputs``, u8 channels last) and ends in the
-output block's u8 head (``calibration.head``: output ``head``). ``run_network`` takes the
+output block's u8 head (``calibration.head``: output ``head``), and the feature extractor's
+level heads in u8 planes (outputs ``<path>.level<k>``). ``run_network`` takes the
 float ``current`` and ``history`` every graph's users have (the pipeline, calibration,
 validation) and returns the outputs by the float graph's names, so that each caller runs
 any graph the same way. A graph cut at its upsamplings and concatenations
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 from ..errors import ArtifactError
 from ..layout import head_kind
-from .head import HEAD, LAYOUT_KEY, Head, HeadLayout
+from .head import HEAD, LAYOUT_KEY, LEVELS_KEY, Head, HeadLayout
 from .reformat import BLOCK_KEY, INPUTS, INPUTS_KEY, BlockLayout, InputsLayout, block_input, pack_inputs
 
 
@@ -37,6 +38,10 @@ class Edges:
             if layout is None:
                 raise ArtifactError(f"network graph has a {HEAD!r} output but no {LAYOUT_KEY!r} metadata")
             self.head = Head(layout)
+        self.levels = {n: Head(lay) for n, lay in HeadLayout.levels_of_session(sess).items()}
+        if set(self.levels) - set(outputs):
+            raise ArtifactError(f"network graph's {LEVELS_KEY!r} metadata names outputs it lacks: "
+                                f"{sorted(set(self.levels) - set(outputs))}")
         self.block = BlockLayout.of_session(sess)
         if self.block is not None:
             made = [n for _, o in self.block.segments for n in o]
@@ -83,27 +88,28 @@ def edges(sess, cache: dict | None = None) -> Edges:
 
 def run_network(sess, feeds: dict, cache: dict | None = None, coded: bool = False) -> dict:
     """Run a network graph's session on float ``feeds`` ({current, history}): {output:
-    (N, C, H, W) float32} (N = 1 where the graph has a u8 head), the head (if the graph has
-    one) in the outputs it holds: decoded, or with ``coded`` as ``runtime.head.Coded``
+    (N, C, H, W) float32} (N = 1 where the graph has u8 heads), the heads (if the graph has
+    them) in the outputs they hold: decoded, or with ``coded`` as ``runtime.head.Coded``
     (C, H, W) parts, except the upsample block's features, which ONNX Runtime reads as
     float. ``cache`` keeps each session's ``Edges``."""
     e = edges(sess, cache)
     out = e.run(sess, e.feeds(feeds))
-    if e.head is None:
-        return out
-    q = out.pop(HEAD)
-    for name, part in e.head.coded(q).items():
+    parts = {}
+    if e.head is not None:
+        parts.update(e.head.coded(out.pop(HEAD)))
+    for name, head in e.levels.items():
+        parts.update(head.planar(out.pop(name)))
+    for name, part in parts.items():
         out[name] = part if coded and head_kind(name) != "relu" else part.decode()[None]
     return out
 
 
 def output_names(sess) -> list[str]:
     """The outputs ``run_network`` returns for ``sess``, in order."""
-    names = Edges(sess).outputs
-    if HEAD not in names:
-        return names
-    layout = HeadLayout.of_session(sess)
-    return [n for n in names if n != HEAD] + [n for n, _ in layout.parts]
+    e = Edges(sess)
+    heads = {**({HEAD: e.head} if e.head is not None else {}), **e.levels}
+    return ([n for n in e.outputs if n not in heads]
+            + [p for h in heads.values() for p, _ in h.layout.parts])
 
 
 def quiet(opts=None):

@@ -309,6 +309,46 @@ def test_the_cut_graph_computes_what_the_whole_graph_did(calibrated, tmp_path, m
         cut_blocks(d / file, tmp_path / "again.onnx", manifest.pad_multiple)
 
 
+def test_coded_level_heads_give_the_outputs_their_nodes_gave(calibrated, tmp_path, monkeypatch):
+    """calibration.head.code_levels ends each level head in its u8 codes (planes, one output
+    per head, metadata per head); decoded, they are the float outputs the graph's
+    dequantization, clamps and sigmoids gave, in every variant that has them."""
+    import shutil
+
+    import onnxruntime as ort
+
+    import jnds_deploy.calibration.quantize as quantize
+    from jnds_deploy.runtime.head import LEVELS_KEY
+    from jnds_deploy.runtime.network import Edges, quiet, run_network
+
+    d, manifest, _ = calibrated
+    entry = manifest.graphs["network"].int8["qat"]
+    assert entry.levels.startswith("u8")
+    plain = tmp_path / "plain"
+    shutil.copytree(d, plain)
+    monkeypatch.setattr(quantize, "code_levels", lambda src, dst: {})
+    calibrate(CalibrateConfig(artifacts=str(plain), data=(str(SAMPLE),), method="qat", frames=3), log=lambda s: None)
+    feeds = collect_feeds(d, [SAMPLE], frames=2)["network"]
+    for file in [entry.file] + [v.file for v in entry.variants.values()]:
+        coded, ref = (ort.InferenceSession(str(p / file), quiet(), providers=["CPUExecutionProvider"])
+                      for p in (d, plain))
+        levels = Edges(coded).levels
+        outputs = [o.name for o in coded.get_outputs()]
+        assert Edges(ref).levels == {} and LEVELS_KEY not in ref.get_modelmeta().custom_metadata_map
+        assert sorted(levels) == sorted(n for n in outputs if ".level" in n), file
+        assert all(n.count(".") == 1 for n in levels), file  # "<path>.level<k>": no float part left
+        if file == entry.file:  # both paths' every level
+            assert len(levels) == 2 * manifest.filter_levels
+        for f in feeds:
+            got, want = run_network(coded, f), run_network(ref, f)
+            assert sorted(got) == sorted(want), file
+            for name in want:
+                if ".level" in name:  # q * scale + offset against (q - zero point) * scale; ORT's sigmoid
+                    np.testing.assert_allclose(got[name], want[name], rtol=1e-5, atol=2e-7, err_msg=name)
+                else:
+                    np.testing.assert_array_equal(got[name], want[name], err_msg=name)
+
+
 def test_feed_reader_gives_every_feed_at_every_exposure():
     from jnds_deploy.calibration.head import RADIANCE
     from jnds_deploy.calibration.reader import FeedReader

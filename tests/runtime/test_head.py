@@ -77,6 +77,36 @@ def test_filters_read_coded_parts_as_their_decoded_values(head):
                                   F.up_level(skip, low, sub["diffuse.up"].decode(), sub["diffuse.up_blend"].decode()))
 
 
+def test_level_heads_read_as_planes_decode_as_their_nodes_and_filter_alike():
+    """A u8 level head (calibration.head.code_levels: the QLinearConv's own codes, one scale,
+    planes) decodes as its DequantizeLinear, Clip and Sigmoid did (within a rounding), without
+    a copy, and the
+    levels' filter loops read it bit-equal to its decoded values."""
+    rng = np.random.default_rng(2)
+    parts = (("diffuse.level1.down", 9), ("diffuse.level1.up", 9), ("diffuse.level1.up_blend", 1))
+    scale, zp = 0.0155, 50
+    h = Head(HeadLayout(parts, (scale,) * 19, (0.0,) * 19, zp, 19))
+    for w in (11, 16):
+        q = rng.integers(0, 256, (1, 19, 6, w), dtype=np.uint8)
+        coded = h.planar(q)
+        assert all(np.shares_memory(c.q, q) for c in coded.values())
+        raw = (q[0].astype(np.float32) - np.float32(zp)) * np.float32(scale)  # DequantizeLinear
+        # q * scale + offset in one rounding: within an ulp of (q - zero point) * scale
+        np.testing.assert_allclose(coded["diffuse.level1.down"].decode(), np.clip(raw[:9], -1, 1), rtol=0, atol=1.2e-7)
+        np.testing.assert_allclose(coded["diffuse.level1.up"].decode(), np.clip(raw[9:18], -1, 1), rtol=0, atol=1.2e-7)
+        np.testing.assert_allclose(coded["diffuse.level1.up_blend"].decode(), 1 / (1 + np.exp(-raw[18:].astype(np.float64))),
+                                   rtol=1e-6)
+        x, low = rng.uniform(0, 4, (3, 12, 2 * w)).astype(np.float32), rng.uniform(0, 4, (3, 3, w // 2)).astype(np.float32)
+        np.testing.assert_array_equal(F.down_level(x, coded["diffuse.level1.down"]),
+                                      F.down_level(x, coded["diffuse.level1.down"].decode()))
+        skip = x[:, :6, :w].copy()
+        np.testing.assert_array_equal(
+            F.up_level(skip, low, coded["diffuse.level1.up"], coded["diffuse.level1.up_blend"]),
+            F.up_level(skip, low, coded["diffuse.level1.up"].decode(), coded["diffuse.level1.up_blend"].decode()))
+    with pytest.raises(ArtifactError, match="level head"):
+        h.planar(np.zeros((1, 18, 6, 8), np.uint8))
+
+
 def test_bad_layouts_and_heads_are_named():
     with pytest.raises(ArtifactError, match="malformed"):
         HeadLayout.from_json('{"parts": 3}')
