@@ -73,14 +73,21 @@ def _head(graph: onnx.GraphProto):
     return conv, split, parts
 
 
+def _constant(graph: onnx.GraphProto, name: str) -> np.ndarray | None:
+    for i in graph.initializer:
+        if i.name == name:
+            return numpy_helper.to_array(i)
+    for n in graph.node:
+        if n.op_type == "Constant" and n.output[0] == name:
+            return numpy_helper.to_array(next(a.t for a in n.attribute if a.name == "value"))
+    return None
+
+
 def _split_sizes(graph: onnx.GraphProto, split) -> list[int]:
-    inits = {i.name: i for i in graph.initializer}
-    consts = {n.output[0]: next(a.t for a in n.attribute if a.name == "value")
-              for n in graph.node if n.op_type == "Constant"}
-    sizes = inits.get(split.input[1]) or consts.get(split.input[1])
+    sizes = _constant(graph, split.input[1])
     if sizes is None:
-        raise CalibrationError(f"{HEAD_NODE}: split sizes are not a constant")
-    return [int(s) for s in numpy_helper.to_array(sizes)]
+        raise CalibrationError(f"{split.name}: split sizes are not a constant")
+    return [int(s) for s in sizes]
 
 
 def raw_ranges(path: Path, feeds: list[dict[str, np.ndarray]], stops=STOPS) -> dict[str, np.ndarray]:
@@ -181,16 +188,6 @@ def quantize_head(src: Path, dst: Path, ranges: dict[str, dict[str, list[float]]
     return layout
 
 
-def _constant(graph: onnx.GraphProto, name: str) -> np.ndarray | None:
-    for i in graph.initializer:
-        if i.name == name:
-            return numpy_helper.to_array(i)
-    for n in graph.node:
-        if n.op_type == "Constant" and n.output[0] == name:
-            return numpy_helper.to_array(next(a.t for a in n.attribute if a.name == "value"))
-    return None
-
-
 def code_levels(src: Path, dst: Path) -> dict[str, HeadLayout]:
     """Write ``src`` (an int8 network graph or pruned variant) with each of the feature
     extractor's level heads ending in its u8 output, to ``dst`` (atomically): output
@@ -203,11 +200,11 @@ def code_levels(src: Path, dst: Path) -> dict[str, HeadLayout]:
     model = onnx.load(str(src))
     g = model.graph
     producers = {o: n for n in g.node for o in n.output}
-    groups: dict[str, list[tuple[str, int]]] = {}  # Split output... by the u8 tensor they come from
-    found: dict[str, tuple] = {}
+    groups: dict[str, list[tuple[str, int]]] = {}  # per level head: (graph output, index in its split)
+    found: dict[str, tuple] = {}  # per level head: its QuantizeLinear, DequantizeLinear and Split
     for out in g.output:
         name = out.name
-        head, _, part = name.rpartition(".")
+        head = name.rpartition(".")[0]
         if ".level" not in head:
             continue
         t, chain = name, []
