@@ -66,7 +66,14 @@ class HeadLayout:
     @classmethod
     def from_json(cls, text: str) -> HeadLayout:
         try:
-            d = json.loads(text)
+            return cls.from_dict(json.loads(text))
+        except ValueError as exc:
+            raise ArtifactError(f"head layout metadata {LAYOUT_KEY!r} malformed ({exc!r})") from exc
+
+    @classmethod
+    def from_dict(cls, d: dict) -> HeadLayout:
+        """The layout from its JSON object (``to_json``'s, parsed)."""
+        try:
             return cls(tuple((str(n), int(c)) for n, c in d["parts"]), tuple(float(s) for s in d["scale"]),
                        tuple(float(s) for s in d["centre"]), int(d["zero_point"]), int(d["channels"]))
         except (ValueError, KeyError, TypeError) as exc:
@@ -85,9 +92,8 @@ class HeadLayout:
         if text is None:
             return {}
         try:
-            d = json.loads(text)
-            return {str(k): HeadLayout.from_json(json.dumps(v)) for k, v in d.items()}
-        except (ValueError, AttributeError) as exc:
+            return {str(k): HeadLayout.from_dict(v) for k, v in json.loads(text).items()}
+        except (ValueError, AttributeError, ArtifactError) as exc:
             raise ArtifactError(f"level head metadata {LEVELS_KEY!r} malformed ({exc!r})") from exc
 
     def tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
