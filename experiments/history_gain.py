@@ -4,7 +4,7 @@ and with the geometric history rejection (``filters.disoccluded``, the default).
     .venv/bin/python experiments/history_gain.py --data data/val data/adaptive [--checkpoint CKPT]
         [--baseline oidn-balanced] [--out benchmarks/results/history_gain]
 
-PyTorch, the shipped checkpoint (or --checkpoint) at int8 fake quantization, every
+PyTorch, the shipped checkpoint (or --checkpoint; int8 fake quantization where QAT-trained), every
 frame of every sequence. "no history": every frame is run as a first frame (the current
 inputs stand in for the history). "history, no rejection": the warped history is used
 everywhere. Per sequence: mean PSNR, FLIP and temporal error (``jnds_deploy.metrics``),
@@ -55,7 +55,9 @@ def main() -> int:
     args = ap.parse_args()
     model = load_model(args.checkpoint or default_checkpoint())
     model.eval()
-    result = {"checkpoint": str(args.checkpoint or "shipped"), "sequences": {}}
+    quantized = any(getattr(m, "quantize", False) for m in model.modules())  # load_model: QAT-trained
+    result = {"checkpoint": str(args.checkpoint or "shipped"), "int8_fake_quantization": quantized,
+              "sequences": {}}
     for path in expand_sequences(args.data):
         seq = load_sequence(path)
         refs = [r.transpose(1, 2, 0) for r in seq.ref["color"]]
@@ -75,7 +77,8 @@ def main() -> int:
     lines = ["# What the history gives",
              "",
              f"Command: `{command_line()}`  ",
-             "PyTorch, the shipped checkpoint at int8 fake quantization. PSNR (dB) / FLIP per "
+             f"PyTorch, {'the shipped checkpoint' if args.checkpoint is None else f'`{args.checkpoint}`'} "
+             f"{'at int8 fake quantization' if quantized else 'in fp32 (not QAT-trained yet)'}. PSNR (dB) / FLIP per "
              "sequence, mean over its frames; temporal error (Eq. 5) in brackets.",
              "",
              "| sequence | " + " | ".join(MODES) + " |",
