@@ -26,6 +26,12 @@ from typing import Any, Callable
 
 import numpy as np
 
+from jnds_deploy.heap import passive_openmp
+
+# at import, not in tune_process: a script that imports torch (MAC counts, checkpoints) loads
+# libgomp before its main() runs, and libgomp reads its wait policy once, when loaded
+passive_openmp()
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 

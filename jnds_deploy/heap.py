@@ -1,10 +1,11 @@
-"""The process's malloc heap, for the commands that run the pipeline (``jnds run``, ``jnds
-serve``, ``jnds batch``'s workers); a light module (numpy and the standard library) that
-they use before the runtime's imports.
+"""The process's malloc heap (and OpenMP's idle threads), for the commands that run the
+pipeline (``jnds run``, ``jnds serve``, ``jnds batch``'s workers); a light module (numpy and
+the standard library) that they use before the runtime's imports.
 
 - ``keep_freed_memory``: freed blocks stay in the heap for the next frame's arrays.
 - ``pretouch``: the heap's pages for the first frame faulted in on another thread while the
   interpreter imports (`jnds run`'s cold start).
+- ``passive_openmp``: OpenMP's threads sleep when idle rather than spin.
 """
 from __future__ import annotations
 
@@ -35,6 +36,20 @@ def _libc():
         return libc
     except (OSError, AttributeError):
         return None
+
+
+def passive_openmp() -> bool:
+    """Have GNU OpenMP's idle threads sleep (``OMP_WAIT_POLICY=PASSIVE``) unless the user set
+    ``OMP_WAIT_POLICY`` or ``GOMP_SPINCOUNT``; returns whether it set it. numba's threadsafe
+    layer is GNU OpenMP where TBB is not installed, and by default its workers spin some
+    300 000 times after every parallel loop, on the cores ONNX Runtime's threads need next:
+    the network graph runs between numba loops (the input packing, the glue of the graph's
+    cuts; docs/performance.md, "Speed", stop 70). libgomp reads the variable once, when it is
+    loaded (numba's first parallel loop, or importing torch): call this before either."""
+    if "OMP_WAIT_POLICY" in os.environ or "GOMP_SPINCOUNT" in os.environ:
+        return False
+    os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
+    return True
 
 
 @functools.cache

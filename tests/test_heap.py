@@ -62,3 +62,46 @@ def test_keep_freed_memory_turns_numpys_huge_page_advice_off_unless_the_user_set
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environ)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.strip() == ("False" if env is None else "True")
+
+
+# the spin count libgomp runs with (OMP_DISPLAY_ENV=VERBOSE prints its settings when it is
+# loaded), after the given imports and one numba parallel loop
+_OPENMP = """
+import sys
+sys.path.insert(0, sys.argv[1])
+{imports}
+import numpy as np
+from numba import njit, prange
+@njit(parallel=True)
+def add(a):
+    for i in prange(a.shape[0]):
+        a[i] += 1
+add(np.zeros(8))
+import numba
+print(numba.threading_layer())
+"""
+
+
+@pytest.mark.parametrize("imports, env, spins", [
+    # `jnds run` and `jnds serve`: tune_numba before the first loop
+    ("from jnds_deploy.runtime import tune_numba; tune_numba()", {}, "0"),
+    # a spin count the user set is kept
+    ("from jnds_deploy.runtime import tune_numba; tune_numba()", {"GOMP_SPINCOUNT": "1000"}, "1000"),
+    # the benchmarks that import torch (which loads libgomp) before main() calls tune_process
+    ("import benchmarks.common; import torch; benchmarks.common.tune_process()", {}, "0"),
+])
+def test_openmps_idle_threads_sleep_in_the_processes_that_run_the_pipeline(imports, env, spins):
+    """GNU OpenMP's workers (numba's threadsafe layer) spin after every parallel loop by
+    default, on the cores ONNX Runtime's threads need next (docs/performance.md, "Speed",
+    stop 70): ``heap.passive_openmp`` (through ``tune_numba``, and the benchmarks' import of
+    ``benchmarks.common``) has libgomp load with the passive wait policy."""
+    from pathlib import Path
+
+    root = str(Path(__file__).resolve().parents[1])
+    environ = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
+    proc = subprocess.run([sys.executable, "-c", _OPENMP.format(imports=imports), root],
+                          env={**environ, **env, "OMP_DISPLAY_ENV": "VERBOSE"}, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    if proc.stdout.strip() != "omp":
+        pytest.skip(f"numba's threading layer here is {proc.stdout.strip()!r}, not GNU OpenMP")
+    assert f"GOMP_SPINCOUNT = '{spins}'" in proc.stderr, proc.stderr[-2000:]
