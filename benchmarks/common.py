@@ -26,11 +26,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from jnds_deploy.heap import passive_openmp
+from jnds_deploy.heap import brief_openmp_spin
 
 # at import, not in tune_process: a script that imports torch (MAC counts, checkpoints) loads
-# libgomp before its main() runs, and libgomp reads its wait policy once, when loaded
-passive_openmp()
+# libgomp before its main() runs, and libgomp reads its spin count once, when loaded
+brief_openmp_spin()
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"

@@ -5,7 +5,7 @@ the standard library) that they use before the runtime's imports.
 - ``keep_freed_memory``: freed blocks stay in the heap for the next frame's arrays.
 - ``pretouch``: the heap's pages for the first frame faulted in on another thread while the
   interpreter imports (`jnds run`'s cold start).
-- ``passive_openmp``: OpenMP's threads sleep when idle rather than spin.
+- ``brief_openmp_spin``: OpenMP's idle threads spin briefly, then sleep.
 """
 from __future__ import annotations
 
@@ -38,17 +38,24 @@ def _libc():
         return None
 
 
-def passive_openmp() -> bool:
-    """Have GNU OpenMP's idle threads sleep (``OMP_WAIT_POLICY=PASSIVE``) unless the user set
-    ``OMP_WAIT_POLICY`` or ``GOMP_SPINCOUNT``; returns whether it set it. numba's threadsafe
-    layer is GNU OpenMP where TBB is not installed, and by default its workers spin some
-    300 000 times after every parallel loop, on the cores ONNX Runtime's threads need next:
-    the network graph runs between numba loops (the input packing, the glue of the graph's
-    cuts; docs/performance.md, "Speed", stop 70). libgomp reads the variable once, when it is
+# iterations GNU OpenMP's idle workers spin before they sleep (libgomp's default 300 000):
+# enough to bridge numba's back-to-back loops, too few to spin through a run of the network
+# graph (docs/performance.md, "Speed", stop 70)
+OPENMP_SPINS = 1000
+
+
+def brief_openmp_spin() -> bool:
+    """Have GNU OpenMP's idle threads spin only briefly (``GOMP_SPINCOUNT=OPENMP_SPINS``)
+    unless the user set ``GOMP_SPINCOUNT`` or ``OMP_WAIT_POLICY``; returns whether it set
+    it. numba's threadsafe layer is GNU OpenMP where TBB is not installed, and by default
+    its workers spin 300 000 times after every parallel loop, on the cores ONNX Runtime's
+    threads need next: the network graph runs between numba loops (the input packing, the
+    glue of the graph's cuts). Not spinning at all (``OMP_WAIT_POLICY=PASSIVE``) made small
+    frames slower, each loop waking its threads. libgomp reads the variable once, when it is
     loaded (numba's first parallel loop, or importing torch): call this before either."""
-    if "OMP_WAIT_POLICY" in os.environ or "GOMP_SPINCOUNT" in os.environ:
+    if "GOMP_SPINCOUNT" in os.environ or "OMP_WAIT_POLICY" in os.environ:
         return False
-    os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
+    os.environ["GOMP_SPINCOUNT"] = str(OPENMP_SPINS)
     return True
 
 

@@ -36,13 +36,13 @@ def tune_numba() -> None:
       for BLAS, a tenth of a second of every cold start (docs/performance.md). No runtime
       loop calls BLAS; numba code in the same process that did (``np.dot``) would be refused
       with numba's "scipy is required" error.
-    - OpenMP's idle threads sleep rather than spin (``heap.passive_openmp``), unless the
-      user set ``OMP_WAIT_POLICY`` or ``GOMP_SPINCOUNT``. It takes effect only where nothing
-      loaded libgomp before the call (torch does, when imported).
+    - OpenMP's idle threads spin briefly, then sleep (``heap.brief_openmp_spin``), unless
+      the user set ``GOMP_SPINCOUNT`` or ``OMP_WAIT_POLICY``. It takes effect only where
+      nothing loaded libgomp before the call (torch does, when imported).
     """
-    from ..heap import passive_openmp
+    from ..heap import brief_openmp_spin
 
-    passive_openmp()  # first: before anything below can load libgomp
+    brief_openmp_spin()  # first: before anything below can load libgomp
     import numba
 
     if "numba.np.arraymath" not in sys.modules and "scipy.linalg" not in sys.modules:
