@@ -7,8 +7,9 @@ PSNR, SSIM and FLIP here compare tonemapped images, where the brightest HDR pixe
 little; this report looks at linear radiance. Per sequence and checkpoint (PyTorch,
 int8 fake quantization for QAT checkpoints, all frames, history carried): the ratio of
 mean output to mean reference luminance over all pixels, over the brightest 1 % of
-reference pixels, over the other 99 %, and the ratio of medians. Writes
-benchmarks/results/brightness.md and .json.
+reference pixels, over the other 99 %, and the ratio of medians; and, since a recurrent model
+can drift as its history feeds back, the mean ratio of the first and of the last frame, with
+their mean |ratio - 1| over the sequences. Writes benchmarks/results/brightness.md and .json.
 """
 from __future__ import annotations
 
@@ -33,8 +34,10 @@ def ratios(outs: np.ndarray, refs: np.ndarray) -> dict[str, float]:
     top = np.argsort(r)[-max(1, r.size // 100):]
     rest = np.ones(r.size, bool)
     rest[top] = False
+    frames = outs.reshape(len(outs), -1).mean(1) / refs.reshape(len(refs), -1).mean(1)
     return {"mean": o.mean() / r.mean(), "top1": o[top].mean() / r[top].mean(),
-            "rest": o[rest].mean() / r[rest].mean(), "median": float(np.median(o) / np.median(r))}
+            "rest": o[rest].mean() / r[rest].mean(), "median": float(np.median(o) / np.median(r)),
+            "first": float(frames[0]), "last": float(frames[-1])}
 
 
 def main() -> None:
@@ -56,12 +59,20 @@ def main() -> None:
     md = ["# Brightness kept (linear radiance)", "",
           f"Command: `{command_line()}`",
           "", "Mean output / mean reference (luminance = channel mean, all frames), over all pixels, over the "
-          "brightest 1 % of reference pixels and over the rest; and the ratio of medians. 1 = energy kept.", "",
-          "| sequence | checkpoint | all | brightest 1 % | other 99 % | median |", "| --- | --- | ---: | ---: | ---: | ---: |"]
+          "brightest 1 % of reference pixels and over the rest; the ratio of medians; the mean ratio of "
+          "the first and of the last frame. 1 = energy kept.", "",
+          "| sequence | checkpoint | all | brightest 1 % | other 99 % | median | first frame | last frame |",
+          "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for seq, per in report.items():
         for name in names:
             x = per[name]
-            md.append(f"| {seq} | {name} | {x['mean']:.3f} | {x['top1']:.3f} | {x['rest']:.3f} | {x['median']:.3f} |")
+            md.append(f"| {seq} | {name} | {x['mean']:.3f} | {x['top1']:.3f} | {x['rest']:.3f} | {x['median']:.3f} "
+                      f"| {x['first']:.3f} | {x['last']:.3f} |")
+    md += ["", "Drift: mean |ratio - 1| over the sequences, first frame against last frame.", "",
+           "| checkpoint | first frame | last frame |", "| --- | ---: | ---: |"]
+    for name in names:
+        dev = {k: np.mean([abs(per[name][k] - 1) for per in report.values()]) for k in ("first", "last")}
+        md.append(f"| {name} | {dev['first']:.3f} | {dev['last']:.3f} |")
     write_report(Path(args.out), report, "\n".join(md) + "\n")
     print("\n".join(md))
 
