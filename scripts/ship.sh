@@ -17,8 +17,10 @@ step() { [ -f "$S/$1.done" ] && return 0; "${@:2}"; touch "$S/$1.done"; }
 
 # the outgoing checkpoint and card, kept for the comparisons below and the card's lineage
 step previous cp jnds_deploy/checkpoints/jnds.pt jnds_deploy/checkpoints/MODEL_CARD.md "$S/"
+# a fine-tune carries the outgoing card's runs as its lineage; a run from scratch has none
+INIT=$($PY -c 'import json, sys; print(json.load(open(sys.argv[1]))["train"]["init"] or "")' "$RUN/config.json")
 step card $PY experiments/model_card.py --run "$RUN" --model "$NAME" --eval "$RUN/eval.json" \
-    --lineage "$S/MODEL_CARD.md" --gap docs/model-gap.md
+    ${INIT:+--lineage "$S/MODEL_CARD.md"} --gap docs/model-gap.md
 step export $J export --out out/artifacts
 step calibrate $J calibrate --artifacts out/artifacts --data samples/orbit-160x90 --method qat
 step model_eval $J evaluate --checkpoint jnds_deploy/checkpoints/jnds.pt "$S/previous.pt" \
