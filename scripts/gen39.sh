@@ -30,3 +30,8 @@ $J train --data runs/gen39/data --run runs/gen39 --preset deep \
 [ -f runs/gen39/eval.json ] || $J evaluate --checkpoint jnds_deploy/checkpoints/jnds.pt runs/gen39/checkpoint.pt \
     --data data/holdout data/holdout2 data/val --threads 2 \
     --out runs/gen39/eval.json --sheet runs/gen39/eval.jpg
+# the rule's time clause (added in stop 71, while it trained: appended, so the running script
+# reads it at its end): its int8 pipeline against OIDN `balanced` at 720p on this session's CPU
+[ -f runs/gen39/timing.json ] || { $J export --checkpoint runs/gen39/checkpoint.pt --out runs/gen39/artifacts &&
+    $J calibrate --artifacts runs/gen39/artifacts --data samples/orbit-160x90 --method qat &&
+    .venv/bin/python benchmarks/timing.py --artifacts runs/gen39/artifacts --precisions int8 --out runs/gen39/timing; }
