@@ -1,0 +1,169 @@
+"""How fast an input block can run in int8 on this CPU: today's design against a
+space-to-depth one, random weights, ONNX Runtime's profiler (issue 25's "network stages at
+>= 50 % of the int8 peak").
+
+    python benchmarks/input_block_designs.py [--size 1280x720] [--runs 10] [--out benchmarks/results/input_block_designs]
+
+Designs (the packed u8 input, 25 channels padded to 32 as `runtime.reformat.pack_inputs`
+writes it, is what each reads; the packing itself is not timed here):
+- ``current``: `model.InputBlock`, a 1x1 projection 32 -> 16 and a 3x3 16 -> 16 at native
+  resolution, then the 2x2 average pool for the U-Net;
+- ``space-to-depth``: the packing writes each 2x2 block's 4 x 25 channels as 100 (no extra
+  pass); a 1x1 projection 100 -> 32 and a 3x3 32 -> 32 at half resolution, about the same
+  MACs a frame (the U-Net reads its 32 channels as they are, no pool; a depth-to-space would
+  give the output block 8 native channels);
+- ``space-to-depth, one 3x3``: the same 100 channels, one 3x3 100 -> 32 at half resolution
+  (a 6x6 window of native pixels), more MACs in the kernel MLAS runs fastest.
+
+Each is exported from PyTorch, quantized by ONNX Runtime (QDQ, u8 activations, symmetric s8
+weights, as `jnds calibrate` writes them, the pool rewritten as its depthwise convolution) on random inputs, and run at ORT_ENABLE_ALL on the
+session's threads; the profiler's times of the quantized convolution and pooling nodes are
+summed per run (the input's QuantizeLinear, which the real graph does not have, is left
+out). Random weights: the speed of a design, not its accuracy, which needs training."""
+
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import onnx
+import torch
+from torch import nn
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import common  # noqa: E402
+
+from jnds_deploy.calibration import rewrite  # noqa: E402
+
+COMPUTE = ("Conv", "Pool")  # op types counted: QLinearConv, NhwcQLinearConv, QLinearAveragePool, ...
+
+
+class Current(nn.Module):
+    def __init__(self):
+        super().__init__()
+        self.project, self.conv = nn.Conv2d(32, 16, 1), nn.Conv2d(16, 16, 3, padding=1)
+
+    def forward(self, x):
+        # only the pooled features out: a graph output cannot be the rewritten pool's input,
+        # and the native ones are computed for it either way
+        return nn.functional.avg_pool2d(torch.relu(self.conv(torch.relu(self.project(x)))), 2)
+
+
+class SpaceToDepth(nn.Module):
+    def __init__(self):
+        super().__init__()
+        self.project, self.conv = nn.Conv2d(100, 32, 1), nn.Conv2d(32, 32, 3, padding=1)
+
+    def forward(self, x):
+        return torch.relu(self.conv(torch.relu(self.project(x))))
+
+
+class SpaceToDepth3x3(nn.Module):
+    def __init__(self):
+        super().__init__()
+        self.conv = nn.Conv2d(100, 32, 3, padding=1)
+
+    def forward(self, x):
+        return torch.relu(self.conv(x))
+
+
+def designs(w: int, h: int) -> dict[str, tuple[nn.Module, tuple[int, ...], float]]:
+    """name: (module, input shape, GMAC a frame)."""
+    native, half = w * h, (w // 2) * (h // 2)
+    return {"current": (Current(), (1, 32, h, w), native * (32 * 16 + 16 * 16 * 9) / 1e9),
+            "space-to-depth": (SpaceToDepth(), (1, 100, h // 2, w // 2), half * (100 * 32 + 32 * 32 * 9) / 1e9),
+            "space-to-depth, one 3x3": (SpaceToDepth3x3(), (1, 100, h // 2, w // 2), half * 100 * 32 * 9 / 1e9)}
+
+
+def quantized(module: nn.Module, shape: tuple[int, ...], folder: Path) -> Path:
+    from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+
+    float_path, int8_path = folder / "float.onnx", folder / "int8.onnx"
+    x = torch.rand(*shape)
+    torch.onnx.export(module.eval(), (x,), str(float_path), input_names=["inputs"], opset_version=17, dynamo=False)
+    onnx.save(onnx.shape_inference.infer_shapes(onnx.load(str(float_path))), str(float_path))  # the rewrite needs them
+
+    class Reader(CalibrationDataReader):
+        def __init__(self):
+            self.left = [{"inputs": np.random.default_rng(i).random(shape, np.float32)} for i in range(2)]
+
+        def get_next(self):
+            return self.left.pop() if self.left else None
+
+    quantize_static(str(float_path), str(int8_path), Reader(), quant_format=QuantFormat.QDQ,
+                    activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
+                    extra_options={"WeightSymmetric": True, "ActivationSymmetric": False})
+    rewrite.pools_as_convolutions(int8_path)  # as `jnds calibrate` does: the pool on MLAS's depthwise kernel
+    return int8_path
+
+
+def profile(path: Path, shape: tuple[int, ...], runs: int, threads: int, folder: Path) -> dict:
+    import onnxruntime as ort
+
+    o = ort.SessionOptions()
+    o.intra_op_num_threads, o.inter_op_num_threads = threads, 1
+    o.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    o.enable_profiling, o.profile_file_prefix = True, str(folder / "profile")
+    s = ort.InferenceSession(str(path), o, providers=["CPUExecutionProvider"])
+    feed = {"inputs": np.random.default_rng(0).random(shape, np.float32)}
+    for _ in range(runs + 1):  # the first is a warm-up
+        s.run(None, feed)
+    events = json.loads(Path(s.end_profiling()).read_text())
+    nodes = [e for e in events if e.get("cat") == "Node" and e["name"].endswith("_kernel_time")]
+    per_run: dict[int, float] = {}
+    ops: dict[str, list[float]] = {}
+    run = -1
+    seen: set[str] = set()
+    for e in nodes:  # a node's name comes again when the next run starts
+        if e["name"] in seen or run < 0:
+            run, seen = run + 1, set()
+        seen.add(e["name"])
+        op = e["args"]["op_name"]
+        if run > 0 and any(k in op for k in COMPUTE):
+            per_run[run] = per_run.get(run, 0.0) + e["dur"] / 1000
+            ops.setdefault(f"{e['name'].removesuffix('_kernel_time')} ({op})", []).append(e["dur"] / 1000)
+    return {"compute_ms": float(np.median(list(per_run.values()))), "runs": len(per_run),
+            "ops": {k: float(np.median(v)) for k, v in ops.items()}}
+
+
+def main() -> None:
+    ap = common.arguments(__doc__, common.RESULTS / "input_block_designs")
+    ap.add_argument("--size", default="1280x720")
+    ap.add_argument("--runs", type=int, default=10)
+    args = ap.parse_args()
+    w, h = common.parse_size(args.size, 2)
+    threads = common.usable_cores()
+    peaks = common.cpu_peaks()
+    torch.manual_seed(0)
+    rows = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, (module, shape, gmac) in designs(w, h).items():
+            folder = Path(tmp) / name
+            folder.mkdir()
+            r = profile(quantized(module, shape, folder), shape, args.runs, threads, folder)
+            r.update(gmac=gmac, gmacs=gmac / r["compute_ms"] * 1000)
+            r["percent_of_peak"] = 100 * r["gmacs"] / peaks["int8_gmacs"]
+            rows[name] = r
+    lines = ["# Input block designs in int8 (random weights)", "",
+             f"Command: `{common.command_line()}`  ", f"Machine: {common.cpu_line(common.machine_info())}; int8 peak "
+             f"{peaks['int8_gmacs']:.0f} GMAC/s ({peaks['derivation']}).", "",
+             f"{w}x{h}, {threads} threads, ORT_ENABLE_ALL; the profiler's quantized convolution and "
+             f"pooling nodes summed per run, median of {args.runs} runs; the input packing is not "
+             "included (the timing report counts it in the input block row).", "",
+             "| design | GMAC | compute ms | GMAC/s | % of int8 peak | nodes: median ms |",
+             "| --- | ---: | ---: | ---: | ---: | --- |"]
+    for name, r in rows.items():
+        nodes = "; ".join(f"`{k}` {v:.2f}" for k, v in r["ops"].items())
+        lines.append(f"| {name} | {r['gmac']:.2f} | {r['compute_ms']:.2f} | {r['gmacs']:.0f} | "
+                     f"{r['percent_of_peak']:.0f} | {nodes} |")
+    common.write_report(Path(args.out), {"command": common.command_line(), "machine": common.machine_info(),
+                                         "peaks": peaks, "size": [w, h], "designs": rows},
+                        "\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
