@@ -1,5 +1,5 @@
-"""How fast an input block can run in int8 on this CPU: today's design against a
-space-to-depth one, random weights, ONNX Runtime's profiler (issue 25's "network stages at
+"""How fast an input block can run in int8 on this CPU: today's design against
+space-to-depth ones, random weights, ONNX Runtime's profiler (issue 25's "network stages at
 >= 50 % of the int8 peak").
 
     python benchmarks/input_block_designs.py [--size 1280x720] [--runs 10] [--out benchmarks/results/input_block_designs]
@@ -17,14 +17,13 @@ writes it, is what each reads; the packing itself is not timed here):
   fastest; 64 gives the output block today's 16 native channels by a depth-to-space.
 
 Each is exported from PyTorch, quantized by ONNX Runtime (QDQ, u8 activations, symmetric s8
-weights, as `jnds calibrate` writes them, the pool rewritten as its depthwise convolution) on random inputs, and run at ORT_ENABLE_ALL on the
-session's threads; the profiler's times of the quantized convolution and pooling nodes are
-summed per run (the input's QuantizeLinear, which the real graph does not have, is left
-out). Random weights: the speed of a design, not its accuracy, which needs training."""
+weights, as `jnds calibrate` writes them, the pool rewritten as its depthwise convolution) on
+random inputs, and run at ORT_ENABLE_ALL on the session's threads; the profiler's medians of
+the quantized convolution and pooling nodes (`runtime.profile.profile_stages`) are summed
+(the input's QuantizeLinear, which the real graph does not have, is left out). Random weights: the speed of a design, not its accuracy, which needs training."""
 
 from __future__ import annotations
 
-import json
 import sys
 import tempfile
 from pathlib import Path
@@ -38,6 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import common  # noqa: E402
 
 from jnds_deploy.calibration import rewrite  # noqa: E402
+from jnds_deploy.runtime.profile import profile_stages  # noqa: E402
 
 COMPUTE = ("Conv", "Pool")  # op types counted: QLinearConv, NhwcQLinearConv, QLinearAveragePool, ...
 
@@ -85,12 +85,13 @@ def quantized(module: nn.Module, shape: tuple[int, ...], folder: Path) -> Path:
 
     float_path, int8_path = folder / "float.onnx", folder / "int8.onnx"
     x = torch.rand(*shape)
-    torch.onnx.export(module.eval(), (x,), str(float_path), input_names=["inputs"], opset_version=17, dynamo=False)
+    # not "inputs": runtime.profile would take a graph input of that name for the packed one
+    torch.onnx.export(module.eval(), (x,), str(float_path), input_names=["x"], opset_version=17, dynamo=False)
     onnx.save(onnx.shape_inference.infer_shapes(onnx.load(str(float_path))), str(float_path))  # the rewrite needs them
 
     class Reader(CalibrationDataReader):
         def __init__(self):
-            self.left = [{"inputs": np.random.default_rng(i).random(shape, np.float32)} for i in range(2)]
+            self.left = [{"x": np.random.default_rng(i).random(shape, np.float32)} for i in range(2)]
 
         def get_next(self):
             return self.left.pop() if self.left else None
@@ -102,33 +103,12 @@ def quantized(module: nn.Module, shape: tuple[int, ...], folder: Path) -> Path:
     return int8_path
 
 
-def profile(path: Path, shape: tuple[int, ...], runs: int, threads: int, folder: Path) -> dict:
-    import onnxruntime as ort
-
-    o = ort.SessionOptions()
-    o.intra_op_num_threads, o.inter_op_num_threads = threads, 1
-    o.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    o.enable_profiling, o.profile_file_prefix = True, str(folder / "profile")
-    s = ort.InferenceSession(str(path), o, providers=["CPUExecutionProvider"])
-    feed = {"inputs": np.random.default_rng(0).random(shape, np.float32)}
-    for _ in range(runs + 1):  # the first is a warm-up
-        s.run(None, feed)
-    events = json.loads(Path(s.end_profiling()).read_text())
-    nodes = [e for e in events if e.get("cat") == "Node" and e["name"].endswith("_kernel_time")]
-    per_run: dict[int, float] = {}
-    ops: dict[str, list[float]] = {}
-    run = -1
-    seen: set[str] = set()
-    for e in nodes:  # a node's name comes again when the next run starts
-        if e["name"] in seen or run < 0:
-            run, seen = run + 1, set()
-        seen.add(e["name"])
-        op = e["args"]["op_name"]
-        if run > 0 and any(k in op for k in COMPUTE):
-            per_run[run] = per_run.get(run, 0.0) + e["dur"] / 1000
-            ops.setdefault(f"{e['name'].removesuffix('_kernel_time')} ({op})", []).append(e["dur"] / 1000)
-    return {"compute_ms": float(np.median(list(per_run.values()))), "runs": len(per_run),
-            "ops": {k: float(np.median(v)) for k, v in ops.items()}}
+def profile(path: Path, shape: tuple[int, ...], runs: int, threads: int) -> dict:
+    """The quantized convolution and pooling nodes' medians (``runtime.profile``), summed."""
+    by_node = profile_stages(path, {"x": np.random.default_rng(0).random(shape, np.float32)}, runs,
+                             threads)["by_node_ms"]
+    ops = {f"{k} ({v['op']})": v["ms"] for k, v in by_node.items() if any(c in v["op"] for c in COMPUTE)}
+    return {"compute_ms": sum(ops.values()), "ops": ops}
 
 
 def main() -> None:
@@ -145,7 +125,7 @@ def main() -> None:
         for name, (module, shape, gmac) in designs(w, h).items():
             folder = Path(tmp) / name
             folder.mkdir()
-            r = profile(quantized(module, shape, folder), shape, args.runs, threads, folder)
+            r = profile(quantized(module, shape, folder), shape, args.runs, threads)
             r.update(gmac=gmac, gmacs=gmac / r["compute_ms"] * 1000)
             r["percent_of_peak"] = 100 * r["gmacs"] / peaks["int8_gmacs"]
             rows[name] = r
@@ -153,7 +133,7 @@ def main() -> None:
              f"Command: `{common.command_line()}`  ", f"Machine: {common.cpu_line(common.machine_info())}; int8 peak "
              f"{peaks['int8_gmacs']:.0f} GMAC/s ({peaks['derivation']}).", "",
              f"{w}x{h}, {threads} threads, ORT_ENABLE_ALL; the profiler's quantized convolution and "
-             f"pooling nodes summed per run, median of {args.runs} runs; the input packing is not "
+             f"pooling nodes, each the median of {args.runs} runs, summed; the input packing is not "
              "included (the timing report counts it in the input block row).", "",
              "| design | GMAC | compute ms | GMAC/s | % of int8 peak | nodes: median ms |",
              "| --- | ---: | ---: | ---: | ---: | --- |"]
