@@ -12,6 +12,10 @@ writes it, is what each reads; the packing itself is not timed here):
   pass); a 1x1 projection 100 -> 32 and a 3x3 32 -> 32 at half resolution, about the same
   MACs a frame (the U-Net reads its 32 channels as they are, no pool; a depth-to-space would
   give the output block 8 native channels);
+- ``space-to-depth, 1x1 to 16 (32), 3x3 to 64, phase mean``: `model.InputBlock`'s
+  ``space_to_depth`` design: today's 16 native channels (a 2x2 block's four in 64) and the
+  U-Net's 16 pooled ones (the four phases' mean, a 1x1 convolution here) from a projection of
+  the 100 channels and one 3x3 convolution at half resolution;
 - ``space-to-depth, one 3x3 to 32`` and ``to 64``: the same 100 channels, one 3x3 convolution
   at half resolution (a 6x6 window of native pixels), more MACs in the kernel MLAS runs
   fastest; 64 gives the output block today's 16 native channels by a depth-to-space.
@@ -62,6 +66,24 @@ class SpaceToDepth(nn.Module):
         return torch.relu(self.conv(torch.relu(self.project(x))))
 
 
+class SpaceToDepthProjected(nn.Module):
+    """`model.InputBlock` with ``input_block="space_to_depth"``: a 1x1 projection 100 -> hidden,
+    a 3x3 hidden -> 64 (today's 16 native channels in 2x2 phases) and the U-Net's input as the
+    mean of the four phases (the pool's values, a 1x1 convolution with fixed weights)."""
+
+    def __init__(self, hidden: int):
+        super().__init__()
+        self.project, self.conv = nn.Conv2d(100, hidden, 1), nn.Conv2d(hidden, 64, 3, padding=1)
+        self.mean = nn.Conv2d(64, 16, 1, bias=False)
+        with torch.no_grad():
+            self.mean.weight.copy_(torch.eye(16).repeat_interleave(4, 1)[:, :, None, None] / 4)
+
+    def forward(self, x):
+        # the phase mean alone out, as `Current` gives the pool alone: the real graph hands the
+        # native features on in u8, channels last (`calibration.block`), not as a float output
+        return self.mean(torch.relu(self.conv(torch.relu(self.project(x)))))
+
+
 class SpaceToDepth3x3(nn.Module):
     def __init__(self, width: int):
         super().__init__()
@@ -77,7 +99,10 @@ def designs(w: int, h: int) -> dict[str, tuple[nn.Module, tuple[int, ...], float
     return {"current": (Current(), (1, 32, h, w), native * (32 * 16 + 16 * 16 * 9) / 1e9),
             "space-to-depth": (SpaceToDepth(), (1, 100, h // 2, w // 2), half * (100 * 32 + 32 * 32 * 9) / 1e9),
             "space-to-depth, one 3x3 to 32": (SpaceToDepth3x3(32), (1, 100, h // 2, w // 2), half * 100 * 32 * 9 / 1e9),
-            "space-to-depth, one 3x3 to 64": (SpaceToDepth3x3(64), (1, 100, h // 2, w // 2), half * 100 * 64 * 9 / 1e9)}
+            "space-to-depth, one 3x3 to 64": (SpaceToDepth3x3(64), (1, 100, h // 2, w // 2), half * 100 * 64 * 9 / 1e9),
+            **{f"space-to-depth, 1x1 to {k}, 3x3 to 64, phase mean": (
+                SpaceToDepthProjected(k), (1, 100, h // 2, w // 2), half * (100 * k + k * 64 * 9 + 64 * 16) / 1e9)
+               for k in (16, 32)}}
 
 
 def quantized(module: nn.Module, shape: tuple[int, ...], folder: Path) -> Path:

@@ -117,7 +117,8 @@ def cmd_train(args) -> int:
                       upsample_root=args.upsample_root,
                       firefly_clamp=args.firefly_clamp, diffuse_fill=args.diffuse_fill,
                       albedo_at_holes=args.albedo_at_holes, guide_albedo=args.guide_albedo,
-                      guide_init=args.guide_init,
+                      guide_init=args.guide_init, input_block=args.input_block, input_hidden=args.input_hidden,
+                      input_fit_steps=args.input_fit_steps,
                       patch=args.patch, unroll=args.unroll, batch=args.batch, fp32_steps=args.fp32_steps,
                       qat_steps=args.qat_steps, lr=args.lr, qat_lr=args.qat_lr, spatial_loss=args.spatial_loss,
                       feature_net=args.feature_net, init=args.init, deepen_blend=args.deepen_blend,
@@ -261,6 +262,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .render.scene import SCENE_KINDS
     from .render.sequence import ENGINES
     from .training.config import GUIDE_INITS, SPATIAL_LOSSES
+    from .model import INPUT_BLOCKS
 
     p = argparse.ArgumentParser(prog="jnds", description="Joint neural denoising and supersampling, deployed.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -355,6 +357,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="how --guide-albedo --init from a checkpoint without the input starts its weights: zero (the "
                         "same outputs), or split (the albedo's weights halved and shared with the guide: the same "
                         "outputs where the two agree, the guide in use from the first step)")
+    t.add_argument("--input-block", choices=INPUT_BLOCKS, default=INPUT_BLOCKS[0],
+                   help="the input block's design (model.ModelConfig.input_block): native, the paper's, or "
+                        "space_to_depth (each 2x2 pixel block as one half-resolution pixel); --init from a "
+                        "checkpoint of the other design fits the new block to its features first")
+    t.add_argument("--input-hidden", type=int, default=32, metavar="C",
+                   help="space_to_depth: the input block's projection width")
+    t.add_argument("--input-fit-steps", type=int, default=800, metavar="N",
+                   help="--init of the other input block design: steps fitting the new block to the old "
+                        "one's features (the rest of the network frozen) before training")
     t.add_argument("--fixed-upsample", action="store_true",
                    help="one learned upsample kernel for every pixel instead of the upsample block's "
                         "per-pixel prediction (no upsample graph; --init from a predicting checkpoint "

@@ -39,6 +39,9 @@ from .layout import CURRENT, HISTORY, N_CURRENT, N_GUIDE, N_HISTORY, RADIANCE, U
 
 
 
+INPUT_BLOCKS = ("native", "space_to_depth")
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """Widths and depths of the network. Presets: ``ModelConfig.preset("small")``."""
@@ -74,6 +77,14 @@ class ModelConfig:
     # reflects, where the albedo is 0 and the reflection lives only in the noisy specular
     # layer (docs/model-gap.md, "Where the gap is"). A weight: three more projection inputs
     guide_albedo: bool = False
+    # the input block's design (``INPUT_BLOCKS``): "native", the paper's (a 1x1 projection and a
+    # 3x3 convolution at native resolution, then the 2x2 average pool); "space_to_depth", each
+    # 2x2 block of input pixels as one pixel of 4x the channels at half resolution, a 1x1
+    # projection to ``input_hidden`` and a 3x3 convolution to the four pixels' ``input_width``
+    # features: the same native features and pooled ones, from fewer, wider convolutions that
+    # int8 kernels run nearer their peak (benchmarks/results/input_block_designs.md)
+    input_block: str = "native"
+    input_hidden: int = 32  # "space_to_depth" only: the projection's width
 
     def __post_init__(self):
         object.__setattr__(self, "encoder_widths", tuple(self.encoder_widths))
@@ -83,6 +94,8 @@ class ModelConfig:
         if not 0 <= self.filter_levels <= depth + 1:
             raise ConfigError(f"filter_levels must be in [0, {depth + 1}] for U-Net depth {depth}, "
                              f"got {self.filter_levels}")
+        if self.input_block not in INPUT_BLOCKS:
+            raise ConfigError(f"input_block must be one of {', '.join(INPUT_BLOCKS)}, got {self.input_block!r}")
         if self.upsample_root not in UPSAMPLE_ROOTS:
             raise ConfigError(f"upsample_root must be one of {UPSAMPLE_ROOTS}, got {self.upsample_root!r}")
         if not (self.firefly_clamp == 0 or self.firefly_clamp >= 1):
@@ -305,10 +318,20 @@ def _split(t: torch.Tensor, sizes: list[tuple[str, int]]) -> dict[str, torch.Ten
 
 
 class InputBlock(nn.Module):
+    """``cfg.input_block`` "native" (the paper's) or "space_to_depth" (``ModelConfig``): the
+    same two outputs either way, the native features and their 2x2 average."""
+
     def __init__(self, cfg: ModelConfig):
         super().__init__()
-        self.project = QConv(N_CURRENT + N_HISTORY + (N_GUIDE if cfg.guide_albedo else 0), cfg.input_width, 1)
-        self.conv = QConv(cfg.input_width, cfg.input_width, 3)
+        channels = N_CURRENT + N_HISTORY + (N_GUIDE if cfg.guide_albedo else 0)
+        self.space_to_depth = cfg.input_block == "space_to_depth"
+        if self.space_to_depth:
+            # pixel_unshuffle's channel c * 4 + phase: each input channel's 2x2 block together
+            self.project = QConv(4 * channels, cfg.input_hidden, 1)
+            self.conv = QConv(cfg.input_hidden, 4 * cfg.input_width, 3)
+        else:
+            self.project = QConv(channels, cfg.input_width, 1)
+            self.conv = QConv(cfg.input_width, cfg.input_width, 3)
 
     def forward(self, current: torch.Tensor, history: torch.Tensor,
                 guide: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -317,7 +340,11 @@ class InputBlock(nn.Module):
         the output block, pooled features for the U-Net)."""
         parts = [tonemap_inputs(current, CURRENT), tonemap_inputs(history, HISTORY)]
         x = torch.cat(parts + ([guide] if guide is not None else []), 1)
-        f = F.relu(self.conv(F.relu(self.project(x))))
+        if self.space_to_depth:
+            # features c * 4 + phase of each half-resolution pixel: pixel_shuffle's order
+            f = F.pixel_shuffle(F.relu(self.conv(F.relu(self.project(F.pixel_unshuffle(x, 2))))), 2)
+        else:
+            f = F.relu(self.conv(F.relu(self.project(x))))
         return f, filters.downsample(f)
 
 

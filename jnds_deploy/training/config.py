@@ -26,6 +26,12 @@ class TrainConfig:
     # input with zero weights, or with "split" half of the albedo's (train._guided)
     guide_albedo: bool = False
     guide_init: str = "zero"
+    # ModelConfig.input_block / input_hidden of the trained model; --init from a checkpoint of
+    # the other design starts the new input block fitted to the old one's features over
+    # ``input_fit_steps`` steps (train._fit_input_block), the rest of the network as it was
+    input_block: str = "native"
+    input_hidden: int = 32
+    input_fit_steps: int = 800
     # one learned upsample kernel for every pixel (ModelConfig.upsample_width 0)
     fixed_upsample: bool = False
     patch: int = 64  # native patch side, a multiple of the model's pad multiple
@@ -88,7 +94,8 @@ class TrainConfig:
             fixed["output_width"] = self.output_width
         return ModelConfig.preset(self.preset, upsample_root=self.upsample_root, firefly_clamp=self.firefly_clamp,
                                   diffuse_fill=self.diffuse_fill, albedo_at_holes=self.albedo_at_holes,
-                                  guide_albedo=self.guide_albedo, **fixed)
+                                  guide_albedo=self.guide_albedo, input_block=self.input_block,
+                                  input_hidden=self.input_hidden, **fixed)
 
     def __post_init__(self):
         if self.spatial_loss not in SPATIAL_LOSSES:
@@ -112,5 +119,7 @@ class TrainConfig:
             raise ConfigError(f"warmup_steps must be in [0, fp32_steps={self.fp32_steps}], got {self.warmup_steps}")
         if self.burn_in < 0:
             raise ConfigError(f"burn_in must be >= 0 frames, got {self.burn_in}")
+        if self.input_fit_steps < 0:
+            raise ConfigError(f"input_fit_steps must be >= 0, got {self.input_fit_steps}")
         if not 0 <= self.w_spatial <= 1:
             raise ConfigError(f"w_spatial must be in [0, 1], got {self.w_spatial}")

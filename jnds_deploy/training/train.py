@@ -24,7 +24,7 @@ from ..checkpoint import read_checkpoint
 from ..errors import ConfigError, TrainError
 from ..io import find_sequences
 from ..layout import channels
-from ..model import JNDS, N_GUIDE, ActQuant, ModelConfig, quant_ranges, set_observing, set_quantization
+from ..model import JNDS, N_GUIDE, ActQuant, ModelConfig, QConv, quant_ranges, set_observing, set_quantization
 from .config import TrainConfig
 from .data import Augment, PatchSampler, SequenceArrays, load_sequence, load_split
 from .evaluate import evaluate_model
@@ -136,6 +136,8 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
                            balance_renderers=cfg.balance_renderers, references=cfg.teacher is None,
                            guide=model.cfg.guide_albedo)
     loss_fn = Loss(cfg, model.cfg.scale)
+    if state.step == 0 and not ckpt.exists() and (old := _other_input_block(cfg, model)) is not None:
+        _fit_input_block(model, old, sampler, cfg, emit_to=run / "log.jsonl")
     teacher = _teacher(cfg, model.cfg) if cfg.teacher else None
     if cfg.channels_last:
         model.to(memory_format=torch.channels_last)
@@ -217,6 +219,74 @@ def _teacher(cfg: TrainConfig, student: ModelConfig) -> JNDS:
     return teacher
 
 
+def _other_input_block(cfg: TrainConfig, model: JNDS) -> JNDS | None:
+    """``cfg.init`` as a model (float, eval mode) where its input block's design is not
+    ``model``'s (``ModelConfig.input_block``), else None."""
+    from ..checkpoint import load_model
+
+    if not cfg.init or ModelConfig(**read_checkpoint(cfg.init)["model_config"]).input_block == model.cfg.input_block:
+        return None
+    old = load_model(cfg.init)
+    set_quantization(old, False)
+    return old.to(cfg.device)
+
+
+def _fit_input_block(model: JNDS, old: JNDS, sampler: PatchSampler, cfg: TrainConfig, emit_to: Path,
+                     reuse: int = 4) -> float:
+    """Fit ``model``'s input block to ``old``'s native features (mean squared error; the pooled
+    ones are their average either way) on the inputs ``old``'s input block sees in training
+    windows, its own recurrence making the history; each window's inputs serve ``reuse``
+    steps. Only the input block's weights change. Returns the last relative RMS error."""
+    captured = []
+    hook = old.network.input_block.register_forward_pre_hook(lambda mod, args: captured.append(args))
+
+    def window():
+        captured.clear()
+        with torch.no_grad():
+            run_unroll(old, sampler.batch(cfg.batch, cfg.device))
+            args = [torch.cat([a[i] for a in captured]) if captured[0][i] is not None else None for i in range(3)]
+            return args, old.network.input_block(*args)[0]
+
+    block = model.network.input_block
+    quantized = any(m.quantize for m in block.modules() if isinstance(m, QConv))
+    set_quantization(block, False)  # fitted in float; a QAT run's ranges are observed after
+    opt = torch.optim.Adam(block.parameters(), lr=1e-3)
+    steps = cfg.input_fit_steps
+    rel = float("nan")
+    with emit_to.open("a") as log:
+        for step in range(steps):
+            for g in opt.param_groups:  # exponential decay to a tenth
+                g["lr"] = 1e-3 * 0.1 ** (step / max(steps, 1))
+            if step % reuse == 0:
+                args, target = window()
+            loss = torch.nn.functional.mse_loss(block(*args)[0], target)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            rel = float(loss.detach().sqrt() / target.pow(2).mean().sqrt())
+            if (step + 1) % 50 == 0 or step + 1 == steps:
+                log.write(json.dumps({"event": "input_fit", "fit_step": step + 1, "mse": float(loss.detach()),
+                                      "relative_rms": rel, "time": time.time()}) + "\n")
+                log.flush()
+        if quantized:
+            # the rest of the network keeps its learned ranges; the new block's are observed
+            # (min/max) on windows as ``_start_qat`` observes a whole network's
+            for m in block.modules():
+                if isinstance(m, ActQuant):
+                    m.lo.data.fill_(0.0)
+                    m.hi.data.fill_(1e-3)
+            set_observing(block, True)
+            with torch.no_grad():
+                for _ in range(cfg.observe_batches):
+                    block(*window()[0])
+            set_observing(block, False)
+            set_quantization(block, True)
+            log.write(json.dumps({"event": "input_fit_ranges", "ranges": quant_ranges(block),
+                                  "time": time.time()}) + "\n")
+    hook.remove()
+    return rel
+
+
 def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
     """Weights (and learned activation ranges) of ``cfg.init`` for a new run. A QAT-trained
     checkpoint with ``fp32_steps == 0`` goes on in the QAT phase with its ranges; with fp32
@@ -232,6 +302,11 @@ def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
         init_cfg, weights = _guided(init_cfg, weights, cfg.guide_init)
     if model.cfg.fixed_upsample and not init_cfg.fixed_upsample:
         init_cfg, weights = _without_upsample_block(init_cfg, weights)
+    if init_cfg.input_block != model.cfg.input_block:
+        # the other design's input block: the new one as initialized, fitted in train()
+        fresh = {k: v for k, v in model.state_dict().items() if k.startswith("network.input_block.")}
+        weights = {**{k: v for k, v in weights.items() if not k.startswith("network.input_block.")}, **fresh}
+        init_cfg = replace(init_cfg, input_block=model.cfg.input_block, input_hidden=model.cfg.input_hidden)
     if init_cfg != model.cfg and _widens(init_cfg, model.cfg):
         init_cfg, weights = model.cfg, _widened(init_cfg, weights, model)
     if init_cfg != model.cfg and _narrows(init_cfg, model.cfg):
