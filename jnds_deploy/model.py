@@ -317,6 +317,23 @@ def _split(t: torch.Tensor, sizes: list[tuple[str, int]]) -> dict[str, torch.Ten
     return {n: p for (n, _), p in zip(sizes, parts)}
 
 
+class PhaseMean(nn.Module):
+    """The 2x2 average of native features held as four phases (pixel_shuffle's order,
+    channel c * 4 + phase) at half resolution: a 1x1 convolution with fixed weights, which the
+    int8 graph runs as one convolution where a depth-to-space and a pool would be two passes.
+    Not trained (a buffer, not saved)."""
+
+    def __init__(self, width: int):
+        super().__init__()
+        mean = torch.zeros(width, 4 * width, 1, 1)
+        for c in range(width):
+            mean[c, 4 * c:4 * c + 4] = 0.25
+        self.register_buffer("weight", mean, persistent=False)
+
+    def forward(self, f: torch.Tensor) -> torch.Tensor:
+        return F.conv2d(f, self.weight)
+
+
 class InputBlock(nn.Module):
     """``cfg.input_block`` "native" (the paper's) or "space_to_depth" (``ModelConfig``): the
     same two outputs either way, the native features and their 2x2 average."""
@@ -329,6 +346,7 @@ class InputBlock(nn.Module):
             # pixel_unshuffle's channel c * 4 + phase: each input channel's 2x2 block together
             self.project = QConv(4 * channels, cfg.input_hidden, 1)
             self.conv = QConv(cfg.input_hidden, 4 * cfg.input_width, 3)
+            self.mean = PhaseMean(cfg.input_width)
         else:
             self.project = QConv(channels, cfg.input_width, 1)
             self.conv = QConv(cfg.input_width, cfg.input_width, 3)
@@ -342,9 +360,9 @@ class InputBlock(nn.Module):
         x = torch.cat(parts + ([guide] if guide is not None else []), 1)
         if self.space_to_depth:
             # features c * 4 + phase of each half-resolution pixel: pixel_shuffle's order
-            f = F.pixel_shuffle(F.relu(self.conv(F.relu(self.project(F.pixel_unshuffle(x, 2))))), 2)
-        else:
-            f = F.relu(self.conv(F.relu(self.project(x))))
+            f = F.relu(self.conv(F.relu(self.project(F.pixel_unshuffle(x, 2)))))
+            return F.pixel_shuffle(f, 2), self.mean(f)
+        f = F.relu(self.conv(F.relu(self.project(x))))
         return f, filters.downsample(f)
 
 

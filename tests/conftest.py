@@ -116,6 +116,12 @@ def tiny_artifacts_guided(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def tiny_artifacts_s2d(tmp_path_factory):
+    """The same as ``tiny_artifacts`` for a network with the space-to-depth input block."""
+    return _tiny_artifacts(tmp_path_factory, input_block="space_to_depth", input_hidden=8)
+
+
+@pytest.fixture(scope="session")
 def tiny_artifacts(tmp_path_factory):
     """fp32 artifacts of a randomly initialized `tiny` model (heads perturbed away from the
     identity init so every path matters), and the model."""

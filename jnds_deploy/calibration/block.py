@@ -95,6 +95,19 @@ def cut_blocks(src: Path, dst: Path, multiple: int) -> BlockLayout:
         if concat.op_type != "Concat" or len(concat.input) != 2 or concat.input[0] != up_dq2.output[0]:
             raise CalibrationError(f"{src.name}: {resize.name} does not feed a concatenation as its first input")
         skip_dq = producers.get(concat.input[1])
+        skip_q = producers.get(skip_dq.input[0]) if skip_dq is not None else None
+        d2s = producers.get(skip_q.input[0]) if skip_q is not None and skip_q.op_type == "QuantizeLinear" else None
+        phases = 1
+        if d2s is not None and d2s.op_type == "DepthToSpace":
+            # a space-to-depth input block's native features (model.InputBlock): their u8
+            # phases leave the graph as they are, and block_input's pass does the
+            # depth-to-space (a float one in the graph, between a dequantization and a
+            # quantization of every feature)
+            attrs = {a.name: helper.get_attribute_value(a) for a in d2s.attribute}
+            skip_dq, phases = producers.get(d2s.input[0]), 2
+            if attrs.get("blocksize") != 2 or attrs.get("mode", b"DCR") != b"CRD" or skip_dq is None:
+                raise CalibrationError(f"{src.name}: {d2s.name} is not a quantized 2x2 depth-to-space "
+                                       "(CRD, pixel_shuffle's order)")
         cat_q = _single(consumers.get(concat.output[0], []), f"quantization of {concat.name}", src)
         cat_dq = _single(consumers.get(cat_q.output[0], []), f"dequantization of {concat.name}", src)
         if (any(n is None or n.op_type != "DequantizeLinear" for n in (up_dq, skip_dq, up_dq2, cat_dq))
@@ -109,7 +122,7 @@ def cut_blocks(src: Path, dst: Path, multiple: int) -> BlockLayout:
         width = int(numpy_helper.to_array(inits[weights.input[0]]).shape[1])
         entry = f"block.{k}"
         cut = Cut(entry, f"{entry}.up", f"{entry}.skip", qparams(up_dq), qparams(skip_dq), qparams(cat_q),
-                  stage_of(concat.name))
+                  stage_of(concat.name), phases)
         prefix = concat.name.rsplit("/", 1)[0]  # named in its stage (runtime.profile's stages)
         added += [helper.make_node("Transpose", [up_dq.input[0]], [cut.up], name=f"{prefix}/{cut.up}_Transpose",
                                    perm=[0, 2, 3, 1]),

@@ -9,7 +9,9 @@ them off: the int8 graph's input is ``inputs``, u8 (N, H, W, ``CHANNELS``), the
 preprocessed inputs already quantized at the scale and zero point the projection
 convolution reads them with, channels last, padded to a multiple of 8 (MLAS's fast int8
 convolution wants input channels in multiples of 4; the padding's weights are 0).
-``runtime.reformat.pack_inputs`` computes it in one pass over the frame.
+``runtime.reformat.pack_inputs`` computes it in one pass over the frame. A space-to-depth
+input block (``model.InputBlock``) projects each 2x2 block of pixels: its ``inputs`` is
+(N, H/2, W/2, 104), the four pixels of each channel side by side (``InputsLayout.block``).
 
 The channels are placed so that no two neighbours can overflow a 16-bit sum
 (``safe_slots``): on AVX2 without VNNI, MLAS multiplies u8 activations by s8 weights with
@@ -55,11 +57,14 @@ def quantize_inputs(src: Path, dst: Path) -> InputsLayout:
     if zp.dtype != np.uint8:
         raise CalibrationError(f"{src.name}: the input projection reads {zp.dtype} activations, expected uint8")
     w = numpy_helper.to_array(inits[w_dq.input[0]])
-    try:  # safe_slots refuses a projection of neither 25 nor 28 inputs (runtime.reformat.preprocess)
-        slots = safe_slots(w[:, :, 0, 0], scale, int(zp))
+    # a space-to-depth input block (model.InputBlock) projects 2x2 blocks: 4x the channels
+    block = 2 if w.shape[1] > CHANNELS else 1
+    channels = -(-w.shape[1] // 8) * 8 if block == 2 else CHANNELS
+    try:  # safe_slots refuses a projection of neither 25 nor 28 inputs, or 4x (runtime.reformat.preprocess)
+        slots = safe_slots(w[:, :, 0, 0], scale, int(zp), channels)
     except ArtifactError as e:
         raise CalibrationError(f"{src.name}: {e}") from e
-    padded = np.zeros((w.shape[0], CHANNELS, *w.shape[2:]), w.dtype)
+    padded = np.zeros((w.shape[0], channels, *w.shape[2:]), w.dtype)
     padded[:, slots] = w
     w = padded
     g.initializer.append(numpy_helper.from_array(w, w_dq.input[0] + "_padded"))
@@ -71,8 +76,8 @@ def quantize_inputs(src: Path, dst: Path) -> InputsLayout:
     g.node.insert(at, helper.make_node("Transpose", [INPUTS], [f"{INPUTS}_nchw"], name=f"{prefix}/inputs_Transpose",
                                        perm=[0, 3, 1, 2]))
     conv.input[0] += "_packed"
-    g.input.append(helper.make_tensor_value_info(INPUTS, onnx.TensorProto.UINT8, ["N", "H", "W", CHANNELS]))
-    layout = InputsLayout(scale, int(zp), CHANNELS, tuple(slots))
+    g.input.append(helper.make_tensor_value_info(INPUTS, onnx.TensorProto.UINT8, ["N", "H", "W", channels]))
+    layout = InputsLayout(scale, int(zp), channels, tuple(slots), block)
     save_extracted(model, dst, [INPUTS], [o.name for o in g.output], {INPUTS_KEY: layout.to_json()})
     return layout
 

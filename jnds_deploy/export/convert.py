@@ -18,6 +18,7 @@ from ..model import CURRENT, HISTORY, N_CURRENT, N_GUIDE, N_HISTORY, JNDS, quant
 from .prune import validate_variant, write_variants
 
 OPSET = 17
+FIXED_CONVS = ("/input_block/mean/Conv",)  # Conv nodes of no QConv (model.PhaseMean)
 
 
 @dataclass(frozen=True)
@@ -180,7 +181,9 @@ def qat_ranges(model: JNDS, graphs: dict[str, Graph], out: Path, feeds: dict[str
             block(*feeds[name])
         for h in hooks:
             h.remove()
-        nodes = [n for n in onnx.load(str(out / g.file)).graph.node if n.op_type == "Conv"]
+        # a fixed convolution (model.PhaseMean) learned no range: its input is calibrated
+        nodes = [n for n in onnx.load(str(out / g.file)).graph.node
+                 if n.op_type == "Conv" and not n.name.endswith(FIXED_CONVS)]
         bad = [f"{n.name} <-> {m}" for n, m in zip(nodes, order) if not n.name.endswith(f"/{m.split('.')[-1]}/Conv")]
         if len(nodes) != len(order) or bad:
             raise ValidationError([{"graph": g.file, "output": "Conv nodes", "ok": False,

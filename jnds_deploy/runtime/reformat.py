@@ -136,12 +136,14 @@ _GUIDED = np.append(_PREPROCESS, np.zeros(N_GUIDE, np.int64))
 
 def preprocess(channels: int) -> np.ndarray:
     """``_PREPROCESS`` for a projection of ``channels`` inputs: current and history's, and
-    the guide albedo's after them where it reads one."""
+    the guide albedo's after them where it reads one; or each of those four times, the 2x2
+    pixels of a space-to-depth input block (``model.InputBlock``), channel c's as 4c..4c+3."""
     for kinds in (_PREPROCESS, _GUIDED):
-        if channels == len(kinds):
-            return kinds
+        for block in (1, 2):
+            if channels == len(kinds) * block * block:
+                return np.repeat(kinds, block * block)
     raise ArtifactError(f"an input projection reads {len(_PREPROCESS)} channels (current, history) or "
-                        f"{len(_GUIDED)} (and the guide albedo), not {channels}")
+                        f"{len(_GUIDED)} (and the guide albedo), or 4x either (in 2x2 blocks), not {channels}")
 
 
 @dataclass(frozen=True)
@@ -157,6 +159,10 @@ class InputsLayout:
     # calibration.inputs chooses it so that no two neighbours can overflow the 16-bit sums of
     # AVX2's u8 x s8 multiply (benchmarks/results/int8_exposure.md)
     slots: tuple[int, ...] = ()
+    # 2: a space-to-depth input block's (model.InputBlock): each 2x2 block of pixels is one
+    # pixel of ``inputs`` (1, H/2, W/2, channels), channel c's four pixels (row-major) the
+    # inputs 4c..4c+3 that ``slots`` places
+    block: int = 1
 
     def __post_init__(self):
         object.__setattr__(self, "slots", tuple(int(c) for c in self.slots))
@@ -164,27 +170,30 @@ class InputsLayout:
     @property
     def order(self) -> np.ndarray:
         """``slots``, or the identity where empty."""
-        return np.array(self.slots or range(len(_PREPROCESS)), np.int64)
+        return np.array(self.slots or range(len(_PREPROCESS) * self.block ** 2), np.int64)
 
     @property
     def guided(self) -> bool:
         """The graph reads the guide albedo (after current and history)."""
-        return len(self.order) == len(_GUIDED)
+        return len(self.order) == len(_GUIDED) * self.block ** 2
 
     def to_json(self) -> str:
         return json.dumps({"scale": self.scale, "zero_point": self.zero_point, "channels": self.channels,
-                           "slots": list(self.slots)})
+                           "slots": list(self.slots), "block": self.block})
 
     @classmethod
     def from_json(cls, text: str) -> "InputsLayout":
         try:
             d = json.loads(text)
-            layout = cls(float(d["scale"]), int(d["zero_point"]), int(d["channels"]), tuple(d.get("slots", ())))
+            layout = cls(float(d["scale"]), int(d["zero_point"]), int(d["channels"]), tuple(d.get("slots", ())),
+                         int(d.get("block", 1)))
         except (ValueError, KeyError, TypeError) as exc:
             raise ArtifactError(f"inputs metadata {INPUTS_KEY!r} malformed ({exc!r})") from exc
         order = layout.order
         if (layout.channels < len(order) or not layout.scale > 0 or not 0 <= layout.zero_point <= 255
-                or len(order) not in (len(_PREPROCESS), len(_GUIDED)) or len(set(order.tolist())) != len(order)
+                or layout.block not in (1, 2)
+                or len(order) not in (len(_PREPROCESS) * layout.block ** 2, len(_GUIDED) * layout.block ** 2)
+                or len(set(order.tolist())) != len(order)
                 or not (0 <= order.min() and order.max() < layout.channels)):
             raise ArtifactError(f"inputs metadata {INPUTS_KEY!r}: {layout}")
         return layout
@@ -251,31 +260,80 @@ def _pack(current, history, guide, kinds, scale, zero_point, first, at, slots, p
                 for i in range(w):
                     q = np.rint((src[i] * a + b) / scale) + zp
                     row[i] = np.uint8(min(max(q, lo), hi))
-        for j in range(pads.shape[0]):
-            pad = codes[pads[j]]
+        _store_pixels(codes, pads, zero_point, out[0, y])
+
+
+@njit(inline="always")
+def _store_pixels(codes, pads, zero_point, out_row):
+    # a row's codes (C, w), the padding slots at the zero point, into its pixels (w, C)
+    C, w = codes.shape
+    for j in range(pads.shape[0]):
+        pad = codes[pads[j]]
+        for i in range(w):
+            pad[i] = np.uint8(zero_point)
+    if C % 8 == 0:
+        # eight channels of a pixel gathered into one 64-bit word, one store for eight
+        # bytes (x86 is little-endian: channel c is byte c % 8 of its word)
+        words, G = out_row.reshape(w * C).view(np.uint64), C // 8
+        for g in range(G):
+            c = 8 * g
             for i in range(w):
-                pad[i] = np.uint8(zero_point)
-        if C % 8 == 0:
-            # eight channels of a pixel gathered into one 64-bit word, one store for eight
-            # bytes (x86 is little-endian: channel c is byte c % 8 of its word)
-            words, G = out[0, y].reshape(w * C).view(np.uint64), C // 8
-            for g in range(G):
-                c = 8 * g
+                words[i * G + g] = (
+                    np.uint64(codes[c, i]) | (np.uint64(codes[c + 1, i]) << np.uint64(8))
+                    | (np.uint64(codes[c + 2, i]) << np.uint64(16)) | (np.uint64(codes[c + 3, i]) << np.uint64(24))
+                    | (np.uint64(codes[c + 4, i]) << np.uint64(32)) | (np.uint64(codes[c + 5, i]) << np.uint64(40))
+                    | (np.uint64(codes[c + 6, i]) << np.uint64(48)) | (np.uint64(codes[c + 7, i]) << np.uint64(56)))
+    else:
+        for i in range(w):
+            for c in range(C):
+                out_row[i, c] = codes[c, i]
+
+
+@njit(parallel=True, cache=True)
+def _pack_blocks(current, history, guide, kinds, scale, zero_point, first, at, slots, pads, out):
+    # ``_pack`` for a space-to-depth input block: output row y from input rows 2y and 2y + 1,
+    # channel c's pixel (2y + py, 2x + px) to slot slots[4c + 2py + px] of pixel x. Its own
+    # loops rather than a block size in ``_pack``'s: a stride only known at run time there
+    # would cost the shipped design's packing its contiguous reads
+    nc, nh = current.shape[0], history.shape[0]
+    zp = np.float32(zero_point)
+    half, top = np.float32(0.5), np.float32(HDR_MAX)
+    lo, hi = np.float32(0), np.float32(255)
+    w, C = out.shape[2], out.shape[3]
+    for y in prange(out.shape[1]):
+        codes = np.empty((C, w), np.uint8)
+        line = np.empty(2 * w, np.uint8)
+        for c in range(kinds.shape[0] // 4):
+            k = kinds[4 * c]
+            a = half if k == 2 else np.float32(1)
+            b = half if k == 2 else lo
+            for py in range(2):
+                yy = 2 * y + py
+                src = current[c, yy] if c < nc else history[c - nc, yy] if c < nc + nh else guide[c - nc - nh, yy]
+                # the input row read in order, as ``_pack`` reads it, then dealt out to the
+                # two pixels' slots: read at a stride of 2, the affine loops stayed scalar and
+                # the packing took half as long again (docs/performance.md, stop 73)
+                if k == 1:  # tonemap, through the tables (``_pack``)
+                    for i in range(2 * w):
+                        v = min(max(src[i], lo), top)
+                        q = np.int64(first[np.int64((np.float32(v).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 15)])
+                        q += np.int64(v >= at[q + 1])
+                        line[i] = np.uint8(q)
+                else:
+                    for i in range(2 * w):
+                        q = np.rint((src[i] * a + b) / scale) + zp
+                        line[i] = np.uint8(min(max(q, lo), hi))
+                even, odd = codes[slots[4 * c + 2 * py]], codes[slots[4 * c + 2 * py + 1]]
                 for i in range(w):
-                    words[i * G + g] = (
-                        np.uint64(codes[c, i]) | (np.uint64(codes[c + 1, i]) << np.uint64(8))
-                        | (np.uint64(codes[c + 2, i]) << np.uint64(16)) | (np.uint64(codes[c + 3, i]) << np.uint64(24))
-                        | (np.uint64(codes[c + 4, i]) << np.uint64(32)) | (np.uint64(codes[c + 5, i]) << np.uint64(40))
-                        | (np.uint64(codes[c + 6, i]) << np.uint64(48)) | (np.uint64(codes[c + 7, i]) << np.uint64(56)))
-        else:
-            for i in range(w):
-                for c in range(C):
-                    out[0, y, i, c] = codes[c, i]
+                    even[i] = line[2 * i]
+                    odd[i] = line[2 * i + 1]
+        _store_pixels(codes, pads, zero_point, out[0, y])
 
 
 def pack_inputs(current: np.ndarray, history: np.ndarray, layout: InputsLayout,
                 guide: np.ndarray | None = None) -> np.ndarray:
-    """The int8 network graph's ``inputs`` (1, H, W, channels) u8 from its float ``current``
+    """The int8 network graph's ``inputs`` (1, H, W, channels) u8 (H/2, W/2 in 2x2 blocks,
+    ``InputsLayout.block``) from its float ``current``
     (1, 13, H, W) and ``history`` (1, 12, H, W), linear as the float graph takes them (and
     ``guide`` (1, 3, H, W), the guide albedo, for a graph that reads it):
     ``model.tonemap_inputs`` of both, concatenated (the guide after them, as it is),
@@ -284,12 +342,16 @@ def pack_inputs(current: np.ndarray, history: np.ndarray, layout: InputsLayout,
     _, _, h, w = current.shape
     if (guide is not None) != layout.guided:
         raise ArtifactError(f"the int8 network graph {'reads' if layout.guided else 'has no'} guide albedo input")
+    b = layout.block
+    if h % b or w % b:
+        raise ArtifactError(f"the int8 network graph reads {b}x{b} pixel blocks: a {w}x{h} frame is not made of them")
     guide = np.empty((0, h, w), np.float32) if guide is None else np.ascontiguousarray(guide[0], np.float32)
-    out = np.empty((1, h, w, layout.channels), np.uint8)
+    out = np.empty((1, h // b, w // b, layout.channels), np.uint8)
     first, at = _tables(layout)
     slots, pads = _placement(layout)
-    _pack(np.ascontiguousarray(current[0], np.float32), np.ascontiguousarray(history[0], np.float32), guide,
-          preprocess(len(slots)), np.float32(layout.scale), layout.zero_point, first, at, slots, pads, out)
+    (_pack if b == 1 else _pack_blocks)(
+        np.ascontiguousarray(current[0], np.float32), np.ascontiguousarray(history[0], np.float32), guide,
+        preprocess(len(slots)), np.float32(layout.scale), layout.zero_point, first, at, slots, pads, out)
     return out
 
 
@@ -322,6 +384,10 @@ class Cut:
     skip_q: tuple[float, int]
     entry_q: tuple[float, int]
     stage: str = ""  # the paper's stage it belongs to (runtime.profile.STAGES)
+    # 2: ``skip`` holds the native features as 2x2 phases at half resolution, (1, H/2, W/2,
+    # 4 Cs), channel c's pixel (2y + py, 2x + px) at 4c + 2py + px (a space-to-depth input
+    # block's, model.InputBlock): the depth-to-space is done in ``block_input``'s pass
+    skip_phases: int = 1
 
 
 @dataclass(frozen=True)
@@ -335,7 +401,8 @@ class BlockLayout:
 
     def to_json(self) -> str:
         return json.dumps({"cuts": [{"entry": c.entry, "up": c.up, "skip": c.skip, "up_q": list(c.up_q),
-                                     "skip_q": list(c.skip_q), "entry_q": list(c.entry_q), "stage": c.stage}
+                                     "skip_q": list(c.skip_q), "entry_q": list(c.entry_q), "stage": c.stage,
+                                     "skip_phases": c.skip_phases}
                                     for c in self.cuts],
                            "segments": [[e, list(o)] for e, o in self.segments]})
 
@@ -345,14 +412,14 @@ class BlockLayout:
             d = json.loads(text)
             cuts = tuple(Cut(str(c["entry"]), str(c["up"]), str(c["skip"]),
                              *((float(c[k][0]), int(c[k][1])) for k in ("up_q", "skip_q", "entry_q")),
-                             str(c.get("stage", ""))) for c in d["cuts"])
+                             str(c.get("stage", "")), int(c.get("skip_phases", 1))) for c in d["cuts"])
             layout = cls(cuts, tuple((str(e), tuple(str(n) for n in o)) for e, o in d["segments"]))
         except (ValueError, KeyError, TypeError, IndexError) as exc:
             raise ArtifactError(f"block metadata {BLOCK_KEY!r} malformed ({exc!r})") from exc
         entries = [e for e, _ in layout.segments]
         made = {n for _, o in layout.segments for n in o}
         if (entries[:1] != [INPUTS] or sorted(entries[1:]) != sorted(c.entry for c in layout.cuts)
-                or not all({c.up, c.skip} <= made for c in layout.cuts)
+                or not all({c.up, c.skip} <= made and c.skip_phases in (1, 2) for c in layout.cuts)
                 or not all(s > 0 and 0 <= z <= 255 for c in layout.cuts for s, z in (c.up_q, c.skip_q, c.entry_q))):
             raise ArtifactError(f"block metadata {BLOCK_KEY!r}: {layout}")
         return layout
@@ -370,7 +437,7 @@ class BlockLayout:
 
 
 @njit(parallel=True, cache=True)
-def _upsample_concat(dec, nat, sd, zd, sn, zn, sb, zb, out):
+def _upsample_concat(dec, nat, sd, zd, sn, zn, sb, zb, phases, out):
     # ONNX Resize's linear mode with half-pixel centres at 2x, taps clamped to the edge,
     # computed from the u8 codes and rounded straight to the block's scale (ties to even,
     # saturated, as QuantizeLinear): the float graph's DequantizeLinear, Resize,
@@ -382,7 +449,7 @@ def _upsample_concat(dec, nat, sd, zd, sn, zn, sb, zb, out):
     # rounds the same way. Bit-equal to taking the four taps at each output in float, 1.8x
     # faster on a Zen 3 (tests/runtime/test_reformat.py; docs/performance.md, stop 58)
     h, w, cd = dec.shape
-    H, W, cn = nat.shape
+    H, W, cn = 2 * h, 2 * w, nat.shape[2] // (phases * phases)
     kd16 = np.float32(np.float32(sd / sb) / np.float32(16))
     kn = np.float32(sn / sb)
     zd16, znf, zbf = np.float32(16 * zd), np.float32(zn), np.float32(zb)
@@ -402,19 +469,27 @@ def _upsample_concat(dec, nat, sd, zd, sn, zn, sb, zb, out):
             o = out[0, y, x]
             for c in range(cd):
                 o[c] = np.uint8(min(max(np.rint((wx * ca[c] + (four - wx) * cb[c] - zd16) * kd16) + zbf, lo), hi))
-            n = nat[y, x]
-            for c in range(cn):
-                o[cd + c] = np.uint8(min(max(np.rint((np.float32(n[c]) - znf) * kn) + zbf, lo), hi))
+            if phases == 1:
+                n = nat[y, x]
+                for c in range(cn):
+                    o[cd + c] = np.uint8(min(max(np.rint((np.float32(n[c]) - znf) * kn) + zbf, lo), hi))
+            else:  # the depth-to-space: pixel (y, x) is phase 2 (y % 2) + x % 2 of (y // 2, x // 2)
+                n, p = nat[y // 2, x // 2], 2 * (y % 2) + x % 2
+                for c in range(cn):
+                    o[cd + c] = np.uint8(min(max(np.rint((np.float32(n[4 * c + p]) - znf) * kn) + zbf, lo), hi))
 
 
 def block_input(up: np.ndarray, skip: np.ndarray, cut: Cut) -> np.ndarray:
     """A cut's ``entry`` (1, H, W, Cu + Cs) u8 from its outputs ``up`` (1, H/2, W/2, Cu) and
-    ``skip`` (1, H, W, Cs), u8 channels last."""
+    ``skip`` (1, H, W, Cs), or (1, H/2, W/2, 4 Cs) in phases (``Cut.skip_phases``), u8
+    channels last."""
     dec, nat = np.ascontiguousarray(up[0]), np.ascontiguousarray(skip[0])
-    if dec.dtype != np.uint8 or nat.dtype != np.uint8 or dec.shape[:2] != (nat.shape[0] // 2, nat.shape[1] // 2):
+    p = cut.skip_phases
+    if (dec.dtype != np.uint8 or nat.dtype != np.uint8 or nat.shape[2] % (p * p)
+            or (2 * dec.shape[0], 2 * dec.shape[1]) != (p * nat.shape[0], p * nat.shape[1])):
         raise ArtifactError(f"{cut.entry}: {cut.up} {dec.dtype} {dec.shape} and {cut.skip} {nat.dtype} {nat.shape} "
                             "do not fit")
-    out = np.empty((1, nat.shape[0], nat.shape[1], dec.shape[2] + nat.shape[2]), np.uint8)
+    out = np.empty((1, 2 * dec.shape[0], 2 * dec.shape[1], dec.shape[2] + nat.shape[2] // (p * p)), np.uint8)
     (sd, zd), (sn, zn), (sb, zb) = cut.up_q, cut.skip_q, cut.entry_q
-    _upsample_concat(dec, nat, float(sd), zd, float(sn), zn, float(sb), zb, out)
+    _upsample_concat(dec, nat, float(sd), zd, float(sn), zn, float(sb), zb, p, out)
     return out

@@ -467,3 +467,31 @@ def test_a_network_with_the_guide_albedo_calibrates_and_packs_it(tiny_artifacts_
         without = plain({k: v for k, v in layers.items() if k != "denoising_albedo"}, seq.frames[i].camera_cut).output
         assert psnr(b, a) > 40.0  # measured 53-56 dB
         assert psnr(without, b) < psnr(b, a) - 3.0
+
+
+def test_a_space_to_depth_input_block_calibrates_packs_and_cuts_in_phases(tiny_artifacts_s2d, tmp_path):
+    """int8 graphs of a network with the space-to-depth input block (model.InputBlock): its
+    u8 input is each 2x2 block of pixels as one (InputsLayout.block 2, 4 x 25 channels padded
+    to 104), its native features leave the graph as u8 phases with no depth-to-space in it
+    (the output block's cut does it, Cut.skip_phases), the graphs pass validation against
+    PyTorch, and the int8 pipeline stays close to fp32."""
+    import shutil
+    src, _ = tiny_artifacts_s2d
+    d = tmp_path / "a"
+    shutil.copytree(src, d)
+    lines = []
+    manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="minmax", frames=3),
+                         log=lines.append)
+    assert not any(line.startswith("✗") for line in lines)
+    model = onnx.load(d / manifest.graphs["network"].int8["minmax"].file)
+    props = {p.key: p.value for p in model.metadata_props}
+    layout = InputsLayout.from_json(props[INPUTS_KEY])
+    assert layout.block == 2 and layout.channels == 104 and len(layout.slots) == 100
+    assert [c.skip_phases for c in BlockLayout.from_json(props[BLOCK_KEY]).cuts] == [2]
+    assert not [n for n in model.graph.node if n.op_type in ("DepthToSpace", "AveragePool")]
+    seq = open_sequence(SAMPLE)
+    fp32, int8 = (Pipeline(PipelineConfig(artifacts=str(d), precision=p)) for p in ("fp32", "int8"))
+    for i in range(3):
+        layers = seq.inputs(i)
+        a, b = fp32(layers, seq.frames[i].camera_cut).output, int8(layers, seq.frames[i].camera_cut).output
+        assert psnr(b, a) > 40.0  # measured 60-61 dB

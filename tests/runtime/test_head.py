@@ -155,6 +155,30 @@ def test_pack_inputs_is_the_input_blocks_preprocessing_quantized(scale, zero_poi
     assert InputsLayout.from_json(InputsLayout(scale, zero_point, 32, slots).to_json()).slots == slots
 
 
+@pytest.mark.parametrize("guided", [False, True])
+def test_pack_inputs_in_2x2_blocks_is_the_space_to_depth_input(guided):
+    """A space-to-depth input block's input (InputsLayout.block 2): each 2x2 block of pixels
+    as one pixel, channel c's four pixels at 4c..4c+3 as torch's pixel_unshuffle orders them
+    (model.InputBlock), placed by slots, bit-equal to packing the frame pixel by pixel."""
+    rng = np.random.default_rng(3)
+    h, w = 12, 20
+    cur = (rng.random((1, 13, h, w)) ** 6 * 400).astype(np.float32)
+    hist = (rng.random((1, 12, h, w)) ** 6 * 400).astype(np.float32)
+    guide = rng.random((1, 3, h, w)).astype(np.float32) if guided else None
+    n = 28 if guided else 25
+    flat = pack_inputs(cur, hist, InputsLayout(0.011, 3, n, tuple(range(n))), guide)[0]  # (h, w, n), in order
+    want = torch.nn.functional.pixel_unshuffle(torch.from_numpy(flat.transpose(2, 0, 1).copy())[None], 2)[0]
+    slots = tuple(np.random.default_rng(4).permutation(4 * n + 4)[:4 * n].tolist())
+    layout = InputsLayout(0.011, 3, 4 * n + 4, slots, block=2)
+    assert layout.guided == guided and InputsLayout.from_json(layout.to_json()) == layout
+    got = pack_inputs(cur, hist, layout, guide)
+    assert got.shape == (1, h // 2, w // 2, 4 * n + 4)
+    np.testing.assert_array_equal(got[0][..., list(slots)], want.numpy().transpose(1, 2, 0))
+    assert (np.delete(got, list(slots), axis=3) == 3).all()
+    with pytest.raises(ArtifactError, match="2x2 pixel blocks"):
+        pack_inputs(cur[..., 1:], hist[..., 1:], layout, None if guide is None else guide[..., 1:])
+
+
 def test_pack_inputs_places_the_guide_albedo_after_current_and_history():
     """A graph that reads the guide albedo (ModelConfig.guide_albedo) packs its channels
     after current and history's, as they are (an albedo: no tonemap); one that does not
