@@ -25,3 +25,12 @@ $J train --data runs/gen40/data --run runs/gen40 --init $SHIPPED --teacher $SHIP
 [ "${1:-}" = train ] && exit 0
 [ -f runs/gen40/eval.json ] || $J evaluate --checkpoint $SHIPPED runs/gen40/checkpoint.pt \
     --data data/holdout data/holdout2 data/val --baselines --threads 2 --out runs/gen40/eval.json --sheet runs/gen40/eval.jpg
+# the rule's time clause (appended in stop 73 while it trained, so the running script reads it at
+# its end): both int8 pipelines exported and calibrated by today's code, timed one after the other
+for m in shipped gen40; do
+    ck=$SHIPPED; [ $m = gen40 ] && ck=runs/gen40/checkpoint.pt
+    [ -f runs/gen40/timing-$m.json ] || { $J export --checkpoint $ck --out runs/gen40/artifacts-$m &&
+        $J calibrate --artifacts runs/gen40/artifacts-$m --data samples/orbit-160x90 --method qat &&
+        .venv/bin/python benchmarks/timing.py --artifacts runs/gen40/artifacts-$m --precisions int8 \
+            --out runs/gen40/timing-$m; }
+done

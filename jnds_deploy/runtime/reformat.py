@@ -233,34 +233,38 @@ def _pack(current, history, guide, kinds, scale, zero_point, first, at, slots, p
     # written out whole: storing straight into the channels-last output was one byte store
     # per value at a stride of C bytes (docs/design-notes.md, "Input packing")
     nc, nh = current.shape[0], history.shape[0]
-    zp = np.float32(zero_point)
-    half, top = np.float32(0.5), np.float32(HDR_MAX)
-    lo, hi = np.float32(0), np.float32(255)
     w, C = out.shape[2], out.shape[3]
     for y in prange(out.shape[1]):
         codes = np.empty((C, w), np.uint8)
         for c in range(kinds.shape[0]):
             src = current[c, y] if c < nc else history[c - nc, y] if c < nc + nh else guide[c - nc - nh, y]
-            # the channel's slot row taken once: indexing codes[slots[c], i] in the loops below
+            # the channel's slot row taken once: indexing codes[slots[c], i] in the loops
             # reloaded slots[c] at every value and kept them scalar (2.4x the time at 720p,
             # benchmarks/results/pack_inputs.md)
-            row = codes[slots[c]]
-            k = kinds[c]
-            if k == 1:  # tonemap, through the tables
-                for i in range(w):
-                    v = min(max(src[i], lo), top)  # keeps -0.0: the sign bit is masked off
-                    q = np.int64(first[np.int64((np.float32(v).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 15)])
-                    # no branch: on 1-spp noise a branch here is mispredicted often
-                    # (docs/performance.md, stop 40)
-                    q += np.int64(v >= at[q + 1])
-                    row[i] = np.uint8(q)
-            else:
-                a = half if k == 2 else np.float32(1)
-                b = half if k == 2 else lo
-                for i in range(w):
-                    q = np.rint((src[i] * a + b) / scale) + zp
-                    row[i] = np.uint8(min(max(q, lo), hi))
+            _quantize_row(src, kinds[c], scale, zero_point, first, at, codes[slots[c]])
         _store_pixels(codes, pads, zero_point, out[0, y])
+
+
+@njit(inline="always")
+def _quantize_row(src, k, scale, zero_point, first, at, row):
+    # one row of one channel (kind k, ``preprocess``) into its u8 codes
+    lo, hi = np.float32(0), np.float32(255)
+    if k == 1:  # tonemap, through the tables
+        top = np.float32(HDR_MAX)
+        for i in range(row.shape[0]):
+            v = min(max(src[i], lo), top)  # keeps -0.0: the sign bit is masked off
+            q = np.int64(first[np.int64((np.float32(v).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 15)])
+            # no branch: on 1-spp noise a branch here is mispredicted often
+            # (docs/performance.md, stop 40)
+            q += np.int64(v >= at[q + 1])
+            row[i] = np.uint8(q)
+    else:
+        half, zp = np.float32(0.5), np.float32(zero_point)
+        a = half if k == 2 else np.float32(1)
+        b = half if k == 2 else lo
+        for i in range(row.shape[0]):
+            q = np.rint((src[i] * a + b) / scale) + zp
+            row[i] = np.uint8(min(max(q, lo), hi))
 
 
 @njit(inline="always")
@@ -292,37 +296,20 @@ def _store_pixels(codes, pads, zero_point, out_row):
 @njit(parallel=True, cache=True)
 def _pack_blocks(current, history, guide, kinds, scale, zero_point, first, at, slots, pads, out):
     # ``_pack`` for a space-to-depth input block: output row y from input rows 2y and 2y + 1,
-    # channel c's pixel (2y + py, 2x + px) to slot slots[4c + 2py + px] of pixel x. Its own
-    # loops rather than a block size in ``_pack``'s: a stride only known at run time there
-    # would cost the shipped design's packing its contiguous reads
+    # channel c's pixel (2y + py, 2x + px) to slot slots[4c + 2py + px] of pixel x
     nc, nh = current.shape[0], history.shape[0]
-    zp = np.float32(zero_point)
-    half, top = np.float32(0.5), np.float32(HDR_MAX)
-    lo, hi = np.float32(0), np.float32(255)
     w, C = out.shape[2], out.shape[3]
     for y in prange(out.shape[1]):
         codes = np.empty((C, w), np.uint8)
         line = np.empty(2 * w, np.uint8)
         for c in range(kinds.shape[0] // 4):
-            k = kinds[4 * c]
-            a = half if k == 2 else np.float32(1)
-            b = half if k == 2 else lo
             for py in range(2):
                 yy = 2 * y + py
                 src = current[c, yy] if c < nc else history[c - nc, yy] if c < nc + nh else guide[c - nc - nh, yy]
-                # the input row read in order, as ``_pack`` reads it, then dealt out to the
+                # the input row quantized in order, as ``_pack`` does, then dealt out to the
                 # two pixels' slots: read at a stride of 2, the affine loops stayed scalar and
                 # the packing took half as long again (docs/performance.md, stop 73)
-                if k == 1:  # tonemap, through the tables (``_pack``)
-                    for i in range(2 * w):
-                        v = min(max(src[i], lo), top)
-                        q = np.int64(first[np.int64((np.float32(v).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 15)])
-                        q += np.int64(v >= at[q + 1])
-                        line[i] = np.uint8(q)
-                else:
-                    for i in range(2 * w):
-                        q = np.rint((src[i] * a + b) / scale) + zp
-                        line[i] = np.uint8(min(max(q, lo), hi))
+                _quantize_row(src, kinds[4 * c], scale, zero_point, first, at, line)
                 even, odd = codes[slots[4 * c + 2 * py]], codes[slots[4 * c + 2 * py + 1]]
                 for i in range(w):
                     even[i] = line[2 * i]
