@@ -262,7 +262,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .render.scene import SCENE_KINDS
     from .render.sequence import ENGINES
     from .training.config import GUIDE_INITS, SPATIAL_LOSSES
-    from .model import INPUT_BLOCKS
+    from .layout import INPUT_BLOCKS
 
     p = argparse.ArgumentParser(prog="jnds", description="Joint neural denoising and supersampling, deployed.")
     sub = p.add_subparsers(dest="command", required=True)

@@ -112,6 +112,9 @@ LUMINANCE = (0.2126, 0.7152, 0.0722)
 # the roots the upsample filter may interpolate in (model.ModelConfig.upsample_root; here,
 # so that the runtime, which has no torch, checks a manifest against the same list)
 UPSAMPLE_ROOTS = (1, 2, 4, 8)
+# the input block's designs (model.ModelConfig.input_block): the paper's, and 2x2 pixel blocks
+# read at half resolution (space-to-depth)
+INPUT_BLOCKS = ("native", "space_to_depth")
 
 # the upsample filter's root interpolation (jnds_deploy.filters.upsample_filter) raises the
 # composite to this floor first: the derivative of x^(1/root) is infinite at 0

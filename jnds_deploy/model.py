@@ -35,11 +35,8 @@ import torch.nn.functional as F
 
 from . import filters
 from .errors import ConfigError
-from .layout import CURRENT, HISTORY, N_CURRENT, N_GUIDE, N_HISTORY, RADIANCE, UPSAMPLE_ROOTS, head_kind  # noqa: F401 (re-exported)
+from .layout import CURRENT, HISTORY, INPUT_BLOCKS, N_CURRENT, N_GUIDE, N_HISTORY, RADIANCE, UPSAMPLE_ROOTS, head_kind  # noqa: F401 (re-exported)
 
-
-
-INPUT_BLOCKS = ("native", "space_to_depth")
 
 
 @dataclass(frozen=True)

@@ -224,9 +224,9 @@ def _other_input_block(cfg: TrainConfig, model: JNDS) -> JNDS | None:
     ``model``'s (``ModelConfig.input_block``), else None."""
     from ..checkpoint import load_model
 
-    if not cfg.init or ModelConfig(**read_checkpoint(cfg.init)["model_config"]).input_block == model.cfg.input_block:
+    old = load_model(cfg.init) if cfg.init else None
+    if old is None or old.cfg.input_block == model.cfg.input_block:
         return None
-    old = load_model(cfg.init)
     set_quantization(old, False)
     return old.to(cfg.device)
 

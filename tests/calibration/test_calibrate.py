@@ -442,21 +442,27 @@ def test_the_calibrated_projection_cannot_overflow_16_bits(calibrated):
     assert len(layout.slots) == 25 and I16[0] <= lo and hi <= I16[1]
 
 
+def _calibrated_copy(src, sequence, tmp_path):
+    """A copy of fp32 artifacts ``src`` calibrated (minmax) on 3 frames of ``sequence``, every
+    graph passing validation: the copy and its int8 network graph's metadata."""
+    import shutil
+    d = tmp_path / "a"
+    shutil.copytree(src, d)
+    lines = []
+    manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(sequence),), method="minmax", frames=3),
+                         log=lines.append)
+    assert not any(line.startswith("✗") for line in lines)
+    model = onnx.load(d / manifest.graphs["network"].int8["minmax"].file)
+    return d, {p.key: p.value for p in model.metadata_props}
+
+
 def test_a_network_with_the_guide_albedo_calibrates_and_packs_it(tiny_artifacts_guided, guided_sample, tmp_path):
     """int8 graphs of a network that reads the guide albedo: its u8 input holds the guide's
     channels too (runtime.reformat.InputsLayout.guided), they pass validation against PyTorch,
     and the int8 pipeline stays close to fp32 on a sequence with the layer, where the guide
     moves the output."""
-    import shutil
-    src, _ = tiny_artifacts_guided
-    d = tmp_path / "a"
-    shutil.copytree(src, d)
-    lines = []
-    manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(guided_sample),), method="minmax", frames=3),
-                         log=lines.append)
-    assert not any(line.startswith("✗") for line in lines)
-    model = onnx.load(d / manifest.graphs["network"].int8["minmax"].file)
-    layout = InputsLayout.from_json({p.key: p.value for p in model.metadata_props}[INPUTS_KEY])
+    d, props = _calibrated_copy(tiny_artifacts_guided[0], guided_sample, tmp_path)
+    layout = InputsLayout.from_json(props[INPUTS_KEY])
     assert layout.guided and len(layout.slots) == 28
     seq = open_sequence(guided_sample)
     fp32, int8 = (Pipeline(PipelineConfig(artifacts=str(d), precision=p)) for p in ("fp32", "int8"))
@@ -475,16 +481,8 @@ def test_a_space_to_depth_input_block_calibrates_packs_and_cuts_in_phases(tiny_a
     to 104), its native features leave the graph as u8 phases with no depth-to-space in it
     (the output block's cut does it, Cut.skip_phases), the graphs pass validation against
     PyTorch, and the int8 pipeline stays close to fp32."""
-    import shutil
-    src, _ = tiny_artifacts_s2d
-    d = tmp_path / "a"
-    shutil.copytree(src, d)
-    lines = []
-    manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="minmax", frames=3),
-                         log=lines.append)
-    assert not any(line.startswith("✗") for line in lines)
-    model = onnx.load(d / manifest.graphs["network"].int8["minmax"].file)
-    props = {p.key: p.value for p in model.metadata_props}
+    d, props = _calibrated_copy(tiny_artifacts_s2d[0], SAMPLE, tmp_path)
+    model = onnx.load(d / "network.int8.minmax.onnx")
     layout = InputsLayout.from_json(props[INPUTS_KEY])
     assert layout.block == 2 and layout.channels == 104 and len(layout.slots) == 100
     assert [c.skip_phases for c in BlockLayout.from_json(props[BLOCK_KEY]).cuts] == [2]
