@@ -108,6 +108,7 @@ def cut_blocks(src: Path, dst: Path, multiple: int) -> BlockLayout:
             if attrs.get("blocksize") != 2 or attrs.get("mode", b"DCR") != b"CRD" or skip_dq is None:
                 raise CalibrationError(f"{src.name}: {d2s.name} is not a quantized 2x2 depth-to-space "
                                        "(CRD, pixel_shuffle's order)")
+            _phase_first(skip_dq.input[0], d2s, inits, producers, consumers, src)
         cat_q = _single(consumers.get(concat.output[0], []), f"quantization of {concat.name}", src)
         cat_dq = _single(consumers.get(cat_q.output[0], []), f"dequantization of {concat.name}", src)
         if (any(n is None or n.op_type != "DequantizeLinear" for n in (up_dq, skip_dq, up_dq2, cat_dq))
@@ -145,6 +146,37 @@ def cut_blocks(src: Path, dst: Path, multiple: int) -> BlockLayout:
         raise CalibrationError(f"{src.name}: the cut graph's segments do not share out its outputs {outputs}")
     save_extracted(model, dst, entries, outputs, {BLOCK_KEY: layout.to_json()}, defaults)
     return layout
+
+
+def _phase_first(tensor: str, d2s, inits: dict, producers: dict, consumers: dict, src: Path) -> None:
+    """Reorder the channels of ``tensor`` (u8 features in 2x2 phases that ``d2s`` turns into
+    native ones, channel 4c + phase as pixel_shuffle orders them) phase first, (phase) C + c:
+    each native pixel's C features are then contiguous for ``block_input``'s pass, where
+    they were four bytes apart. The convolution that makes them has its output channels
+    (weights, their scales and the bias) permuted, every other convolution that reads them
+    its input channels; the depth-to-space is left out of the cut graph."""
+    q = producers.get(tensor)
+    conv = producers.get(q.input[0]) if q is not None and q.op_type == "QuantizeLinear" else None
+    if conv is None or conv.op_type != "Conv":
+        raise CalibrationError(f"{src.name}: the phases {d2s.name} reads are not a quantized convolution's output")
+    n = int(numpy_helper.to_array(inits[producers[conv.input[1]].input[0]]).shape[0])
+    perm = [4 * c + p for p in range(4) for c in range(n // 4)]  # new channel p C + c is old 4c + p
+
+    def permute(name: str, axis: int) -> None:
+        a = numpy_helper.to_array(inits[name])
+        if a.ndim > axis and a.shape[axis] == n:
+            inits[name].CopyFrom(numpy_helper.from_array(np.take(a, perm, axis=axis), name))
+
+    for dq in (producers.get(i) for i in conv.input[1:]):  # weights and bias, with their scales
+        for name in dq.input:
+            permute(name, 0)
+    for dq in consumers.get(tensor, []):
+        for node in consumers.get(dq.output[0], []):
+            if node is d2s:
+                continue
+            if node.op_type != "Conv" or node.input[0] != dq.output[0]:
+                raise CalibrationError(f"{src.name}: {node.name} reads the phases {d2s.name} reads")
+            permute(producers[node.input[1]].input[0], 1)
 
 
 def _reached(g: onnx.GraphProto, entry: str, outputs: list[str]) -> list[str]:

@@ -100,6 +100,7 @@ def export(cfg: ExportConfig, log=print) -> Manifest:
                           input_names=list(feeds), output_names=names,
                           dynamic_axes={**{k: dyn for k in feeds}, **{n: dyn for n in names}},
                           opset_version=OPSET, dynamo=False)
+    _constant_weights_as_initializers(out / "network.onnx")
     inputs = {"current": _layout(CURRENT, "native, linear as stored"),
               "history": _layout(HISTORY, "native, warped previous filtered outputs, linear")}
     if "guide" in feeds:
@@ -161,6 +162,25 @@ def export(cfg: ExportConfig, log=print) -> Manifest:
     manifest.save(out)
     report_validation(rows, log)
     return manifest
+
+
+def _constant_weights_as_initializers(path: Path) -> None:
+    """A convolution's weights that the exporter wrote as a Constant node (a module's buffer,
+    ``model.PhaseMean``) made an initializer, as a parameter's are: ONNX Runtime's quantizer
+    quantizes a Constant as an activation (u8, per tensor), which MLAS's symmetric int8
+    convolution does not take (2.9 times the node's time at 720p, docs/performance.md)."""
+    import onnx
+    from onnx import numpy_helper
+
+    model = onnx.load(str(path))
+    g = model.graph
+    consts = {n.output[0]: n for n in g.node if n.op_type == "Constant"}
+    moved = [consts[n.input[1]] for n in g.node if n.op_type == "Conv" and n.input[1] in consts]
+    for c in moved:
+        g.initializer.append(numpy_helper.from_array(numpy_helper.to_array(c.attribute[0].t), c.output[0]))
+        g.node.remove(c)
+    if moved:
+        onnx.save(model, str(path))
 
 
 def qat_ranges(model: JNDS, graphs: dict[str, Graph], out: Path, feeds: dict[str, tuple]) -> dict:

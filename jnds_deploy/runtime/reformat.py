@@ -372,8 +372,9 @@ class Cut:
     entry_q: tuple[float, int]
     stage: str = ""  # the paper's stage it belongs to (runtime.profile.STAGES)
     # 2: ``skip`` holds the native features as 2x2 phases at half resolution, (1, H/2, W/2,
-    # 4 Cs), channel c's pixel (2y + py, 2x + px) at 4c + 2py + px (a space-to-depth input
-    # block's, model.InputBlock): the depth-to-space is done in ``block_input``'s pass
+    # 4 Cs), channel c's pixel (2y + py, 2x + px) at (2py + px) Cs + c, phase first (a
+    # space-to-depth input block's, model.InputBlock, ordered so by calibration.block): the
+    # depth-to-space is done in ``block_input``'s pass
     skip_phases: int = 1
 
 
@@ -461,9 +462,9 @@ def _upsample_concat(dec, nat, sd, zd, sn, zn, sb, zb, phases, out):
                 for c in range(cn):
                     o[cd + c] = np.uint8(min(max(np.rint((np.float32(n[c]) - znf) * kn) + zbf, lo), hi))
             else:  # the depth-to-space: pixel (y, x) is phase 2 (y % 2) + x % 2 of (y // 2, x // 2)
-                n, p = nat[y // 2, x // 2], 2 * (y % 2) + x % 2
+                n = nat[y // 2, x // 2, (2 * (y % 2) + x % 2) * cn:]
                 for c in range(cn):
-                    o[cd + c] = np.uint8(min(max(np.rint((np.float32(n[4 * c + p]) - znf) * kn) + zbf, lo), hi))
+                    o[cd + c] = np.uint8(min(max(np.rint((np.float32(n[c]) - znf) * kn) + zbf, lo), hi))
 
 
 def block_input(up: np.ndarray, skip: np.ndarray, cut: Cut) -> np.ndarray:

@@ -45,15 +45,13 @@ def test_upsample_concat_is_bit_equal_to_the_four_taps_in_float(q):
 
 def test_block_input_does_the_depth_to_space_of_a_skip_in_phases():
     """A space-to-depth input block's native features leave the graph as 2x2 phases at half
-    resolution (Cut.skip_phases 2); block_input gives the entry the same bytes as from those
-    features in native layout (torch's pixel_shuffle order)."""
-    import torch
-
+    resolution, phase first (Cut.skip_phases 2); block_input gives the entry the same bytes as
+    from those features in native layout."""
     rng = np.random.default_rng(8)
     dec = rng.integers(0, 256, (1, 9, 13, 24)).astype(np.uint8)
     nat = rng.integers(0, 256, (1, 18, 26, 8)).astype(np.uint8)
-    phased = torch.nn.functional.pixel_unshuffle(torch.from_numpy(nat).permute(0, 3, 1, 2), 2)
-    phased = np.ascontiguousarray(phased.permute(0, 2, 3, 1).numpy())  # (1, 9, 13, 32), channel 4c + phase
+    # (1, 9, 13, 32): pixel (2y + py, 2x + px)'s channel c at (2py + px) 8 + c
+    phased = np.ascontiguousarray(nat.reshape(1, 9, 2, 13, 2, 8).transpose(0, 1, 3, 2, 4, 5).reshape(1, 9, 13, 32))
     q = dict(up_q=(0.0371, 3), skip_q=(0.0213, 5), entry_q=(0.0297, 7))
     plain = reformat.Cut("block.1", "u", "s", stage="output_block", **q)
     cut = reformat.Cut("block.1", "u", "s", stage="output_block", skip_phases=2, **q)
