@@ -393,3 +393,17 @@ def test_albedo_at_holes_matches_torch():
     clean = cur.copy()
     clean[6:9] = 0.5  # no holes: nothing to do
     assert N.albedo_at_holes(plain, albedo, diffuse, specular, N.diffuse_holes(clean)) == 0
+
+
+@pytest.mark.parametrize("h, w", [(64, 96), (37, 67)])
+def test_tile_sums_match_numpy(h, w):
+    """Per-tile sums of three channels, the last row and column of tiles partial, as numpy
+    sums them in float64 (the loop's order differs: equal to rounding)."""
+    rng = np.random.default_rng(6)
+    x = rng.exponential(size=(8, h, w)).astype(np.float32) * 100
+    tile = 32
+    got = N.tile_sums(x, 3, tile)
+    s = x[3:6].astype(np.float64).sum(0)
+    want = np.array([[s[ty:ty + tile, tx:tx + tile].sum() for tx in range(0, w, tile)] for ty in range(0, h, tile)])
+    assert got.shape == want.shape == (-(-h // tile), -(-w // tile))
+    np.testing.assert_allclose(got, want, rtol=1e-12)
