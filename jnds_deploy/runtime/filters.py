@@ -378,33 +378,44 @@ def _sanitized(v, flush):
 def _interleave(a, b, d, e, out, flush, nonfinite):
     """out[y, x, :] = a[:, y, x], b[:, y, x], d[:, y, x], e[:, y, x] (one pass over out),
     sanitized (``_sanitized``); nonfinite[y]: how many of row y's values were not finite."""
-    ca, cb, cd = a.shape[0], b.shape[0], d.shape[0]
-    H, W, C = out.shape
+    ca, cb, cd, ce = a.shape[0], b.shape[0], d.shape[0], e.shape[0]
+    H, W, _ = out.shape
     for y in prange(H):
         n = 0
-        # each channel's row sanitized and counted first, along the row (contiguous: it
-        # vectorizes), then the clean rows interleaved: sanitizing pixel by pixel as they
-        # were interleaved kept the checks scalar, 1.3x the time (docs/performance.md, stop 74)
-        clean = np.empty((C, W), np.float32)
-        for k in range(C):
-            src = (a[k, y] if k < ca else b[k - ca, y] if k < ca + cb else d[k - ca - cb, y] if k < ca + cb + cd
-                   else e[k - ca - cb - cd, y])
-            row = clean[k]
+        if ca == 3 and cb == 3 and cd == 3 and ce == 3:
+            # the history's four layers: with the channel count a constant, the 12 values of
+            # a pixel are one unrolled run of loads and stores, faster than the loop below
+            # (docs/performance.md, "Speed", stop 51)
+            o = out[y]
             for x in range(W):
-                v = src[x]
-                n += np.int64(not np.isfinite(v))
-                row[x] = _sanitized(v, flush)
-        o = out[y]
-        if C == 12:
-            # the history's 12 channels: with the count a constant, a pixel's 12 values are
-            # one unrolled run of loads and stores (docs/performance.md, "Speed", stop 51)
-            for x in range(W):
-                for k in range(12):
-                    o[x, k] = clean[k, x]
-        else:
-            for x in range(W):
-                for k in range(C):
-                    o[x, k] = clean[k, x]
+                for c in range(3):
+                    v = a[c, y, x]
+                    n += np.int64(not np.isfinite(v))
+                    o[x, c] = _sanitized(v, flush)
+                    v = b[c, y, x]
+                    n += np.int64(not np.isfinite(v))
+                    o[x, 3 + c] = _sanitized(v, flush)
+                    v = d[c, y, x]
+                    n += np.int64(not np.isfinite(v))
+                    o[x, 6 + c] = _sanitized(v, flush)
+                    v = e[c, y, x]
+                    n += np.int64(not np.isfinite(v))
+                    o[x, 9 + c] = _sanitized(v, flush)
+            nonfinite[y] = n
+            continue
+        for x in range(W):
+            for c in range(ca):
+                n += np.int64(not np.isfinite(a[c, y, x]))
+                out[y, x, c] = _sanitized(a[c, y, x], flush)
+            for c in range(cb):
+                n += np.int64(not np.isfinite(b[c, y, x]))
+                out[y, x, ca + c] = _sanitized(b[c, y, x], flush)
+            for c in range(cd):
+                n += np.int64(not np.isfinite(d[c, y, x]))
+                out[y, x, ca + cb + c] = _sanitized(d[c, y, x], flush)
+            for c in range(ce):
+                n += np.int64(not np.isfinite(e[c, y, x]))
+                out[y, x, ca + cb + cd + c] = _sanitized(e[c, y, x], flush)
         nonfinite[y] = n
 
 
