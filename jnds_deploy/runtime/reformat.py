@@ -41,7 +41,8 @@ def _clean(v, lo, hi):
 def _hwc_into_chw(src, out, c0, h, w, lo, hi, renormalize, nonfinite):
     # the row cleaned and counted in its own order first (pixels interleaved: contiguous, so
     # it vectorizes), then dealt out to the channels' rows; cleaning while dealing out kept
-    # the checks scalar, 1.4-3x the time (docs/performance.md, stop 74). A 3-channel layer's
+    # the checks scalar: 1.4-3x the time on a frame in the cache, a few % in the pipeline,
+    # where the frame comes from memory (docs/performance.md, stop 74). A 3-channel layer's
     # pixel is renormalized as it is dealt out (a second pass over the row cost the normals
     # 1.7 ms at 720p); the padding columns and rows replicate the last ones
     lo32, hi32, zero = np.float32(lo), np.float32(hi), np.float32(0)
