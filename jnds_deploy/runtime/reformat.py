@@ -230,17 +230,23 @@ def _tonemap_codes(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
     return first, np.append(at, np.inf)
 
 
+@njit(inline="always")
+def _input_row(current, history, guide, c, y):
+    """Row y of input channel c: current's, then history's, then the guide albedo's."""
+    nc, nh = current.shape[0], history.shape[0]
+    return current[c, y] if c < nc else history[c - nc, y] if c < nc + nh else guide[c - nc - nh, y]
+
+
 @njit(parallel=True, cache=True)
 def _pack(current, history, guide, kinds, scale, zero_point, first, at, slots, pads, out):
     # each channel of a row into a contiguous byte row first, then the row's pixels
     # written out whole: storing straight into the channels-last output was one byte store
     # per value at a stride of C bytes (docs/design-notes.md, "Input packing")
-    nc, nh = current.shape[0], history.shape[0]
     w, C = out.shape[2], out.shape[3]
     for y in prange(out.shape[1]):
         codes = np.empty((C, w), np.uint8)
         for c in range(kinds.shape[0]):
-            src = current[c, y] if c < nc else history[c - nc, y] if c < nc + nh else guide[c - nc - nh, y]
+            src = _input_row(current, history, guide, c, y)
             # the channel's slot row taken once: indexing codes[slots[c], i] in the loops
             # reloaded slots[c] at every value and kept them scalar (2.4x the time at 720p,
             # benchmarks/results/pack_inputs.md)
@@ -300,7 +306,6 @@ def _store_pixels(codes, pads, zero_point, out_row):
 def _pack_blocks(current, history, guide, kinds, scale, zero_point, first, at, slots, pads, out):
     # ``_pack`` for a space-to-depth input block: output row y from input rows 2y and 2y + 1,
     # channel c's pixel (2y + py, 2x + px) to slot slots[4c + 2py + px] of pixel x
-    nc, nh = current.shape[0], history.shape[0]
     w, C = out.shape[2], out.shape[3]
     for y in prange(out.shape[1]):
         codes = np.empty((C, w), np.uint8)
@@ -308,7 +313,7 @@ def _pack_blocks(current, history, guide, kinds, scale, zero_point, first, at, s
         for c in range(kinds.shape[0] // 4):
             for py in range(2):
                 yy = 2 * y + py
-                src = current[c, yy] if c < nc else history[c - nc, yy] if c < nc + nh else guide[c - nc - nh, yy]
+                src = _input_row(current, history, guide, c, yy)
                 # the input row quantized in order, as ``_pack`` does, then dealt out to the
                 # two pixels' slots: read at a stride of 2, the affine loops stayed scalar and
                 # the packing took half as long again (docs/performance.md, stop 73)
