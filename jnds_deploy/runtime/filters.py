@@ -1001,6 +1001,7 @@ def _upsample2_fixed_hwc(r, k, squarings, out):
     C, H, W = r.shape
     Ho, Wo = out.shape[0], out.shape[1]
     TH, TW = 2 * H, 2 * W
+    zero, inf, top = np.float32(0.0), np.float32(np.inf), np.float32(HDR_MAX)
     B = 16
     nb = (Ho + B - 1) // B
     bad = np.zeros(nb, np.int64)
@@ -1010,7 +1011,7 @@ def _upsample2_fixed_hwc(r, k, squarings, out):
         n = y1 - y0 + 2
         up = np.empty((n, C, TW + 2), np.float32)
         vrow = np.empty(W, np.float32)
-        acc = np.empty(Wo, np.float32)
+        acc = np.empty((C, Wo), np.float32)
         for t in range(n):
             yy = min(max(y0 - 1 + t, 0), TH - 1)
             i = yy >> 1
@@ -1030,17 +1031,32 @@ def _upsample2_fixed_hwc(r, k, squarings, out):
         for y in range(y0, y1):
             t = y - y0
             for c in range(C):
-                a, m, z = up[t, c], up[t + 1, c], up[t + 2, c]
+                a, m, z, dst = up[t, c], up[t + 1, c], up[t + 2, c], acc[c]
                 for x in range(Wo):
-                    acc[x] = (k[0] * a[x] + k[1] * a[x + 1] + k[2] * a[x + 2]
+                    dst[x] = (k[0] * a[x] + k[1] * a[x + 1] + k[2] * a[x + 2]
                               + k[3] * m[x] + k[4] * m[x + 1] + k[5] * m[x + 2]
                               + k[6] * z[x] + k[7] * z[x + 1] + k[8] * z[x + 2])
+            # stored interleaved with selects, not a branch, and counted as a sum: the
+            # branch kept this loop scalar, half the pass (docs/performance.md, stop 75)
+            if C == 3:
+                a0, a1, a2, o = acc[0], acc[1], acc[2], out[y].reshape(3 * Wo)  # flat: a stride LLVM knows
+                n = 0
                 for x in range(Wo):
-                    v = acc[x]
-                    if not np.isfinite(v):
-                        bad[b] += 1
-                        v = np.float32(HDR_MAX) if v > 0 else np.float32(0.0)
-                    out[y, x, c] = max(v, np.float32(0.0))
+                    v0, v1, v2 = a0[x], a1[x], a2[x]
+                    f0, f1, f2 = abs(v0) < inf, abs(v1) < inf, abs(v2) < inf
+                    n += np.int64(not f0) + np.int64(not f1) + np.int64(not f2)
+                    o[3 * x + 0] = max(v0, zero) if f0 else (top if v0 > zero else zero)
+                    o[3 * x + 1] = max(v1, zero) if f1 else (top if v1 > zero else zero)
+                    o[3 * x + 2] = max(v2, zero) if f2 else (top if v2 > zero else zero)
+                bad[b] += n
+            else:
+                for c in range(C):
+                    for x in range(Wo):
+                        v = acc[c, x]
+                        if not np.isfinite(v):
+                            bad[b] += 1
+                            v = top if v > zero else zero
+                        out[y, x, c] = max(v, zero)
     return bad.sum()
 
 

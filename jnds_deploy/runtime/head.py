@@ -26,6 +26,7 @@ from numba import njit, prange
 
 from ..errors import ArtifactError
 from ..layout import HEAD_KINDS, head_kind
+from .transpose import transpose8x8
 
 HEAD = "head"  # the graph output
 LAYOUT_KEY = "jnds.head"  # its layout, JSON in the ONNX model's metadata_props
@@ -146,23 +147,15 @@ def _decode(q, c0, kinds, scale, offset, table, out):
         _decode_row(q, y, c0, out.shape[0], kinds, scale, offset, table, out, y)
 
 
-@njit(inline="always")
-def _swap(a, b, s, m):
-    """a's bytes under ~m (shifted down by s) swapped with b's under m."""
-    t = ((a >> s) ^ b) & m
-    return a ^ (t << s), b ^ t
-
-
 @njit(parallel=True, cache=True)
 def _planes(q, out):
     """out[c, y, x] = q[y, x, c] for the first out.shape[0] channels (a multiple of 8; q's
     channels too). Eight channels of eight pixels at a time: the eight 64-bit words (one a
-    pixel) transposed as an 8x8 byte matrix in registers (three rounds of swaps), stored as
-    one word a channel; bytes one at a time cost twice as much (docs/performance.md, stop 54)."""
+    pixel) transposed as an 8x8 byte matrix (``transpose8x8``), stored as one word a channel;
+    bytes one at a time cost twice as much (docs/performance.md, stop 54)."""
     H, W, C = q.shape
-    G, n = C // 8, out.shape[0] // 8
-    m4, m2, m1 = np.uint64(0x00000000FFFFFFFF), np.uint64(0x0000FFFF0000FFFF), np.uint64(0x00FF00FF00FF00FF)
-    s4, s2, s1 = np.uint64(32), np.uint64(16), np.uint64(8)
+    n = out.shape[0] // 8
+    G = np.uint64(C // 8)
     blocks = W // 8 if W % 8 == 0 else 0  # rows of whole words (8-byte aligned) only
     for y in prange(H):
         words = q[y].reshape(W * C).view(np.uint64)
@@ -173,23 +166,13 @@ def _planes(q, out):
                                   out[c + 2, y].view(np.uint64), out[c + 3, y].view(np.uint64))
                 d4, d5, d6, d7 = (out[c + 4, y].view(np.uint64), out[c + 5, y].view(np.uint64),
                                   out[c + 6, y].view(np.uint64), out[c + 7, y].view(np.uint64))
-            for b in range(blocks):
-                i = 8 * b * G + g
-                a0, a1, a2, a3 = words[i], words[i + G], words[i + 2 * G], words[i + 3 * G]
-                a4, a5, a6, a7 = words[i + 4 * G], words[i + 5 * G], words[i + 6 * G], words[i + 7 * G]
-                a0, a4 = _swap(a0, a4, s4, m4)
-                a1, a5 = _swap(a1, a5, s4, m4)
-                a2, a6 = _swap(a2, a6, s4, m4)
-                a3, a7 = _swap(a3, a7, s4, m4)
-                a0, a2 = _swap(a0, a2, s2, m2)
-                a1, a3 = _swap(a1, a3, s2, m2)
-                a4, a6 = _swap(a4, a6, s2, m2)
-                a5, a7 = _swap(a5, a7, s2, m2)
-                a0, a1 = _swap(a0, a1, s1, m1)
-                a2, a3 = _swap(a2, a3, s1, m1)
-                a4, a5 = _swap(a4, a5, s1, m1)
-                a6, a7 = _swap(a6, a7, s1, m1)
-                d0[b], d1[b], d2[b], d3[b], d4[b], d5[b], d6[b], d7[b] = a0, a1, a2, a3, a4, a5, a6, a7
+            # unsigned indices: numba wraps negative signed ones, a test and an add a load
+            for b in range(np.uint64(blocks)):
+                i = np.uint64(8) * b * G + np.uint64(g)
+                (d0[b], d1[b], d2[b], d3[b], d4[b], d5[b], d6[b], d7[b]) = transpose8x8(
+                    words[i], words[i + G], words[i + np.uint64(2) * G], words[i + np.uint64(3) * G],
+                    words[i + np.uint64(4) * G], words[i + np.uint64(5) * G], words[i + np.uint64(6) * G],
+                    words[i + np.uint64(7) * G])
             for x in range(8 * blocks, W):
                 for t in range(8):
                     out[c + t, y, x] = q[y, x, c + t]

@@ -23,6 +23,7 @@ from numba import njit, prange
 
 from ..errors import ArtifactError
 from ..layout import CURRENT, GUIDE, HDR_MAX, HISTORY, LAYERS, N_GUIDE, RADIANCE, TONEMAP_FLOOR
+from .transpose import transpose8x8
 
 # layer -> (low, high, renormalize), from the one table of input layers (layout.LAYERS) and
 # the guide albedo (layout.GUIDE)
@@ -285,13 +286,26 @@ def _store_pixels(codes, pads, zero_point, out_row):
         for i in range(w):
             pad[i] = np.uint8(zero_point)
     if C % 8 == 0:
-        # eight channels of a pixel gathered into one 64-bit word, one store for eight
-        # bytes (x86 is little-endian: channel c is byte c % 8 of its word)
-        words, G = out_row.reshape(w * C).view(np.uint64), C // 8
-        for g in range(G):
+        # eight channels of eight pixels at a time: the channels' eight 64-bit words transposed
+        # as an 8x8 byte matrix (``transpose8x8``), one word a pixel stored (x86 is
+        # little-endian: channel c is byte c % 8 of its pixel's word)
+        words, G = out_row.reshape(w * C).view(np.uint64), np.uint64(C // 8)
+        blocks = w // 8 if w % 8 == 0 else 0  # codes' rows in whole words (8-byte aligned) only
+        for g in range(C // 8):
             c = 8 * g
-            for i in range(w):
-                words[i * G + g] = (
+            if blocks:
+                r0, r1, r2, r3 = (codes[c].view(np.uint64), codes[c + 1].view(np.uint64),
+                                  codes[c + 2].view(np.uint64), codes[c + 3].view(np.uint64))
+                r4, r5, r6, r7 = (codes[c + 4].view(np.uint64), codes[c + 5].view(np.uint64),
+                                  codes[c + 6].view(np.uint64), codes[c + 7].view(np.uint64))
+            # unsigned indices: numba wraps negative signed ones, a test and an add a store
+            for b in range(np.uint64(blocks)):
+                i = np.uint64(8) * b * G + np.uint64(g)
+                (words[i], words[i + G], words[i + np.uint64(2) * G], words[i + np.uint64(3) * G],
+                 words[i + np.uint64(4) * G], words[i + np.uint64(5) * G], words[i + np.uint64(6) * G],
+                 words[i + np.uint64(7) * G]) = transpose8x8(r0[b], r1[b], r2[b], r3[b], r4[b], r5[b], r6[b], r7[b])
+            for i in range(8 * blocks, w):
+                words[i * (C // 8) + g] = (
                     np.uint64(codes[c, i]) | (np.uint64(codes[c + 1, i]) << np.uint64(8))
                     | (np.uint64(codes[c + 2, i]) << np.uint64(16)) | (np.uint64(codes[c + 3, i]) << np.uint64(24))
                     | (np.uint64(codes[c + 4, i]) << np.uint64(32)) | (np.uint64(codes[c + 5, i]) << np.uint64(40))

@@ -163,6 +163,11 @@ def test_fixed_upsample_kernel_matches_torch(root):
     c[2, 0, 0] = np.inf
     out, bad = N.upsample_fixed_hwc(c, k, root, h, w)
     assert bad > 0 and np.isfinite(out).all()
+    # three channels are stored by a loop of their own (vectorized), other counts one at a time:
+    # five here, channels 1 and 2 then all three
+    out4, bad4 = N.upsample_fixed_hwc(np.concatenate([c[1:], c]), k, root, h, w)
+    np.testing.assert_array_equal(out4[..., 2:], out)
+    assert bad4 == 2 * bad  # the NaN and Inf are in channels 1 and 2, which come twice
 
 
 def test_fp16_filter_stays_close_to_fp32():

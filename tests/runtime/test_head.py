@@ -147,6 +147,8 @@ def test_pack_inputs_is_the_input_blocks_preprocessing_quantized(scale, zero_poi
     assert (got[0, :, :, 25:] == zero_point).all()
     # channel counts that are not a multiple of 8 take the byte loop, 8 and more the word stores
     np.testing.assert_array_equal(pack_inputs(cur, hist, InputsLayout(scale, zero_point, 28)), got[..., :28])
+    # a width that is no multiple of 8 takes the words one pixel at a time (the others 8x8 at once)
+    np.testing.assert_array_equal(pack_inputs(cur[..., :37], hist[..., :37], layout), got[:, :, :37])
     # channels in other slots (calibration.inputs.safe_slots): the same codes, moved; the rest padding
     slots = tuple(np.random.default_rng(1).permutation(32)[:25].tolist())
     moved = pack_inputs(cur, hist, InputsLayout(scale, zero_point, 32, slots))
@@ -202,3 +204,19 @@ def test_pack_inputs_places_the_guide_albedo_after_current_and_history():
         pack_inputs(cur, hist, layout)
     with pytest.raises(ArtifactError, match="has no guide albedo"):
         pack_inputs(cur, hist, InputsLayout(scale, zp, 32), guide)
+
+
+def test_transpose8x8_is_the_byte_transpose_and_its_own_inverse():
+    """runtime.transpose: byte p of word t out is byte t of word p in."""
+    from numba import njit
+
+    from jnds_deploy.runtime.transpose import transpose8x8
+
+    @njit
+    def t(a):
+        return transpose8x8(a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7])
+
+    a = np.random.default_rng(3).integers(0, 256, 64, dtype=np.uint8).view(np.uint64)
+    b = np.array(t(a), np.uint64)
+    np.testing.assert_array_equal(b.view(np.uint8).reshape(8, 8), a.view(np.uint8).reshape(8, 8).T)
+    np.testing.assert_array_equal(np.array(t(b), np.uint64), a)
