@@ -26,7 +26,7 @@ from numba import njit, prange
 
 from ..errors import ArtifactError
 from ..layout import HEAD_KINDS, head_kind
-from .transpose import transpose8x8
+from .simd import transpose8x8
 
 HEAD = "head"  # the graph output
 LAYOUT_KEY = "jnds.head"  # its layout, JSON in the ONNX model's metadata_props

@@ -23,7 +23,7 @@ from numba import njit, prange
 
 from ..errors import ArtifactError
 from ..layout import CURRENT, GUIDE, HDR_MAX, HISTORY, LAYERS, N_GUIDE, RADIANCE, TONEMAP_FLOOR
-from .transpose import transpose8x8
+from .simd import N, lerp_codes16, requantize16, transpose8x8
 
 # layer -> (low, high, renormalize), from the one table of input layers (layout.LAYERS) and
 # the guide albedo (layout.GUIDE)
@@ -457,36 +457,42 @@ def _upsample_concat(dec, nat, sd, zd, sn, zn, sb, zb, phases, out):
     # width), then along them: every intermediate is an integer below 2^12, exact in float32,
     # and the one rounding, the scaling, is done by a power of two less (kd / 16), which
     # rounds the same way. Bit-equal to taking the four taps at each output in float, 1.8x
-    # faster on a Zen 3 (tests/runtime/test_reformat.py; docs/performance.md, stop 58)
+    # faster on a Zen 3 (tests/runtime/test_reformat.py; docs/performance.md, stop 58).
+    # A pixel's channels 16 at a time by ``simd``'s primitives, the rest one at a time
+    # (docs/performance.md, stop 75)
     h, w, cd = dec.shape
     H, W, cn = 2 * h, 2 * w, nat.shape[2] // (phases * phases)
+    C = cd + cn
     kd16 = np.float32(np.float32(sd / sb) / np.float32(16))
     kn = np.float32(sn / sb)
     zd16, znf, zbf = np.float32(16 * zd), np.float32(zn), np.float32(zb)
     lo, hi, one, three, four = np.float32(0), np.float32(255), np.float32(1), np.float32(3), np.float32(4)
+    vd, vn = cd - cd % N, cn - cn % N  # channels in whole vectors
     for y in prange(H):
         ya = (y - 1) // 2  # the source row above the output row's centre
         wa = one if y % 2 == 0 else three
-        ra, rb = dec[min(max(ya, 0), h - 1)], dec[min(max(ya + 1, 0), h - 1)]
-        col = np.empty((w, cd), np.float32)  # 4x the interpolation down the rows
-        for x in range(w):
-            for c in range(cd):  # contiguous channels: vector loads across c
-                col[x, c] = wa * np.float32(ra[x, c]) + (four - wa) * np.float32(rb[x, c])
+        ra = dec[min(max(ya, 0), h - 1)].reshape(w * cd)
+        rb = dec[min(max(ya + 1, 0), h - 1)].reshape(w * cd)
+        col = np.empty(w * cd, np.float32)  # 4x the interpolation down the rows
+        for i in range(w * cd):
+            col[i] = wa * np.float32(ra[i]) + (four - wa) * np.float32(rb[i])
+        o = out[0, y].reshape(W * C)
+        row = nat[y // phases].reshape(nat.shape[1] * nat.shape[2])
         for x in range(W):
             xa = (x - 1) // 2
             wx = one if x % 2 == 0 else three
-            ca, cb = col[min(max(xa, 0), w - 1)], col[min(max(xa + 1, 0), w - 1)]
-            o = out[0, y, x]
-            for c in range(cd):
-                o[c] = np.uint8(min(max(np.rint((wx * ca[c] + (four - wx) * cb[c] - zd16) * kd16) + zbf, lo), hi))
-            if phases == 1:
-                n = nat[y, x]
-                for c in range(cn):
-                    o[cd + c] = np.uint8(min(max(np.rint((np.float32(n[c]) - znf) * kn) + zbf, lo), hi))
-            else:  # the depth-to-space: pixel (y, x) is phase 2 (y % 2) + x % 2 of (y // 2, x // 2)
-                n = nat[y // 2, x // 2, (2 * (y % 2) + x % 2) * cn:]
-                for c in range(cn):
-                    o[cd + c] = np.uint8(min(max(np.rint((np.float32(n[c]) - znf) * kn) + zbf, lo), hi))
+            ia, ib, j = min(max(xa, 0), w - 1) * cd, min(max(xa + 1, 0), w - 1) * cd, x * C
+            for c in range(0, vd, N):
+                lerp_codes16(col, ia + c, col, ib + c, wx, four - wx, zd16, kd16, zbf, o, j + c)
+            for c in range(vd, cd):
+                o[j + c] = np.uint8(min(max(np.rint((wx * col[ia + c] + (four - wx) * col[ib + c] - zd16) * kd16) + zbf,
+                                            lo), hi))
+            # pixel (y, x)'s skip features: in phases, phase 2 (y % 2) + x % 2 of (y // 2, x // 2)
+            s = x * cn if phases == 1 else (4 * (x // 2) + 2 * (y % 2) + x % 2) * cn
+            for c in range(0, vn, N):
+                requantize16(row, s + c, znf, kn, zbf, o, j + cd + c)
+            for c in range(vn, cn):
+                o[j + cd + c] = np.uint8(min(max(np.rint((np.float32(row[s + c]) - znf) * kn) + zbf, lo), hi))
 
 
 def block_input(up: np.ndarray, skip: np.ndarray, cut: Cut) -> np.ndarray:

@@ -207,10 +207,10 @@ def test_pack_inputs_places_the_guide_albedo_after_current_and_history():
 
 
 def test_transpose8x8_is_the_byte_transpose_and_its_own_inverse():
-    """runtime.transpose: byte p of word t out is byte t of word p in."""
+    """runtime.simd: byte p of word t out is byte t of word p in."""
     from numba import njit
 
-    from jnds_deploy.runtime.transpose import transpose8x8
+    from jnds_deploy.runtime.simd import transpose8x8
 
     @njit
     def t(a):

@@ -32,11 +32,13 @@ def _taps_in_float(dec, nat, sd, zd, sn, zn, sb, zb):
 
 @pytest.mark.parametrize("q", [(0.0371, 3, 0.0213, 0, 0.0297, 7), (0.05, 0, 0.01, 0, 0.013, 128),
                                (1.3e-3, 255, 0.7, 11, 2.1e-3, 40), (0.02, 17, 0.02, 17, 0.02, 17)])
-def test_upsample_concat_is_bit_equal_to_the_four_taps_in_float(q):
+# channels: whole vectors of 16 (simd) and one at a time, both, or either alone
+@pytest.mark.parametrize("cd,cn", [(24, 8), (48, 16), (5, 3)])
+def test_upsample_concat_is_bit_equal_to_the_four_taps_in_float(q, cd, cn):
     rng = np.random.default_rng(7)
-    dec = rng.integers(0, 256, (9, 13, 24)).astype(np.uint8)
-    nat = rng.integers(0, 256, (18, 26, 8)).astype(np.uint8)
-    out = np.empty((1, 18, 26, 32), np.uint8)
+    dec = rng.integers(0, 256, (9, 13, cd)).astype(np.uint8)
+    nat = rng.integers(0, 256, (18, 26, cn)).astype(np.uint8)
+    out = np.empty((1, 18, 26, cd + cn), np.uint8)
     reformat._upsample_concat(dec, nat, *q, 1, out)
     want = _taps_in_float(dec, nat, *q)
     np.testing.assert_array_equal(out, want)
@@ -49,9 +51,9 @@ def test_block_input_does_the_depth_to_space_of_a_skip_in_phases():
     from those features in native layout."""
     rng = np.random.default_rng(8)
     dec = rng.integers(0, 256, (1, 9, 13, 24)).astype(np.uint8)
-    nat = rng.integers(0, 256, (1, 18, 26, 8)).astype(np.uint8)
-    # (1, 9, 13, 32): pixel (2y + py, 2x + px)'s channel c at (2py + px) 8 + c
-    phased = np.ascontiguousarray(nat.reshape(1, 9, 2, 13, 2, 8).transpose(0, 1, 3, 2, 4, 5).reshape(1, 9, 13, 32))
+    nat = rng.integers(0, 256, (1, 18, 26, 16)).astype(np.uint8)
+    # (1, 9, 13, 64): pixel (2y + py, 2x + px)'s channel c at (2py + px) 16 + c
+    phased = np.ascontiguousarray(nat.reshape(1, 9, 2, 13, 2, 16).transpose(0, 1, 3, 2, 4, 5).reshape(1, 9, 13, 64))
     q = dict(up_q=(0.0371, 3), skip_q=(0.0213, 5), entry_q=(0.0297, 7))
     plain = reformat.Cut("block.1", "u", "s", stage="output_block", **q)
     cut = reformat.Cut("block.1", "u", "s", stage="output_block", skip_phases=2, **q)
