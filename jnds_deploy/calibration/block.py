@@ -6,7 +6,7 @@ graph each is a DequantizeLinear of the u8 features, a float Resize (a float ten
 all their channels at the finer resolution), a QuantizeLinear and a QLinearConcat: in the
 output block about 20 ms of 47 at 1280x720, where its convolution runs near the CPU's int8
 peak (docs/design-notes.md, "The output block's glue, out of the graph"). ``cut_blocks``
-cuts the graph at those of ``CUT_AT`` (the output block's), in one file with an entry per
+cuts the graph at those of ``CUT_AT`` (all of them), in one file with an entry per
 segment:
 
 - from ``inputs``, the graph up to the first cut; from each cut's entry ``block.<k>`` (u8,
@@ -36,11 +36,12 @@ from ..runtime.profile import stage_of
 from ..runtime.reformat import BLOCK_KEY, INPUTS, BlockLayout, Cut
 from .head import save_extracted
 
-# where the cuts are: the output block's alone. Cutting the feature extractor's decoder
-# blocks too took their ONNX Runtime glue out (about 11 ms at 720p) but added numba passes
-# (about 5 ms) and two more runs a frame, and the network stage came out no faster (stop 48,
-# docs/design-notes.md)
-CUT_AT = ("/network/output_block/",)
+# where the cuts are: the output block's and the feature extractor's decoder blocks'. In stop
+# 48 the decoder blocks' cuts added numba passes (about 5 ms at 720p) and two more runs a frame
+# for the 11 ms of ONNX Runtime glue they took out, and the network stage came out no faster;
+# with the passes 16 channels at a time (runtime.simd, stop 75) it is about 11 ms faster a 720p
+# frame (docs/design-notes.md, "The output block's glue, out of the graph")
+CUT_AT = ("/network/output_block/", "/network/feature_extractor/")
 
 
 def _single(nodes: list, what: str, src: Path):

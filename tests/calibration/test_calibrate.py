@@ -41,6 +41,17 @@ def _producers(model):
     return {o: n for n in model.graph.node for o in n.output}
 
 
+def _check_concats(model):
+    """Each concatenation's resized input is quantized at the scale of what reads the
+    concatenation (calibration.quantize's resizes_into_concat_scale)."""
+    prod = _producers(model)
+    for concat in [n for n in model.graph.node if n.op_type == "Concat"]:
+        out = next(u for u in model.graph.node if concat.output[0] in u.input)
+        resized = [prod[i] for i in concat.input if prod[prod[i].input[0]].op_type == "QuantizeLinear"
+                   and prod[prod[prod[i].input[0]].input[0]].op_type == "Resize"]
+        assert len(resized) == 1 and resized[0].input[1:] == out.input[1:], concat.name
+
+
 def test_every_convolution_is_quantized(calibrated):
     d, manifest, _ = calibrated
     for name, g in manifest.graphs.items():
@@ -69,28 +80,24 @@ def test_every_convolution_is_quantized(calibrated):
             assert HeadLayout.from_json(props[LAYOUT_KEY]).channels % 16 == 0
             # its input: the u8 packed preprocessing, channels last, a multiple of 8
             # and an entry per cut at an upsampling + concatenation (calibration.block), with
-            # u8 defaults: the output block's
+            # u8 defaults: each decoder block's, then the output block's
             layout = BlockLayout.from_json(props[BLOCK_KEY])
             entries = [e for e, _ in layout.segments]
-            assert [i.name for i in model.graph.input] == entries and entries[0] == INPUTS and len(entries) == 2
-            assert [c.stage for c in layout.cuts] == ["output_block"]
+            depth = len(manifest.model_config["encoder_widths"])
+            assert [i.name for i in model.graph.input] == entries and entries[0] == INPUTS
+            assert [c.stage for c in layout.cuts] == ["feature_extractor"] * depth + ["output_block"]
             defaults = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer if i.name in entries}
             assert {k: v.dtype for k, v in defaults.items()} == {e: np.uint8 for e in entries}
             assert layout.internal <= set(out) and HEAD in dict(layout.segments)[entries[-1]]
             assert g.int8["qat"].block.startswith("between the graph's runs")
-            assert not any(n.op_type in ("Resize", "Concat") and n.name.startswith("/network/output_block/")
-                           for n in model.graph.node)
+            assert not ops["Resize"] and not ops["Concat"]
             assert InputsLayout.from_json(props[INPUTS_KEY]).channels % 8 == 0
             project = next(n for n in model.graph.node if n.name == PROJECT)
             assert not ops["Log"] and not ops["Exp"]  # no float tonemap left
             assert prod[prod[project.input[0]].input[0]].op_type == "Transpose"
         assert convs and ops["QuantizeLinear"] >= len(convs) and ops["Relu"] <= 1  # ReLUs folded
         assert not ops["AveragePool"]  # a depthwise convolution (pools_as_convolutions)
-        for concat in [n for n in model.graph.node if n.op_type == "Concat"]:  # resizes_into_concat_scale
-            out = next(u for u in model.graph.node if concat.output[0] in u.input)
-            resized = [prod[i] for i in concat.input if prod[prod[i].input[0]].op_type == "QuantizeLinear"
-                       and prod[prod[prod[i].input[0]].input[0]].op_type == "Resize"]
-            assert len(resized) == 1 and resized[0].input[1:] == out.input[1:], concat.name
+        _check_concats(model)
         for conv in convs:  # DQ -> Conv <- DQ(int8 weight), and Conv -> Q (what ORT fuses)
             assert prod[conv.input[0]].op_type == "DequantizeLinear", conv.name
             assert prod[conv.input[1]].op_type == "DequantizeLinear", conv.name
@@ -292,6 +299,7 @@ def test_the_cut_graph_computes_what_the_whole_graph_did(calibrated, tmp_path, m
     monkeypatch.setattr(quantize, "cut_blocks", lambda src, dst, multiple: None)
     calibrate(CalibrateConfig(artifacts=str(whole), data=(str(SAMPLE),), method="qat", frames=3), log=lambda s: None)
     file = manifest.graphs["network"].int8["qat"].file
+    _check_concats(onnx.load(whole / file))  # the cut graph has none left
     cut, ref = (ort.InferenceSession(str(p / file), quiet(), providers=["CPUExecutionProvider"]) for p in (d, whole))
     e_cut, e_ref = Edges(cut), Edges(ref)
     assert e_cut.block is not None and e_ref.block is None and sorted(e_cut.outputs) == sorted(e_ref.outputs)
@@ -485,7 +493,8 @@ def test_a_space_to_depth_input_block_calibrates_packs_and_cuts_in_phases(tiny_a
     model = onnx.load(d / "network.int8.minmax.onnx")
     layout = InputsLayout.from_json(props[INPUTS_KEY])
     assert layout.block == 2 and layout.channels == 104 and len(layout.slots) == 100
-    assert [c.skip_phases for c in BlockLayout.from_json(props[BLOCK_KEY]).cuts] == [2]
+    cuts = BlockLayout.from_json(props[BLOCK_KEY]).cuts  # the decoder blocks' skips are not in phases
+    assert [c.skip_phases for c in cuts] == [1] * (len(cuts) - 1) + [2] and cuts[-1].stage == "output_block"
     assert not [n for n in model.graph.node if n.op_type in ("DepthToSpace", "AveragePool")]
     seq = open_sequence(SAMPLE)
     fp32, int8 = (Pipeline(PipelineConfig(artifacts=str(d), precision=p)) for p in ("fp32", "int8"))
