@@ -23,7 +23,7 @@ from numba import njit, prange
 
 from ..errors import ArtifactError
 from ..layout import CURRENT, GUIDE, HDR_MAX, HISTORY, LAYERS, N_GUIDE, RADIANCE, TONEMAP_FLOOR
-from .simd import N, lerp_codes16, requantize16, transpose8x8
+from .simd import N, binned_codes16, lerp_codes16, requantize16, transpose8x8
 
 # layer -> (low, high, renormalize), from the one table of input layers (layout.LAYERS) and
 # the guide albedo (layout.GUIDE)
@@ -211,24 +211,32 @@ class InputsLayout:
 
 def _tonemap_codes(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
     """Tables giving Eq. 1's tonemap of x >= 0, quantized, without evaluating it per
-    value. ``first``: the code of the smallest float32 in each bin of floats that share
-    their top 17 bits (sign, exponent and 8 mantissa bits: ``x.view(uint32) >> 15``);
-    ``at``: the x from which each code on is reached (code k for x >= at[k]; at[256] = inf,
-    so that ``_pack`` can add ``v >= at[q + 1]`` without a branch). Within a bin
-    x changes by 2^-8 of itself, the tonemap (t^(1/2.2) of log(x + 1)) by at most 0.46 of
-    that, so a bin holds at most one step of any code that is not saturated: the code of x
-    is first[bin] or one more (``_pack``). The thresholds are exact in float64: the codes
-    are those of rounding t / scale, up to ties."""
+    value, per bin of floats that share their top 17 bits (sign, exponent and 8 mantissa
+    bits: ``x.view(uint32) >> 15``). ``first`` (int32): the code of the bin's smallest
+    float32; ``step`` (float32): the x from which the next code is reached, the smallest
+    float32 at or above it (+inf for code 255). Within a bin x changes by 2^-8
+    of itself, the tonemap (t^(1/2.2) of log(x + 1)) by at most 0.46 of that, so a bin holds
+    at most one step of any code that is not saturated: the code of x is ``first[bin] + (x >=
+    step[bin])`` (``_quantize_row``; ``simd.binned_codes16``, 16 at a time by two gathers).
+    The thresholds are exact in float64 and rounded up to float32, which compares float32 x
+    the same way: the codes are those of rounding t / scale, up to ties."""
     s, z = layout.scale, layout.zero_point
     k = np.arange(256, dtype=np.float64)
     t = np.maximum((k - z - 0.5) * s, 0.0)  # code k from tonemap value t on
-    at = np.where(t > TONEMAP_FLOOR ** (1 / 2.2), np.expm1(t ** 2.2), -np.inf)
+    with np.errstate(over="ignore"):  # a code out of float range is reached at +inf
+        at = np.where(t > TONEMAP_FLOOR ** (1 / 2.2), np.expm1(t ** 2.2), -np.inf)
     at[: z + 1] = -np.inf  # the codes up to the zero point: every x >= 0
+    at = np.append(at, np.inf)  # no code 256
     with np.errstate(invalid="ignore"):  # bins of NaN/Inf bits (x is clamped to HDR_MAX first)
         lows = (np.arange(1 << 16, dtype=np.uint32) << 15).view(np.float32).astype(np.float64)
     lows = np.where(np.isfinite(lows), lows, np.inf)
-    first = (np.searchsorted(at, lows, side="right") - 1).clip(0, 255).astype(np.uint8)
-    return first, np.append(at, np.inf)
+    first = (np.searchsorted(at, lows, side="right") - 1).clip(0, 255)
+    need = at[first + 1]
+    with np.errstate(over="ignore"):
+        step = need.astype(np.float32)
+    low = step.astype(np.float64) < need
+    step[low] = np.nextafter(step[low], np.float32(np.inf))
+    return first.astype(np.int32), step
 
 
 @njit(inline="always")
@@ -239,7 +247,7 @@ def _input_row(current, history, guide, c, y):
 
 
 @njit(parallel=True, cache=True)
-def _pack(current, history, guide, kinds, scale, zero_point, first, at, slots, pads, out):
+def _pack(current, history, guide, kinds, scale, zero_point, first, step, slots, pads, out):
     # each channel of a row into a contiguous byte row first, then the row's pixels
     # written out whole: storing straight into the channels-last output was one byte store
     # per value at a stride of C bytes (docs/design-notes.md, "Input packing")
@@ -251,23 +259,25 @@ def _pack(current, history, guide, kinds, scale, zero_point, first, at, slots, p
             # the channel's slot row taken once: indexing codes[slots[c], i] in the loops
             # reloaded slots[c] at every value and kept them scalar (2.4x the time at 720p,
             # benchmarks/results/pack_inputs.md)
-            _quantize_row(src, kinds[c], scale, zero_point, first, at, codes[slots[c]])
+            _quantize_row(src, kinds[c], scale, zero_point, first, step, codes[slots[c]])
         _store_pixels(codes, pads, zero_point, out[0, y])
 
 
 @njit(inline="always")
-def _quantize_row(src, k, scale, zero_point, first, at, row):
+def _quantize_row(src, k, scale, zero_point, first, step, row):
     # one row of one channel (kind k, ``preprocess``) into its u8 codes
     lo, hi = np.float32(0), np.float32(255)
-    if k == 1:  # tonemap, through the tables
+    if k == 1:  # tonemap, through the tables: 16 values at a time by gathers, then the rest
         top = np.float32(HDR_MAX)
-        for i in range(row.shape[0]):
+        w = row.shape[0]
+        for i in range(0, w - w % N, N):
+            binned_codes16(src, i, first, step, top, row, i)
+        for i in range(w - w % N, w):
             v = min(max(src[i], lo), top)  # keeps -0.0: the sign bit is masked off
-            q = np.int64(first[np.int64((np.float32(v).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 15)])
+            b = np.int64((np.float32(v).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 15)
             # no branch: on 1-spp noise a branch here is mispredicted often
             # (docs/performance.md, stop 40)
-            q += np.int64(v >= at[q + 1])
-            row[i] = np.uint8(q)
+            row[i] = np.uint8(first[b] + np.int32(v >= step[b]))
     else:
         half, zp = np.float32(0.5), np.float32(zero_point)
         a = half if k == 2 else np.float32(1)
@@ -317,7 +327,7 @@ def _store_pixels(codes, pads, zero_point, out_row):
 
 
 @njit(parallel=True, cache=True)
-def _pack_blocks(current, history, guide, kinds, scale, zero_point, first, at, slots, pads, out):
+def _pack_blocks(current, history, guide, kinds, scale, zero_point, first, step, slots, pads, out):
     # ``_pack`` for a space-to-depth input block: output row y from input rows 2y and 2y + 1,
     # channel c's pixel (2y + py, 2x + px) to slot slots[4c + 2py + px] of pixel x
     w, C = out.shape[2], out.shape[3]
@@ -331,7 +341,7 @@ def _pack_blocks(current, history, guide, kinds, scale, zero_point, first, at, s
                 # the input row quantized in order, as ``_pack`` does, then dealt out to the
                 # two pixels' slots: read at a stride of 2, the affine loops stayed scalar and
                 # the packing took half as long again (docs/performance.md, stop 73)
-                _quantize_row(src, kinds[4 * c], scale, zero_point, first, at, line)
+                _quantize_row(src, kinds[4 * c], scale, zero_point, first, step, line)
                 even, odd = codes[slots[4 * c + 2 * py]], codes[slots[4 * c + 2 * py + 1]]
                 for i in range(w):
                     even[i] = line[2 * i]
@@ -356,11 +366,11 @@ def pack_inputs(current: np.ndarray, history: np.ndarray, layout: InputsLayout,
         raise ArtifactError(f"the int8 network graph reads {b}x{b} pixel blocks: a {w}x{h} frame is not made of them")
     guide = np.empty((0, h, w), np.float32) if guide is None else np.ascontiguousarray(guide[0], np.float32)
     out = np.empty((1, h // b, w // b, layout.channels), np.uint8)
-    first, at = _tables(layout)
+    first, step = _tables(layout)
     slots, pads = _placement(layout)
     (_pack if b == 1 else _pack_blocks)(
         np.ascontiguousarray(current[0], np.float32), np.ascontiguousarray(history[0], np.float32), guide,
-        preprocess(len(slots)), np.float32(layout.scale), layout.zero_point, first, at, slots, pads, out)
+        preprocess(len(slots)), np.float32(layout.scale), layout.zero_point, first, step, slots, pads, out)
     return out
 
 

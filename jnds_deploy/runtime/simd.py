@@ -123,3 +123,54 @@ def requantize16(typingctx, src, i, z, k, zb, out, j):
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+def _splat_i64(builder, x):
+    v = builder.insert_element(ir.Constant(ir.VectorType(ir.IntType(64), N), ir.Undefined), x, ir.Constant(_I32, 0))
+    return builder.shuffle_vector(v, v, ir.Constant(ir.VectorType(_I32, N), [0] * N))
+
+
+def _gather(builder, base, index, element):
+    """The N values of 4-byte ``element`` at ``base`` + ``index`` (an <N x i32> of
+    non-negative indices): one ``llvm.masked.gather``, which LLVM lowers to vector gathers
+    where the CPU has fast ones (AVX-512) and to loads one at a time elsewhere."""
+    i64 = ir.VectorType(ir.IntType(64), N)
+    ptrs = ir.VectorType(element.as_pointer(), N)
+    offset = builder.mul(builder.zext(index, i64), ir.Constant(i64, [4] * N))
+    addr = builder.inttoptr(builder.add(_splat_i64(builder, builder.ptrtoint(base, ir.IntType(64))), offset), ptrs)
+    vt, mask = ir.VectorType(element, N), ir.VectorType(ir.IntType(1), N)
+    kind = "i32" if element == _I32 else "f32"
+    fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(vt, [ptrs, _I32, mask, vt]),
+                                        f"llvm.masked.gather.v{N}{kind}.v{N}p0")
+    return builder.call(fn, [addr, ir.Constant(_I32, 4), ir.Constant(mask, [1] * N), ir.Constant(vt, ir.Undefined)])
+
+
+@intrinsic
+def binned_codes16(typingctx, src, i, first, step, top, out, j):
+    """out[j + n] = u8(first[b] + (v >= step[b])) for n < 16, v = min(max(src[i + n], 0), top)
+    and b its bin, the top 17 bits of its float32 with the sign cleared (``v.view(uint32) &
+    0x7FFFFFFF) >> 15``): ``reformat._tonemap_codes``' tables, read by two gathers. float32
+    ``src`` and ``step``, int32 ``first``, u8 ``out``, all 1-d and contiguous."""
+    if not (_is_1d(src, types.float32) and _is_1d(first, types.int32) and _is_1d(step, types.float32)
+            and _is_1d(out, types.uint8) and top == types.float32):
+        return None
+    sig = types.void(src, i, first, step, top, out, j)
+
+    def codegen(context, builder, signature, args):
+        s_, i_, f_, t_, top_, o_, j_ = args
+        ts, _, tf, tt, _, to, _ = signature.args
+        v = builder.load(_vector_at(context, builder, ts, s_, i_, _F32), align=4)
+        zero = ir.Constant(_V, [0.0] * N)
+        v = builder.select(builder.fcmp_ordered("<", v, zero), zero, v)  # -0.0 stays: its bin is 0's
+        cap = _splat(builder, top_)
+        v = builder.select(builder.fcmp_ordered(">", v, cap), cap, v)
+        vi = ir.VectorType(_I32, N)
+        bins = builder.lshr(builder.and_(builder.bitcast(v, vi), ir.Constant(vi, [0x7FFFFFFF] * N)),
+                            ir.Constant(vi, [15] * N))
+        q = _gather(builder, context.make_array(tf)(context, builder, f_).data, bins, _I32)
+        t = _gather(builder, context.make_array(tt)(context, builder, t_).data, bins, _F32)
+        q = builder.add(q, builder.zext(builder.fcmp_ordered(">=", v, t), vi))
+        builder.store(builder.trunc(q, ir.VectorType(_I8, N)), _vector_at(context, builder, to, o_, j_, _I8), align=1)
+        return context.get_dummy_value()
+
+    return sig, codegen

@@ -220,3 +220,35 @@ def test_transpose8x8_is_the_byte_transpose_and_its_own_inverse():
     b = np.array(t(a), np.uint64)
     np.testing.assert_array_equal(b.view(np.uint8).reshape(8, 8), a.view(np.uint8).reshape(8, 8).T)
     np.testing.assert_array_equal(np.array(t(b), np.uint64), a)
+
+
+@pytest.mark.parametrize("scale, zero_point", [(0.011, 0), (0.004, 3), (0.05, 128)])
+def test_tonemap_codes_16_at_a_time_are_the_codes_one_at_a_time(scale, zero_point):
+    """The packing's tonemap codes by gathers (simd.binned_codes16, whole vectors of a row)
+    are those of the scalar loop (the row's remainder), on floats of every exponent, the
+    clamps and signed zeros, and those of rounding the float64 tonemap but for rare ties."""
+    from numba import njit
+
+    from jnds_deploy.runtime.reformat import _quantize_row, _tonemap_codes
+
+    @njit
+    def both(src, scale, zero_point, first, step, whole, single):
+        _quantize_row(src, 1, scale, zero_point, first, step, whole)
+        one, code = np.empty(1, np.float32), np.empty(1, np.uint8)
+        for i in range(src.shape[0]):  # a row of one value: the remainder loop
+            one[0] = src[i]
+            _quantize_row(one, 1, scale, zero_point, first, step, code)
+            single[i] = code[0]
+
+    rng = np.random.default_rng(4)
+    bits = rng.integers(0, 0x47800000, 4096, dtype=np.uint32)  # every exponent up to 65536
+    x = np.concatenate([bits.view(np.float32), np.float32([0, -0.0, -3, 65535, 1e9, np.inf, 1e-30, 7.5]),
+                        np.float32(rng.random(4088) ** 6 * 400)])
+    layout = InputsLayout(scale, zero_point, 32)
+    first, step = _tonemap_codes(layout)
+    whole, single = np.empty(len(x), np.uint8), np.empty(len(x), np.uint8)
+    both(x, np.float32(scale), zero_point, first, step, whole, single)
+    np.testing.assert_array_equal(whole, single)
+    t = np.log1p(np.clip(x.astype(np.float64), 0, 65535)) ** (1 / 2.2)
+    want = np.clip(np.rint(t / scale) + zero_point, 0, 255)
+    assert np.abs(whole - want).max() <= 1 and (whole != want).mean() < 1e-3
