@@ -1,7 +1,7 @@
 """Vector primitives for numba loops, written by hand in LLVM IR (``@intrinsic``s) where
 numba's loop vectorizer does not find them.
 
-Two kinds of loop kept scalar work that the CPU could do 16 or 64 bytes at a time:
+Three kinds of loop kept scalar work that the CPU could do 16 or 64 bytes at a time:
 
 - The 8x8 byte transposes between channels-last u8 tensors and planes: the input packing
   writes each pixel's channels together (``reformat._store_pixels``), the head's decoding
@@ -15,6 +15,8 @@ Two kinds of loop kept scalar work that the CPU could do 16 or 64 bytes at a tim
   every pixel, with remainder loops. ``lerp_codes16`` and ``requantize16`` load 16 values,
   compute and store 16 codes with no test: the caller guarantees that the 16 values exist
   and that the output does not overlap them.
+- The input packing's tonemap through tables (``reformat._tonemap_codes``): numba kept the
+  table loads scalar. ``binned_codes16`` reads 16 values' entries by two gathers.
 
 LLVM lowers them for the CPU numba compiles for (``vpermt2b`` with AVX-512 VBMI, byte
 shuffles and unpacks with AVX2; 512-bit or two 256-bit vectors). Each computes what its
@@ -133,7 +135,8 @@ def _splat_i64(builder, x):
 def _gather(builder, base, index, element):
     """The N values of 4-byte ``element`` at ``base`` + ``index`` (an <N x i32> of
     non-negative indices): one ``llvm.masked.gather``, which LLVM lowers to vector gathers
-    where the CPU has fast ones (AVX-512) and to loads one at a time elsewhere."""
+    (``vpgatherdd``, ``vgatherdps``: with AVX-512, and with AVX2 for a Zen 3 too) or, on a
+    CPU without them, to loads one at a time."""
     i64 = ir.VectorType(ir.IntType(64), N)
     ptrs = ir.VectorType(element.as_pointer(), N)
     offset = builder.mul(builder.zext(index, i64), ir.Constant(i64, [4] * N))
