@@ -990,6 +990,14 @@ def upsample_fixed(color: np.ndarray, kernel, factor: int, root: int = 1) -> np.
     return up.astype(color.dtype, copy=False)
 
 
+@njit(inline="always")
+def _stored(v, zero, inf, top):
+    """(ReLU(v), 0) for finite v, else (``top`` for +Inf, 0 for NaN and -Inf; 1): selects, no
+    branch, so that the loops storing it vectorize."""
+    finite = abs(v) < inf
+    return (max(v, zero) if finite else (top if v > zero else zero)), np.int64(not finite)
+
+
 @njit(parallel=True, cache=True)
 def _upsample2_fixed_hwc(r, k, squarings, out):
     """out (Ho, Wo, C) = ReLU(3x3 kernel ``k`` on the 2x bilinear upsampling of ``r`` (C, H, W),
@@ -1042,21 +1050,16 @@ def _upsample2_fixed_hwc(r, k, squarings, out):
                 a0, a1, a2, o = acc[0], acc[1], acc[2], out[y].reshape(3 * Wo)  # flat: a stride LLVM knows
                 n = 0
                 for x in range(Wo):
-                    v0, v1, v2 = a0[x], a1[x], a2[x]
-                    f0, f1, f2 = abs(v0) < inf, abs(v1) < inf, abs(v2) < inf
-                    n += np.int64(not f0) + np.int64(not f1) + np.int64(not f2)
-                    o[3 * x + 0] = max(v0, zero) if f0 else (top if v0 > zero else zero)
-                    o[3 * x + 1] = max(v1, zero) if f1 else (top if v1 > zero else zero)
-                    o[3 * x + 2] = max(v2, zero) if f2 else (top if v2 > zero else zero)
+                    o[3 * x], n0 = _stored(a0[x], zero, inf, top)
+                    o[3 * x + 1], n1 = _stored(a1[x], zero, inf, top)
+                    o[3 * x + 2], n2 = _stored(a2[x], zero, inf, top)
+                    n += n0 + n1 + n2
                 bad[b] += n
             else:
                 for c in range(C):
                     for x in range(Wo):
-                        v = acc[c, x]
-                        if not np.isfinite(v):
-                            bad[b] += 1
-                            v = top if v > zero else zero
-                        out[y, x, c] = max(v, zero)
+                        out[y, x, c], nc = _stored(acc[c, x], zero, inf, top)
+                        bad[b] += nc
     return bad.sum()
 
 
