@@ -177,7 +177,7 @@ def main() -> int:
         done = run_frames({name: f() for name, f in factories.items()}, inputs[p])
         for name, frames in done.items():
             ms[name] += [t for _, t in frames]
-            per_seq[name][p.name] = score_frames([out for out, _ in frames], *truth[p])
+            per_seq[name][p.name] = score_frames([out for out, _ in frames], *truth[p][:3], masks=truth[p][3])
         print(f"{p.name}: done", flush=True)
     for name in factories:
         report["methods"][name] = {"mean": mean_over_sequences(per_seq[name]), "ms_per_frame": float(np.median(ms[name])),

@@ -192,7 +192,7 @@ def cmd_run(args) -> int:
         w, h = open_sequence(args.input).native_size
         pretouch(FIRST_FRAME_HEAP_PER_PIXEL * w * h)
         from .runtime import PipelineConfig, tune_numba
-        from .runtime.run import run_sequence, stage_table
+        from .runtime.run import run_sequence, score_lines, stage_table
 
         tune_numba()
     finally:
@@ -209,11 +209,11 @@ def cmd_run(args) -> int:
     print(f"{report['frames']} frames -> {args.output}: median {med['total']:.1f} ms/frame "
           f"({report['native_size'][0]}x{report['native_size'][1]} -> "
           f"{report['output_size'][0]}x{report['output_size'][1]}, {args.precision})")
-    if "metrics" in report:
-        print(f"against the reference: PSNR {report['metrics']['psnr']:.2f} dB, FLIP {report['metrics']['flip']:.4f}")
+    for line in score_lines(report):
+        print(line)
     print(stage_table(report))
     if "contact_sheet" in report:
-        print(f"contact sheet (input, OIDN, output, reference): {report['contact_sheet']}")
+        print(f"contact sheet (input, OIDN, output, reference, changed pixels): {report['contact_sheet']}")
     return 0
 
 

@@ -29,6 +29,16 @@ def _tile(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return image
 
 
+def mark(image: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
+    """``image`` (HWC linear) with the pixels of ``mask`` (H, W bool; None: none) tinted
+    red, e.g. the pixels whose previous frame showed another surface
+    (``metrics.changed_mask``)."""
+    out = image[..., :3].astype(np.float32, copy=True)
+    if mask is not None:
+        out[mask] = 0.4 * out[mask] + np.float32([0.6, 0.0, 0.0])
+    return out
+
+
 def render(rows: list[tuple[str, dict[str, np.ndarray]]]) -> np.ndarray:
     """(H, W, 3) uint8 BGR: per row a title and {column label: HWC linear image}; every
     row has the same columns, shown at the size of the largest image."""

@@ -78,6 +78,89 @@ def disocclusion_mask(depth: np.ndarray) -> np.ndarray:
     return cv2.dilate((jumps | silhouette).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
 
 
+# a native pixel's previous frame showed the same surface when one of the 3x3 pixels around
+# its reprojected position has an albedo within CHANGED_ALBEDO per channel, a normal within
+# acos(CHANGED_COS) and, where the sequence has depth, a depth within CHANGED_DEPTH of the
+# pixel's own, relative (the changed-pixel measure of docs/ghosting.md)
+CHANGED_ALBEDO = 0.08
+CHANGED_COS = 0.8
+CHANGED_DEPTH = 0.15
+
+
+def changed_mask(cur: dict, prev: dict, scale: int = 1) -> np.ndarray:
+    """(H * scale, W * scale) bool: the pixels whose previous frame showed another surface,
+    where a history-reusing method ghosts and a single-frame one does not.
+
+    ``cur``/``prev``: two consecutive frames' input layers as ``io`` reads them (HWC
+    float32: ``albedo``, ``normal``, ``motion`` of ``cur``, and ``depth`` where both have
+    it). A native pixel is changed when its position in the previous frame (its motion
+    vector) leaves the frame, or when no pixel in the 3x3 around that position shows the
+    same surface (``CHANGED_*``; the background, normal 0, matches only background). The
+    mask is dilated by one native pixel, then repeated to the target resolution."""
+    h, w = cur["albedo"].shape[:2]
+    y, x = np.mgrid[0:h, 0:w]
+    px = np.rint(x + cur["motion"][..., 0]).astype(np.int64)
+    py = np.rint(y + cur["motion"][..., 1]).astype(np.int64)
+    inside = (px >= 0) & (px < w) & (py >= 0) & (py < h)
+    depth = "depth" in cur and "depth" in prev
+    bg = np.abs(cur["normal"]).sum(-1) < 1e-3
+    same = np.zeros((h, w), bool)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            qx, qy = px + dx, py + dy
+            ok = inside & (qx >= 0) & (qx < w) & (qy >= 0) & (qy < h)
+            qx, qy = np.clip(qx, 0, w - 1), np.clip(qy, 0, h - 1)
+            a, n = prev["albedo"][qy, qx], prev["normal"][qy, qx]
+            match = (np.abs(a - cur["albedo"]).max(-1) <= CHANGED_ALBEDO) & (
+                (n * cur["normal"]).sum(-1) >= CHANGED_COS)
+            if depth:
+                d, d0 = prev["depth"][qy, qx, 0], cur["depth"][..., 0]
+                match &= np.abs(d - d0) <= CHANGED_DEPTH * np.maximum(d0, 1e-6)
+            match = np.where(bg, np.abs(n).sum(-1) < 1e-3, match)
+            same |= ok & match
+    changed = cv2.dilate((~same).astype(np.uint8), np.ones((3, 3), np.uint8))
+    return np.repeat(np.repeat(changed, scale, 0), scale, 1).astype(bool)
+
+
+def masked_squared_error(out: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> tuple[float, int]:
+    """The sum of squared display-value differences (``to_ldr``, per channel) over the
+    pixels of ``mask`` (H, W), and the number of values summed: pooled over frames, then
+    ``psnr_of`` turns them into a PSNR."""
+    d = (to_ldr(out) - to_ldr(ref))[mask]
+    return float(np.sum(d.astype(np.float64) ** 2)), int(d.size)
+
+
+def psnr_of(sum_sq: float, count: int) -> float:
+    """PSNR (display values in [0, 1]) of a pooled squared error; NaN over no values."""
+    if count == 0:
+        return float("nan")
+    return float(10 * np.log10(1.0 / max(sum_sq / count, 1e-12)))
+
+
+def changed_psnr(outs: list[np.ndarray], refs: list[np.ndarray], masks: list[np.ndarray | None]) -> dict:
+    """PSNR over the changed pixels (``changed_mask``) of every frame that has a mask
+    (frame 0 and frames after a cut have none), pooled: {"changed_psnr", "changed_fraction"}."""
+    total, count, pixels, seen = 0.0, 0, 0, 0
+    for o, r, m in zip(outs, refs, masks):
+        if m is None:
+            continue
+        s, c = masked_squared_error(o, r, m)
+        total, count, pixels, seen = total + s, count + c, pixels + int(m.sum()), seen + m.size
+    return {"changed_psnr": psnr_of(total, count), "changed_fraction": pixels / seen if seen else float("nan")}
+
+
+def changed_masks(seq) -> list[np.ndarray | None]:
+    """``changed_mask`` of every frame of an ``io.Sequence`` at its target resolution;
+    None for frame 0 and after a camera cut."""
+    scale = seq.target_size[0] // seq.native_size[0]
+    masks, prev = [], None
+    for i in range(len(seq)):
+        cur = seq.inputs(i)
+        masks.append(None if prev is None or seq.frames[i].camera_cut else changed_mask(cur, prev, scale))
+        prev = cur
+    return masks
+
+
 def motion_warp_error(seq, t: int, layer: str = "albedo") -> dict[str, float]:
     """Check a sequence's motion vectors: warp the reference ``layer`` of frame t-1 into
     frame t (bilinear) and compare with frame t's, outside disocclusions and off-screen

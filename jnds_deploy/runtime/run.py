@@ -15,6 +15,7 @@ import numpy as np
 
 from .. import contact_sheet
 from ..io import OUTPUT_FORMATS, open_sequence, write_output
+from ..metrics import changed_mask
 from .pipeline import Pipeline, PipelineConfig
 
 
@@ -32,6 +33,17 @@ def stage_table(report: dict) -> str:
             rows.append(f"| {k} | {med[k]:.1f} | {100 * med[k] / total:.1f} |")
     rows.append(f"| **total** | **{total:.1f}** | 100.0 |")
     return "\n".join(rows)
+
+
+def score_lines(report: dict) -> list[str]:
+    """The report's scores against the reference as a user reads them: the output's and
+    the baseline's PSNR, FLIP and changed-pixel PSNR; none without a reference."""
+    lines = []
+    for name, m in (("JNDS", report.get("metrics")), (BASELINE, report.get("baseline"))):
+        if m:
+            lines.append(f"{name:>24}: PSNR {m['psnr']:.2f} dB, FLIP {m['flip']:.4f}, changed pixels "
+                         f"({100 * m['changed_fraction']:.1f} %) PSNR {m['changed_psnr']:.2f} dB")
+    return lines
 
 
 def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path,
@@ -62,7 +74,8 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
     pipe.reset()
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
-    frames, scores, nonfinite, decisions, rejected = [], [], [], [], []
+    frames, scores, baseline_scores, nonfinite, decisions, rejected = [], [], [], [], [], []
+    previous = None  # the previous frame's inputs, for the changed-pixel mask
     shown = set(contact_sheet.sheet_frames(len(seq))) if seq.has_reference else set()
     sheet = []
     # reading and writing beside the computation: OpenEXR lets go of the GIL while it reads
@@ -86,18 +99,21 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
             decisions.append({k: v for k, v in frame.decisions.items() if v})
             rejected.append({"pixels": frame.disoccluded, "tiles": frame.rejected, "fireflies_clamped": frame.clamped,
                              "diffuse_filled": frame.filled})
-            if metrics and seq.has_reference:
-                from ..metrics import flip, psnr
-
+            ref = baseline = mask = None
+            if seq.has_reference and (metrics or i in shown):
                 ref = seq.reference(i)["color"]
                 if ref.shape[:2] != color.shape[:2]:  # --native: the reference at the output size
                     ref = cv2.resize(ref, color.shape[1::-1], interpolation=cv2.INTER_AREA)
-                scores.append({"psnr": psnr(color, ref), "flip": flip(color, ref)})
+                baseline = _baseline(inputs, pipe.out_scale)
+                if previous is not None and not seq.frames[i].camera_cut:
+                    mask = changed_mask(inputs, previous, pipe.out_scale)
+            if metrics and ref is not None:
+                scores.append(_scores(color, ref, mask))
+                if baseline is not None:
+                    baseline_scores.append(_scores(baseline, ref, mask))
             if i in shown:
-                ref = seq.reference(i)["color"]
-                if ref.shape[:2] != color.shape[:2]:
-                    ref = cv2.resize(ref, color.shape[1::-1], interpolation=cv2.INTER_AREA)
-                sheet.append((f"frame {i}", _sheet_row(inputs, color, ref, pipe.out_scale)))
+                sheet.append((f"frame {i}", _sheet_row(inputs, color, ref, baseline, mask)))
+            previous = inputs
         if writing is not None:
             writing[1].result()
             yield writing[0]
@@ -120,8 +136,9 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
         "history_rejected": rejected,
     }
     if scores:
-        report["metrics"] = {"psnr": float(np.mean([s["psnr"] for s in scores])),
-                             "flip": float(np.mean([s["flip"] for s in scores])), "per_frame": scores}
+        report["metrics"] = _summary(scores)
+        if baseline_scores:
+            report["baseline"] = dict(_summary(baseline_scores), method=BASELINE)
     if sheet:
         report["contact_sheet"] = str(contact_sheet.write(out / "contact.png", sheet))
     tmp = out / ".run.json.tmp"
@@ -130,16 +147,55 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
     yield report
 
 
-def _sheet_row(inputs: dict, output, reference, scale: int) -> dict:
-    """The images of one contact-sheet row: the noisy input, OIDN (if installed), output, reference."""
+# what `jnds run` scores the output against besides the reference: a single-frame denoiser
+# at native resolution, upscaled (baselines.oidn_bicubic), where pyoidn is installed
+BASELINE = "OIDN balanced + bicubic"
+
+
+def _baseline(inputs: dict, scale: int) -> np.ndarray | None:
     import importlib.util
 
     from .. import baselines
 
+    if not importlib.util.find_spec("pyoidn"):
+        return None
+    return baselines.oidn_bicubic(inputs, scale) if scale > 1 else baselines.oidn(inputs)
+
+
+def _scores(color: np.ndarray, ref: np.ndarray, mask: np.ndarray | None) -> dict:
+    """One frame's PSNR, FLIP and the squared error over its changed pixels (pooled by
+    ``_summary``)."""
+    from ..metrics import flip, masked_squared_error, psnr
+
+    s = {"psnr": psnr(color, ref), "flip": flip(color, ref)}
+    if mask is not None:
+        s["changed_sq"], s["changed_n"] = masked_squared_error(color, ref, mask)
+        s["changed_fraction"] = float(mask.mean())
+    return s
+
+
+def _summary(scores: list[dict]) -> dict:
+    """Mean PSNR and FLIP over the frames; the PSNR over every frame's changed pixels,
+    pooled (``metrics.changed_psnr``); per frame PSNR and FLIP."""
+    from ..metrics import psnr_of
+
+    changed = [s for s in scores if "changed_n" in s]
+    return {"psnr": float(np.mean([s["psnr"] for s in scores])),
+            "flip": float(np.mean([s["flip"] for s in scores])),
+            "changed_psnr": psnr_of(sum(s["changed_sq"] for s in changed), sum(s["changed_n"] for s in changed)),
+            "changed_fraction": float(np.mean([s["changed_fraction"] for s in changed])) if changed else float("nan"),
+            "per_frame": [{"psnr": s["psnr"], "flip": s["flip"]} for s in scores]}
+
+
+def _sheet_row(inputs: dict, output, reference, baseline, mask) -> dict:
+    """The images of one contact-sheet row: the noisy input, OIDN (if installed), output,
+    reference, and the reference with the changed pixels marked."""
+    from .. import baselines
+
     row = {"input": baselines.noisy_composite(inputs)}
-    if importlib.util.find_spec("pyoidn"):
-        row["OIDN balanced" + (" + bicubic" if scale > 1 else "")] = (
-            baselines.oidn_bicubic(inputs, scale) if scale > 1 else baselines.oidn(inputs))
+    if baseline is not None:
+        row[BASELINE] = baseline
     row["JNDS"] = output
     row["reference"] = reference
+    row["changed pixels"] = contact_sheet.mark(reference, mask)
     return row

@@ -53,22 +53,29 @@ def evaluate_model(model, seqs: list[SequenceArrays], with_flip: bool = True) ->
     return {"mean": mean_over_sequences(per_seq), "sequences": per_seq}
 
 
-def score_frames(outs, refs, motions, cuts, with_flip: bool = True) -> dict[str, float]:
-    """Mean per-frame PSNR/SSIM/FLIP and the sequence's temporal error; HWC arrays."""
-    from ..metrics import frame_metrics, temporal_error
+def score_frames(outs, refs, motions, cuts, with_flip: bool = True, masks=None) -> dict[str, float]:
+    """Mean per-frame PSNR/SSIM/FLIP and the sequence's temporal error; HWC arrays. With
+    ``masks`` (``metrics.changed_masks``), also the PSNR over the pixels whose previous
+    frame showed another surface (``changed_psnr``) and their share."""
+    from ..metrics import changed_psnr, frame_metrics, temporal_error
 
     fm = [frame_metrics(o, r, with_flip) for o, r in zip(outs, refs)]
     m = {k: float(np.mean([f[k] for f in fm])) for k in fm[0]}
     m["temporal"] = temporal_error(outs, refs, motions, cuts)
+    if masks is not None:
+        m.update(changed_psnr(outs, refs, masks))
     return m
 
 
-def ground_truth(seq_path: Path) -> tuple[list, list, list]:
-    """Reference colours, motion vectors and camera cuts of a sequence (HWC)."""
+def ground_truth(seq_path: Path) -> tuple[list, list, list, list]:
+    """Reference colours, motion vectors, camera cuts and changed-pixel masks
+    (``metrics.changed_masks``) of a sequence (HWC)."""
+    from ..metrics import changed_masks
+
     seq = open_sequence(seq_path)
     refs = [seq.reference(i)["color"] for i in range(len(seq))]
     motions = [seq.inputs(i)["motion"] for i in range(len(seq))]
-    return refs, motions, [f.camera_cut for f in seq.frames]
+    return refs, motions, [f.camera_cut for f in seq.frames], changed_masks(seq)
 
 
 def mean_over_sequences(per_seq: dict[str, dict[str, float]]) -> dict[str, float]:
@@ -109,7 +116,8 @@ def evaluate_methods(seq_paths: list[Path], methods: dict, with_flip: bool = Tru
             t0 = time.perf_counter()
             outs = run(p)
             ms.append(1000 * (time.perf_counter() - t0) / len(outs))
-            per_seq[p.name] = score_frames(outs, *truth[p], with_flip)
+            refs, motions, cuts, masks = truth[p]
+            per_seq[p.name] = score_frames(outs, refs, motions, cuts, with_flip, masks)
             if shown is not None:
                 mid = len(outs) // 2
                 if p.name not in shown:
@@ -125,11 +133,12 @@ def evaluate_methods(seq_paths: list[Path], methods: dict, with_flip: bool = Tru
 
 
 def markdown_table(report: dict) -> str:
-    lines = ["| method | PSNR (dB) ↑ | SSIM ↑ | FLIP ↓ | temporal error ↓ |", "| --- | --- | --- | --- | --- |"]
+    lines = ["| method | PSNR (dB) ↑ | SSIM ↑ | FLIP ↓ | temporal error ↓ | changed-pixel PSNR (dB) ↑ |",
+             "| --- | --- | --- | --- | --- | --- |"]
     for name, r in report.items():
         m = r["mean"]
         lines.append(f"| {name} | {m['psnr']:.2f} | {m['ssim']:.4f} | {m.get('flip', float('nan')):.4f} | "
-                     f"{m['temporal']:.5f} |")
+                     f"{m['temporal']:.5f} | {m.get('changed_psnr', float('nan')):.2f} |")
     return "\n".join(lines)
 
 
@@ -192,11 +201,11 @@ def markdown_sets(reports: dict) -> str:
         methods = list(report)
         seqs = list(next(iter(report.values()))["sequences"])
         lines = [f"### {name} ({len(seqs)} sequences)", "", markdown_table(report), "",
-                 "| sequence | " + " | ".join(f"{m} PSNR / FLIP" for m in methods) + " |",
+                 "| sequence | " + " | ".join(f"{m} PSNR / FLIP / changed PSNR" for m in methods) + " |",
                  "| --- |" + " --- |" * len(methods)]
         for sq in seqs:
             cells = [f"{report[m]['sequences'][sq]['psnr']:.2f} / {report[m]['sequences'][sq].get('flip', float('nan')):.4f}"
-                     for m in methods]
+                 f" / {report[m]['sequences'][sq].get('changed_psnr', float('nan')):.2f}" for m in methods]
             lines.append(f"| {sq} | " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
     return "\n\n".join(parts)
