@@ -13,7 +13,7 @@ import functools
 import torch
 import torch.nn.functional as F
 
-from .layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_COS,
+from .layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_ALBEDO, REJECT_COS,
                      SCATTERED_CHANGES, SCATTERED_SHARE,
                      ROOT_FLOOR, TONEMAP_FLOOR)
 
@@ -55,6 +55,18 @@ def warp(x: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
     if x.requires_grad and torch.is_grad_enabled() and x.device.type == "cpu" and x.dtype == torch.float32:
         return _WarpCPU.apply(x, grid)
     return F.grid_sample(x, grid, mode="bicubic", padding_mode="border", align_corners=False)
+
+
+def offscreen(motion: torch.Tensor) -> torch.Tensor:
+    """(N, 1, H, W) bool: the pixels whose position in the previous frame (motion (N, 2, H,
+    W) in pixels) lies outside it, nearer another pixel than any of the frame's: they enter
+    the view, and ``warp``'s border replication would give them the edge's history, a smear
+    across a fast pan (docs/ghosting.md)."""
+    h, w = motion.shape[-2:]
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=motion.dtype, device=motion.device),
+                            torch.arange(w, dtype=motion.dtype, device=motion.device), indexing="ij")
+    px, py = xs + motion[:, 0], ys + motion[:, 1]
+    return ((px < -0.5) | (px > w - 0.5) | (py < -0.5) | (py > h - 0.5)).unsqueeze(1)
 
 
 class _WarpCPU(torch.autograd.Function):
@@ -134,9 +146,10 @@ def _warp_input_grad():
 # 2017) with a 3x3 tolerance. Without it the shipped model pulled an area light's
 # radiance across the black background next to it and kept the ghost frame after frame,
 # and history cost more than no history at all (benchmarks/results/history_gain.md).
-def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor) -> torch.Tensor:
+def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor, albedo: torch.Tensor,
+                warped_albedo: torch.Tensor) -> torch.Tensor:
     """(N, 1, H, W) bool: where the warped history must not be used, from the current
-    normals and the warped history's (N, 3, H, W; background 0).
+    normals and albedo and the warped history's (N, 3, H, W; background normal 0).
 
     - The current sample sees background: its radiance is exact, there is nothing to
       accumulate, and the history there may hold a surface's radiance warped across a
@@ -144,19 +157,27 @@ def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor) -> torch.Tens
     - The history holds a surface whose normal is further than acos(REJECT_COS) from the
       normal of every current pixel in the 3x3 neighbourhood (a disocclusion). The
       neighbourhood tolerates the one-pixel silhouette shifts of the jittered, aliased
-      G-buffer; without it every silhouette pixel lost its history (docs/design-notes.md).
+      G-buffer; without it every silhouette pixel lost its history (docs/architecture.md).
+    - The history's albedo lies outside the range of the current 3x3 albedos, per channel,
+      widened by REJECT_ALBEDO: another surface facing the same way, or a surface where
+      the history saw background (docs/ghosting.md).
     """
     h, w = normal.shape[-2:]
     background = normal.abs().sum(1, keepdim=True) < BACKGROUND
     length = torch.sqrt((warped_normal * warped_normal).sum(1, keepdim=True))
     p = F.pad(normal, (1, 1, 1, 1), mode="replicate")
-    best = None
+    a = F.pad(albedo, (1, 1, 1, 1), mode="replicate")
+    best = lo = hi = None
     for i in range(9):
         dy, dx = divmod(i, 3)
         d = (p[:, :, dy:dy + h, dx:dx + w] * warped_normal).sum(1, keepdim=True)
+        n = a[:, :, dy:dy + h, dx:dx + w]
         best = d if best is None else torch.maximum(best, d)
+        lo = n if lo is None else torch.minimum(lo, n)
+        hi = n if hi is None else torch.maximum(hi, n)
     surface = warped_normal.abs().sum(1, keepdim=True) >= BACKGROUND
-    return background | (surface & (best < REJECT_COS * length))
+    outside = ((warped_albedo < lo - REJECT_ALBEDO) | (warped_albedo > hi + REJECT_ALBEDO)).any(1, keepdim=True)
+    return background | (surface & (best < REJECT_COS * length)) | outside
 
 
 def fill_diffuse_holes(diffuse: torch.Tensor, albedo: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:

@@ -91,6 +91,12 @@ def head_kind(name: str) -> str:
 # another surface; a normal with |x| + |y| + |z| below BACKGROUND is background (unit: >= 1)
 REJECT_COS = 0.7
 BACKGROUND = 0.5
+# ... and a history albedo outside the per-channel range of the current 3x3 albedos,
+# widened by REJECT_ALBEDO, is another surface too: a surface facing the same way as the
+# one now there (a ball's top over the floor) passes the normal test and left ghost trails
+# (docs/ghosting.md). The range, not one pixel's value: the stored albedo is filtered, a
+# blend of neighbours at texture edges, which the range holds
+REJECT_ALBEDO = 0.1
 
 # diffuse holes (jnds_deploy.filters.fill_diffuse_holes): a pixel whose sample hit no diffuse
 # surface (albedo 0 on a surface or a volume) gets the demodulated diffuse of its 5x5

@@ -641,7 +641,9 @@ class JNDS(nn.Module):
                                 w["albedo"].clamp(0, 1), w["normal"].clamp(-1, 1)], 1)
             # where the history shows another surface, or the pixel sees background, the
             # current inputs stand in for it, as in the first frame
-            warped = torch.where(filters.disoccluded(cur["normal"], w["normal"].clamp(-1, 1)), cur_hist, warped)
+            rejected = filters.disoccluded(cur["normal"], w["normal"].clamp(-1, 1), cur["albedo"], w["albedo"].clamp(0, 1))
+            rejected = rejected | filters.offscreen(motion)
+            warped = torch.where(rejected, cur_hist, warped)
             if reset is not None:
                 warped = torch.where(reset.view(-1, 1, 1, 1), cur_hist, warped)
             if self.cfg.firefly_clamp:

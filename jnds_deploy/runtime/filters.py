@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
-from ..layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_COS, ROOT_FLOOR,
+from ..layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_ALBEDO, REJECT_COS, ROOT_FLOOR,
                       SCATTERED_CHANGES, SCATTERED_SHARE, channels)
 from .head import Coded, _decode_row
 
@@ -311,7 +311,7 @@ WARP_CHANNELS = 12  # channels per pass of the warp loop (the history's 12)
 
 
 @njit(parallel=True, cache=True, fastmath={"contract"})
-def _warp_rows(src, motion, lo, hi, out, current, cos, background, counts):
+def _warp_rows(src, motion, lo, hi, out, current, cos, background, tol, counts):
     """out[c, y, x] = clamp(bicubic sample of src (H, W, 12, channels last) at (x + mx,
     y + my), lo[c], hi[c]), taps clamped to the frame (border replicate). The 12 channels of
     a pixel are 12 explicit sums over the same taps: LLVM's SLP vectorizer (which
@@ -326,13 +326,17 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, counts):
         row = np.empty((W, WARP_CHANNELS), np.float32)
         taps = np.empty((2, W), np.int64)
         weights = np.empty((8, W), np.float32)
+        off = np.empty(W, np.bool_)
         # the row's tap positions and weights first, in a loop of their own: independent per
         # pixel, it vectorizes. Computed inside the sampling loop, they left the channel sums
         # scalar too, and the warp took 1.5-1.8x the time (docs/performance.md, stop 74)
         for x in range(W):
+            px, py = np.float32(x) + motion[0, y, x], np.float32(y) + motion[1, y, x]
+            # jnds_deploy.filters.offscreen
+            off[x] = (px < np.float32(-0.5)) | (px > np.float32(W - 0.5)) | (py < np.float32(-0.5)) | (py > np.float32(H - 0.5))
             # clamped before the integer conversion: beyond 2 px outside, every tap is the edge
-            sx = min(max(np.float32(x) + motion[0, y, x], np.float32(-3)), np.float32(W + 2))
-            sy = min(max(np.float32(y) + motion[1, y, x], np.float32(-3)), np.float32(H + 2))
+            sx = min(max(px, np.float32(-3)), np.float32(W + 2))
+            sy = min(max(py, np.float32(-3)), np.float32(H + 2))
             fx, fy = np.floor(sx), np.floor(sy)
             taps[0, x], taps[1, x] = np.int64(fx), np.int64(fy)
             w0, w1, w2, w3 = _cubic(sx - fx)
@@ -361,7 +365,7 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, counts):
         if reject:
             # on the clamped row just written (cache-resident); a select in the loop above
             # kept LLVM from vectorizing it (docs/design-notes.md)
-            counts[y] = _reject_row(current, out, y, cos, background)
+            counts[y] = _reject_row(current, out, y, cos, background, tol, off)
 
 
 @njit(inline="always")
@@ -477,48 +481,67 @@ def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None, curr
     counts = np.zeros(h, np.int64)
     cur = np.zeros((13, 0, 0), np.float32) if current is None else np.ascontiguousarray(current, np.float32)
     _warp_rows(np.ascontiguousarray(x, np.float32), np.ascontiguousarray(motion, np.float32), lo, hi, out,
-               cur, np.float32(REJECT_COS), np.float32(BACKGROUND), counts)
+               cur, np.float32(REJECT_COS), np.float32(BACKGROUND), np.float32(REJECT_ALBEDO), counts)
     return out if current is None else (out, int(counts.sum()))
 
 
 @njit(inline="always")
-def _disoccluded_row(current, hx, hy, hz, y, cos, background, bad):
+def _disoccluded_row(current, warped, y, cos, background, tol, off, bad):
     """bad[x] = ``jnds_deploy.filters.disoccluded`` at row y, from current (13, H, W) and
-    the warped (clamped) history's normal at row y (hx, hy, hz: (W,) each). Returns the
-    count. The first loop, branch-free, settles every pixel but those whose own normal
-    fails the test; only those look at their neighbours."""
+    the warped (clamped) history (12, H, W). Returns the count. The first loop, branch-free,
+    settles every pixel whose own normal and albedo pass the tests; only the others look
+    at their neighbours."""
     _, h, w = current.shape
     cx, cy, cz = current[_NX, y], current[_NY, y], current[_NZ, y]
+    hx, hy, hz = warped[_NX, y], warped[_NY, y], warped[_NZ, y]
+    ca, ha = current[_ALBEDO:_ALBEDO + 3, y], warped[_ALBEDO:_ALBEDO + 3, y]
     for x in range(w):
         limit = cos * np.sqrt(hx[x] * hx[x] + hy[x] * hy[x] + hz[x] * hz[x])
         background_now = abs(cx[x]) + abs(cy[x]) + abs(cz[x]) < background
         surface_before = abs(hx[x]) + abs(hy[x]) + abs(hz[x]) >= background
         far = cx[x] * hx[x] + cy[x] * hy[x] + cz[x] * hz[x] < limit
-        bad[x] = background_now | (surface_before & far)
+        # inside [own - tol, own + tol] is inside [min - tol, max + tol] of the neighbourhood
+        # (the same float32 operations as the full test: no pixel settled differently)
+        near = ((ha[0, x] >= ca[0, x] - tol) & (ha[0, x] <= ca[0, x] + tol)
+                & (ha[1, x] >= ca[1, x] - tol) & (ha[1, x] <= ca[1, x] + tol)
+                & (ha[2, x] >= ca[2, x] - tol) & (ha[2, x] <= ca[2, x] + tol))
+        bad[x] = background_now | (surface_before & far) | (not near) | off[x]
     n = 0
     for x in range(w):
-        if bad[x] and abs(cx[x]) + abs(cy[x]) + abs(cz[x]) >= background:
-            # bad unless some normal of the 3x3 neighbourhood (clamped: the replicated
-            # border adds no new one) is close enough
+        if bad[x] and not off[x] and abs(cx[x]) + abs(cy[x]) + abs(cz[x]) >= background:
+            # over the 3x3 neighbourhood (clamped: the replicated border adds no new value):
+            # a close enough normal, and the albedo range
             limit = cos * np.sqrt(hx[x] * hx[x] + hy[x] * hy[x] + hz[x] * hz[x])
+            normal_ok = not (abs(hx[x]) + abs(hy[x]) + abs(hz[x]) >= background)
+            lo0 = hi0 = ca[0, x]
+            lo1 = hi1 = ca[1, x]
+            lo2 = hi2 = ca[2, x]
             for yy in range(max(y - 1, 0), min(y + 2, h)):
                 for xx in range(max(x - 1, 0), min(x + 2, w)):
                     if (current[_NX, yy, xx] * hx[x] + current[_NY, yy, xx] * hy[x]
                             + current[_NZ, yy, xx] * hz[x] >= limit):
-                        bad[x] = False
+                        normal_ok = True
+                    a0, a1, a2 = current[_ALBEDO, yy, xx], current[_ALBEDO + 1, yy, xx], current[_ALBEDO + 2, yy, xx]
+                    lo0, hi0 = min(lo0, a0), max(hi0, a0)
+                    lo1, hi1 = min(lo1, a1), max(hi1, a1)
+                    lo2, hi2 = min(lo2, a2), max(hi2, a2)
+            inside = (ha[0, x] >= lo0 - tol and ha[0, x] <= hi0 + tol and ha[1, x] >= lo1 - tol
+                      and ha[1, x] <= hi1 + tol and ha[2, x] >= lo2 - tol and ha[2, x] <= hi2 + tol)
+            bad[x] = not (normal_ok and inside)
         n += bad[x]
     return n
 
 
 @njit(inline="always")
-def _reject_row(current, warped, y, cos, background):
-    """Row y of ``reject_disoccluded``; returns how many pixels were replaced."""
+def _reject_row(current, warped, y, cos, background, tol, off):
+    """Row y of ``reject_disoccluded``, and where off[x] (``jnds_deploy.filters.offscreen``);
+    returns how many pixels were replaced."""
     w = warped.shape[2]
     bad = np.empty(w, np.bool_)
-    n = _disoccluded_row(current, warped[_NX, y], warped[_NY, y], warped[_NZ, y], y, cos, background, bad)
+    n = _disoccluded_row(current, warped, y, cos, background, tol, off, bad)
     if n:
         # one channel at a time: the planes of a frame are far apart, and touching all 25
-        # per pixel thrashed the cache (docs/design-notes.md)
+        # per pixel thrashed the cache (docs/architecture.md)
         for c in range(WARP_CHANNELS):
             for x in range(w):
                 if bad[x]:
@@ -527,19 +550,23 @@ def _reject_row(current, warped, y, cos, background):
 
 
 @njit(parallel=True, cache=True)
-def _reject_rows(current, warped, cos, background, counts):
+def _reject_rows(current, warped, cos, background, tol, offscreen, counts):
     for y in prange(warped.shape[1]):
-        counts[y] = _reject_row(current, warped, y, cos, background)
+        off = offscreen[y] if offscreen.shape[0] else np.zeros(warped.shape[2], np.bool_)
+        counts[y] = _reject_row(current, warped, y, cos, background, tol, off)
 
 
 def reject_disoccluded(current: np.ndarray, warped: np.ndarray, cos: float = REJECT_COS,
-                       background: float = BACKGROUND) -> int:
+                       background: float = BACKGROUND, albedo: float = REJECT_ALBEDO,
+                       offscreen: np.ndarray | None = None) -> int:
     """``jnds_deploy.filters.disoccluded`` applied in place: where the current sample sees
-    background or the warped history shows another surface, the history's 12 channels
-    become the current inputs' (current (13, H, W), warped (12, H, W) float32, normals at
-    channels 9-11 of both). Returns how many pixels."""
+    background or the warped history shows another surface (or where ``offscreen``, (H, W)
+    bool: ``jnds_deploy.filters.offscreen``), the history's 12 channels become the current
+    inputs' (current (13, H, W), warped (12, H, W) float32, albedo at channels 6-8 and
+    normals at 9-11 of both). Returns how many pixels."""
     counts = np.zeros(warped.shape[1], np.int64)
-    _reject_rows(current, warped, np.float32(cos), np.float32(background), counts)
+    off = np.zeros((0, 0), np.bool_) if offscreen is None else np.ascontiguousarray(offscreen, np.bool_)
+    _reject_rows(current, warped, np.float32(cos), np.float32(background), np.float32(albedo), off, counts)
     return int(counts.sum())
 
 

@@ -5,7 +5,7 @@ import torch
 
 from jnds_deploy import filters as T
 from jnds_deploy.io import open_sequence
-from jnds_deploy.layout import HDR_MAX
+from jnds_deploy.layout import HDR_MAX, REJECT_ALBEDO
 from jnds_deploy.runtime import filters as N
 
 from ..conftest import SAMPLE
@@ -252,7 +252,8 @@ def test_disoccluded_background_and_other_surfaces():
     hist[:, 2, 3] = (1.0, 0.0, 0.0)  # another surface, 90 degrees off
     hist[:, 4, 6] = (0.0, 0.6, 0.8)  # 37 degrees off: the same surface
     hist[:, 1, 5] = 0.0  # background in the history, a surface now
-    got = T.disoccluded(_t(n), _t(hist))[0, 0].numpy()
+    albedo = np.full((3, 5, 7), 0.5, np.float32)
+    got = T.disoccluded(_t(n), _t(hist), _t(albedo), _t(albedo))[0, 0].numpy()
     want = np.zeros((5, 7), bool)
     want[:, 0] = True  # background now: the current inputs are exact there
     want[2, 3] = True
@@ -265,8 +266,33 @@ def test_disoccluded_tolerates_a_one_pixel_silhouette_shift():
     n[0, :, 4:] = 1.0  # two planes meeting at column 4
     hist = np.roll(n, 1, axis=2)  # the silhouette one pixel to the right in the history
     hist[:, :, 0] = n[:, :, 0]
-    assert not T.disoccluded(_t(n), _t(hist)).any()
-    assert T.disoccluded(_t(n), _t(np.roll(n, 2, axis=2))).any()  # two pixels: rejected
+    a = np.zeros((3, 6, 8), np.float32)
+    a[:, :, :4], a[:, :, 4:] = 0.2, 0.7  # each plane its albedo
+    ha = np.roll(a, 1, axis=2)
+    ha[:, :, 0] = a[:, :, 0]
+    assert not T.disoccluded(_t(n), _t(hist), _t(a), _t(ha)).any()
+    assert T.disoccluded(_t(n), _t(np.roll(n, 2, axis=2)), _t(a), _t(a)).any()  # two pixels: rejected
+    assert T.disoccluded(_t(n), _t(hist), _t(a), _t(np.roll(a, 2, axis=2))).any()
+
+
+def test_disoccluded_rejects_another_albedo_facing_the_same_way():
+    """A ball's top over a floor: the same normal, another albedo (the ghost trails of
+    docs/ghosting.md); a filtered albedo between two neighbours' passes."""
+    n = np.zeros((3, 5, 7), np.float32)
+    n[2] = 1.0
+    a = np.full((3, 5, 7), 0.5, np.float32)
+    a[:, :, 4:] = 0.9  # a texture edge at column 4
+    ha = a.copy()
+    ha[:, 1, 1] = (0.1, 0.8, 0.1)  # a green ball was there
+    ha[:, 2, 4] = 0.7  # the edge blurred by filtering: inside the neighbours' range
+    ha[:, 3, 2] = 0.5 + REJECT_ALBEDO * 0.9  # within the tolerance
+    ha[:, 0, 0] = 0.0  # background in the history (normal 0 there too)
+    hn = n.copy()
+    hn[:, 0, 0] = 0.0
+    got = T.disoccluded(_t(n), _t(hn), _t(a), _t(ha))[0, 0].numpy()
+    want = np.zeros((5, 7), bool)
+    want[1, 1] = want[0, 0] = True
+    assert (got == want).all(), np.argwhere(got != want)
 
 
 @pytest.mark.parametrize("h,w", [(1, 1), (3, 2), (17, 23)])
@@ -280,7 +306,9 @@ def test_reject_disoccluded_matches_torch(h, w):
     warped[9:12, ::3] = current[9:12, ::3]  # some agree
     current[9:12, :, ::4] = 0.0  # background columns
     warped[9:12, 1::5] = 0.0
-    mask = T.disoccluded(_t(current[9:12]), _t(warped[9:12]))[0, 0].numpy()
+    current[6:9] = RNG.random((3, h, w), dtype=np.float32)
+    warped[6:9] = np.clip(current[6:9] + RNG.normal(scale=0.15, size=(3, h, w)).astype(np.float32), 0, 1)
+    mask = T.disoccluded(_t(current[9:12]), _t(warped[9:12]), _t(current[6:9]), _t(warped[6:9]))[0, 0].numpy()
     want = np.where(mask, current[:12], warped)
     got = warped.copy()
     n = N.reject_disoccluded(current, got, REJECT_COS, BACKGROUND)
@@ -297,11 +325,25 @@ def test_warp_with_rejection_fused_equals_warp_then_reject():
     hist[..., 9:12] = np.where(RNG.random((h, w, 1)) < 0.5, current[9:12].transpose(1, 2, 0), _normals(h, w).transpose(1, 2, 0))
     mv = RNG.normal(scale=1.5, size=(2, h, w)).astype(np.float32)
     lo, hi = np.full(12, -1, np.float32), np.full(12, 1, np.float32)
+    current[6:9] = RNG.random((3, h, w), dtype=np.float32)
+    hist[..., 6:9] = np.clip(current[6:9].transpose(1, 2, 0) + RNG.normal(scale=0.1, size=(h, w, 3)), 0, 1)
     want = N.warp_channels_last(hist, mv, lo, hi)
-    n_want = N.reject_disoccluded(current, want)
+    off = T.offscreen(_t(mv))[0, 0].numpy()
+    assert 0 < off.sum() < h * w
+    n_want = N.reject_disoccluded(current, want, offscreen=off)
     got, n = N.warp_channels_last(hist, mv, lo, hi, current)
     assert n == n_want > 0
     np.testing.assert_array_equal(got, want)
+
+
+def test_offscreen():
+    mv = np.zeros((2, 4, 6), np.float32)
+    mv[0, 1, 0] = -0.49  # still nearest pixel 0
+    mv[0, 2, 0] = -0.51  # nearer a pixel left of the frame
+    mv[1, 3, 5] = 0.6  # below the frame
+    want = np.zeros((4, 6), bool)
+    want[2, 0] = want[3, 5] = True
+    np.testing.assert_array_equal(T.offscreen(_t(mv))[0, 0].numpy(), want)
 
 
 @pytest.mark.parametrize("k", [1.0, 4.0, 16.0])
