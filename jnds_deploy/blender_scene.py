@@ -72,8 +72,15 @@ CYCLES_HOLDOUT3_KINDS = ("grove", "haze")
 # on some draws), chrome, ceramic, a sliding frosted screen; fur: shapes and a rug coated in hair
 # strands (Principled Hair BSDF, curves a fraction of a pixel thick)
 CYCLES_HOLDOUT4_KINDS = ("bathroom", "fur")
+# kinds of the ghosting sets (docs/ghosting.md): what provokes a history-reusing denoiser to
+# ghost. plain: a user's first scene, default Principled cubes and spheres on a plain or
+# checkered floor under one area light, a near-mirror white cube, a ball rolling fast across
+# the view, a sliding cube, a thin pole and, on some draws, a moving lamp; the camera moves
+# twice as fast as in the other kinds
+CYCLES_GHOST_KINDS = ("plain",)
 CYCLES_SCENE_KINDS = (CYCLES_TRAIN_KINDS + CYCLES_EXTRA_KINDS + CYCLES_TEST_KINDS + CYCLES_HOLDOUT_KINDS
-                      + CYCLES_HOLDOUT2_KINDS + CYCLES_HOLDOUT3_KINDS + CYCLES_HOLDOUT4_KINDS)
+                      + CYCLES_HOLDOUT2_KINDS + CYCLES_HOLDOUT3_KINDS + CYCLES_HOLDOUT4_KINDS
+                      + CYCLES_GHOST_KINDS)
 TEXTURES = ("brick", "checker", "noise", "voronoi")
 
 
@@ -255,8 +262,9 @@ def _world(scene, rng, kind):
     world.cycles.sample_map_resolution = 512
 
 
-def _camera(scene, rng, path, frames, target, radius, height):
-    """Keyed camera: static, dolly, orbit, pan or cut; returns the frames that are cuts."""
+def _camera(scene, rng, path, frames, target, radius, height, speed=1.0):
+    """Keyed camera: static, dolly, orbit, pan or cut, ``speed`` times the usual motion;
+    returns the frames that are cuts."""
     import bpy
 
     bpy.ops.object.camera_add()
@@ -271,7 +279,7 @@ def _camera(scene, rng, path, frames, target, radius, height):
     a0 = rng.uniform(0, 2 * math.pi)
     cuts = []
     for f in range(0, frames + 2):
-        t = f / max(frames, 1)
+        t = speed * f / max(frames, 1)
         a, r, aim = a0, radius, list(target)
         if path == "orbit":
             a = a0 + 0.5 * t
@@ -299,6 +307,7 @@ def build(cfg: dict):
     scene = bpy.context.scene
     rng = random.Random(cfg["seed"])
     kind, frames = cfg["scene"], cfg["frames"]
+    speed = 1.0  # the camera path's speed (``_camera``)
     w, h = cfg["size"]
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = w, h, 100
     scene.frame_start, scene.frame_end = 1, frames
@@ -408,17 +417,85 @@ def build(cfg: dict):
         moving, target, radius, height = _bathroom(scene, rng, frames)
     elif kind == "fur":
         moving, target, radius, height = _fur(scene, rng, frames)
+    elif kind == "plain":
+        moving, target, radius, height = _plain(scene, rng, frames)
+        speed = 2.0
     else:
         raise ConfigError(f"unknown Cycles scene {kind!r}, expected one of {', '.join(CYCLES_SCENE_KINDS)}")
     for obj in moving:
         for fc in _all_fcurves(obj):
             for k in fc.keyframe_points:
                 k.interpolation = "LINEAR"
-    cuts = _camera(scene, rng, cfg["camera"], frames, target, radius, height)
+    cuts = _camera(scene, rng, cfg["camera"], frames, target, radius, height, speed)
     # close-ups and wide views both (drawn last: the other kinds' draws are unchanged)
     if kind in ("detail", "layers", "glass", "print", "media"):
         scene.camera.data.lens = rng.uniform(18, 55)
     return scene, cuts
+
+
+def _slide(obj, frames, delta, spin=(0.0, 0.0, 0.0)):
+    """Keys ``obj`` moving by ``delta`` (world units) and turning by ``spin`` (radians)
+    between frame 0 and frame ``frames`` + 1, linearly (one frame beyond each end: Cycles'
+    Vector pass reads the neighbouring frames)."""
+    start, rot = tuple(obj.location), tuple(obj.rotation_euler)
+    for f, t in ((0, 0.0), (frames + 1, 1.0)):
+        obj.location = tuple(a + d * t for a, d in zip(start, delta))
+        obj.rotation_euler = tuple(a + d * t for a, d in zip(rot, spin))
+        obj.keyframe_insert("location", frame=f)
+        obj.keyframe_insert("rotation_euler", frame=f)
+
+
+def _plain(scene, rng, frames):
+    """The ``plain`` kind (CYCLES_GHOST_KINDS). Returns (moving objects, camera target,
+    radius, height)."""
+    import bpy
+
+    _world(scene, rng, "dark")
+    floor = _material("floor", rng, rough=0.5, color=[rng.uniform(0.3, 0.8)] * 3,
+                      texture="checker" if rng.random() < 0.5 else None)
+    _box("floor", (40, 40, 0.1), (0, 0, -0.05), floor)
+    bpy.ops.object.light_add(type="AREA", location=(rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(3.5, 5)))
+    bpy.context.object.data.energy = rng.uniform(400, 900)
+    bpy.context.object.data.size = rng.uniform(1.5, 3.0)
+    for i in range(rng.randint(3, 5)):  # still props, default Principled with a colour
+        s = rng.uniform(0.5, 1.0)
+        x, y = rng.uniform(-2.5, 2.5), rng.uniform(-2.5, 2.5)
+        if rng.random() < 0.5:
+            bpy.ops.mesh.primitive_cube_add(size=s, location=(x, y, s / 2), rotation=(0, 0, rng.uniform(0, 1.5)))
+        else:
+            bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4, radius=s / 2, location=(x, y, s / 2))
+            bpy.ops.object.shade_smooth()
+        bpy.context.object.data.materials.append(_material(f"prop{i}", rng, rough=0.5))
+    mirror = _material("mirror", rng, metal=True, rough=rng.uniform(0.02, 0.08), color=(0.9, 0.9, 0.9))
+    _box("mirror_cube", (1.0, 1.0, 1.0), (rng.uniform(-2, 2), rng.uniform(-2, 2), 0.5), mirror,
+         rotation=(0, 0, rng.uniform(0, 1.5)))
+    moving = []
+    a = rng.uniform(0, 2 * math.pi)  # the ball rolls through the centre, fast
+    r = rng.uniform(0.3, 0.5)
+    d = rng.uniform(4.0, 6.0)
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4, radius=r, location=(-d / 2 * math.cos(a), -d / 2 * math.sin(a), r))
+    bpy.ops.object.shade_smooth()
+    ball = bpy.context.object
+    ball.data.materials.append(_material("ball", rng, rough=0.5, texture="checker"))
+    _slide(ball, frames, (d * math.cos(a), d * math.sin(a), 0.0), (-d / r * math.sin(a), d / r * math.cos(a), 0.0))
+    moving.append(ball)
+    b = a + rng.uniform(1.0, 2.0)  # a cube sliding and turning
+    bpy.ops.mesh.primitive_cube_add(size=0.6, location=(rng.uniform(-1.5, 1.5), rng.uniform(-1.5, 1.5), 0.3))
+    cube = bpy.context.object
+    cube.data.materials.append(_material("slider", rng, rough=0.5))
+    _slide(cube, frames, (2.5 * math.cos(b), 2.5 * math.sin(b), 0.0), (0.0, 0.0, rng.uniform(-1.5, 1.5)))
+    moving.append(cube)
+    bpy.ops.mesh.primitive_cylinder_add(radius=0.025, depth=2.0, location=(rng.uniform(-1.5, 1.5), rng.uniform(-1.5, 1.5), 1.0))
+    pole = bpy.context.object  # thin geometry, moving
+    pole.data.materials.append(_material("pole", rng, rough=0.5))
+    _slide(pole, frames, (rng.uniform(-2, 2), rng.uniform(-2, 2), 0.0))
+    moving.append(pole)
+    if rng.random() < 0.5:  # a lamp moving through the scene
+        lamp = _emitter("lamp", 0.12, (rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(0.3, 1.2)),
+                        _material("lamp", rng, emission=rng.uniform(20.0, 40.0), rough=0.5))
+        _slide(lamp, frames, (rng.uniform(-3, 3), rng.uniform(-3, 3), 0.0))
+        moving.append(lamp)
+    return moving, (0, 0, 0.5), rng.uniform(4.5, 6.0), rng.uniform(1.5, 2.8)
 
 
 # light rigs: those of the training kinds (mixed), and the further sorts of the lights kind
