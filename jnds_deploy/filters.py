@@ -180,6 +180,19 @@ def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor, albedo: torch
     return background | (surface & (best < REJECT_COS * length)) | outside
 
 
+def history_rejected(normal: torch.Tensor, warped_normal: torch.Tensor, albedo: torch.Tensor,
+                     warped_albedo: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
+    """(N, 1, H, W) bool: where the current inputs replace the warped history: ``disoccluded``
+    or ``offscreen``, and the pixels next to such a pixel that sees a surface now. The ring:
+    a pixel beside another surface's trail takes its temporal kernel's taps from that
+    trail's neighbourhood, and the warp's bicubic taps blend the trail into its edge
+    (docs/ghosting.md). Background pixels are not dilated: their radiance is exact."""
+    rejected = disoccluded(normal, warped_normal, albedo, warped_albedo) | offscreen(motion)
+    surface = normal.abs().sum(1, keepdim=True) >= BACKGROUND
+    ring = F.max_pool2d((rejected & surface).to(normal.dtype), 3, stride=1, padding=1) > 0
+    return rejected | ring
+
+
 def fill_diffuse_holes(diffuse: torch.Tensor, albedo: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:
     """The demodulated ``diffuse`` (N, 3, H, W) with its holes filled: a pixel whose
     sample hit no diffuse surface (albedo 0, normal not background: a metal, a hair

@@ -641,8 +641,8 @@ class JNDS(nn.Module):
                                 w["albedo"].clamp(0, 1), w["normal"].clamp(-1, 1)], 1)
             # where the history shows another surface, or the pixel sees background, the
             # current inputs stand in for it, as in the first frame
-            rejected = filters.disoccluded(cur["normal"], w["normal"].clamp(-1, 1), cur["albedo"], w["albedo"].clamp(0, 1))
-            rejected = rejected | filters.offscreen(motion)
+            rejected = filters.history_rejected(cur["normal"], w["normal"].clamp(-1, 1), cur["albedo"],
+                                                w["albedo"].clamp(0, 1), motion)
             warped = torch.where(rejected, cur_hist, warped)
             if reset is not None:
                 warped = torch.where(reset.view(-1, 1, 1, 1), cur_hist, warped)

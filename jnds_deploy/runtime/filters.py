@@ -311,15 +311,15 @@ WARP_CHANNELS = 12  # channels per pass of the warp loop (the history's 12)
 
 
 @njit(parallel=True, cache=True, fastmath={"contract"})
-def _warp_rows(src, motion, lo, hi, out, current, cos, background, tol, counts):
+def _warp_rows(src, motion, lo, hi, out, current, cos, background, tol, rej):
     """out[c, y, x] = clamp(bicubic sample of src (H, W, 12, channels last) at (x + mx,
     y + my), lo[c], hi[c]), taps clamped to the frame (border replicate). The 12 channels of
     a pixel are 12 explicit sums over the same taps: LLVM's SLP vectorizer (which
     ``runtime.tune_numba`` turns on) makes them vector loads and FMAs over adjacent
     channels. Each row is written channels-last into a row buffer first and transposed
     from there (cache-resident). With ``current`` (13, H, W) rather than
-    an empty array, the pixels that fail ``_disoccluded_row`` take the current inputs'
-    12 channels (``reject_disoccluded`` fused into the same pass); counts[y] says how many."""
+    an empty array, each row's rejection marks (``_mark_row``) go to rej (H, W) in the same
+    pass, for ``_replace_rejected``."""
     H, W, _ = src.shape
     reject = current.shape[1] == H
     for y in prange(H):
@@ -365,7 +365,7 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, tol, counts):
         if reject:
             # on the clamped row just written (cache-resident); a select in the loop above
             # kept LLVM from vectorizing it (docs/design-notes.md)
-            counts[y] = _reject_row(current, out, y, cos, background, tol, off)
+            _mark_row(current, out, y, cos, background, tol, off, rej)
 
 
 @njit(inline="always")
@@ -470,19 +470,24 @@ def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None, curr
     quantization as in cv2.remap). Returns (12, H, W) float32, channel c clamped to
     [lo[c], hi[c]] if given. Faster than one cv2.remap per channel (docs/design-notes.md).
 
-    With ``current`` (the frame's (13, H, W) inputs), the geometric rejection runs in the
-    same pass (``reject_disoccluded``) and the result is (warped, pixels rejected)."""
+    With ``current`` (the frame's (13, H, W) inputs), the history rejection
+    (``reject_disoccluded`` with this motion's ``offscreen``) runs in the same pass and the
+    result is (warped, pixels rejected)."""
     h, w, c = x.shape
     if c != WARP_CHANNELS:
         raise ValueError(f"warp_channels_last takes {WARP_CHANNELS} channels, got {c}")
     lo = np.full(c, -np.inf, np.float32) if lo is None else np.asarray(lo, np.float32)
     hi = np.full(c, np.inf, np.float32) if hi is None else np.asarray(hi, np.float32)
     out = np.empty((c, h, w), np.float32)
-    counts = np.zeros(h, np.int64)
     cur = np.zeros((13, 0, 0), np.float32) if current is None else np.ascontiguousarray(current, np.float32)
+    rej = np.empty((h, w) if current is not None else (0, 0), np.uint8)
     _warp_rows(np.ascontiguousarray(x, np.float32), np.ascontiguousarray(motion, np.float32), lo, hi, out,
-               cur, np.float32(REJECT_COS), np.float32(BACKGROUND), np.float32(REJECT_ALBEDO), counts)
-    return out if current is None else (out, int(counts.sum()))
+               cur, np.float32(REJECT_COS), np.float32(BACKGROUND), np.float32(REJECT_ALBEDO), rej)
+    if current is None:
+        return out
+    counts = np.zeros(h, np.int64)
+    _replace_rejected(cur, out, rej, counts)
+    return out, int(counts.sum())
 
 
 @njit(inline="always")
@@ -533,40 +538,77 @@ def _disoccluded_row(current, warped, y, cos, background, tol, off, bad):
 
 
 @njit(inline="always")
-def _reject_row(current, warped, y, cos, background, tol, off):
-    """Row y of ``reject_disoccluded``, and where off[x] (``jnds_deploy.filters.offscreen``);
-    returns how many pixels were replaced."""
+def _mark_row(current, warped, y, cos, background, tol, off, rej):
+    """Row y of ``jnds_deploy.filters.disoccluded`` or off[x] (``offscreen``) into rej[y]:
+    0 kept, 1 rejected, 2 rejected where the pixel sees a surface (``_replace_rejected``
+    dilates those)."""
     w = warped.shape[2]
     bad = np.empty(w, np.bool_)
-    n = _disoccluded_row(current, warped, y, cos, background, tol, off, bad)
-    if n:
-        # one channel at a time: the planes of a frame are far apart, and touching all 25
-        # per pixel thrashed the cache (docs/architecture.md)
-        for c in range(WARP_CHANNELS):
-            for x in range(w):
-                if bad[x]:
-                    warped[c, y, x] = current[c, y, x]
-    return n
+    _disoccluded_row(current, warped, y, cos, background, tol, off, bad)
+    for x in range(w):
+        surface = abs(current[_NX, y, x]) + abs(current[_NY, y, x]) + abs(current[_NZ, y, x]) >= background
+        rej[y, x] = np.uint8(bad[x]) * (np.uint8(1) + np.uint8(surface))
 
 
 @njit(parallel=True, cache=True)
-def _reject_rows(current, warped, cos, background, tol, offscreen, counts):
+def _replace_rejected(current, warped, rej, counts):
+    """``jnds_deploy.filters.history_rejected`` from the marks of ``_mark_row``: a pixel
+    marked, or next to one marked 2 (3x3), takes the current inputs' 12 channels; counts[y]
+    says how many per row. The dilation is separable: rows' horizontal maxima first."""
+    h, w = rej.shape
+    across = np.empty((h, w), np.uint8)
+    for y in prange(h):
+        for x in range(w):
+            m = rej[y, x] == 2
+            if x > 0:
+                m |= rej[y, x - 1] == 2
+            if x < w - 1:
+                m |= rej[y, x + 1] == 2
+            across[y, x] = m
+    for y in prange(h):
+        bad = np.empty(w, np.bool_)
+        n = 0
+        for x in range(w):
+            b = (rej[y, x] != 0) | (across[y, x] != 0)
+            if y > 0:
+                b |= across[y - 1, x] != 0
+            if y < h - 1:
+                b |= across[y + 1, x] != 0
+            bad[x] = b
+            n += b
+        counts[y] = n
+        if n:
+            # one channel at a time: the planes of a frame are far apart, and touching all 25
+            # per pixel thrashed the cache (docs/architecture.md)
+            for c in range(WARP_CHANNELS):
+                for x in range(w):
+                    if bad[x]:
+                        warped[c, y, x] = current[c, y, x]
+
+
+@njit(parallel=True, cache=True)
+def _mark_rows(current, warped, cos, background, tol, rej):
+    off = np.zeros(warped.shape[2], np.bool_)  # no motion: nothing enters the view
     for y in prange(warped.shape[1]):
-        off = offscreen[y] if offscreen.shape[0] else np.zeros(warped.shape[2], np.bool_)
-        counts[y] = _reject_row(current, warped, y, cos, background, tol, off)
+        _mark_row(current, warped, y, cos, background, tol, off, rej)
 
 
 def reject_disoccluded(current: np.ndarray, warped: np.ndarray, cos: float = REJECT_COS,
                        background: float = BACKGROUND, albedo: float = REJECT_ALBEDO,
                        offscreen: np.ndarray | None = None) -> int:
-    """``jnds_deploy.filters.disoccluded`` applied in place: where the current sample sees
-    background or the warped history shows another surface (or where ``offscreen``, (H, W)
-    bool: ``jnds_deploy.filters.offscreen``), the history's 12 channels become the current
-    inputs' (current (13, H, W), warped (12, H, W) float32, albedo at channels 6-8 and
-    normals at 9-11 of both). Returns how many pixels."""
+    """``jnds_deploy.filters.history_rejected`` applied in place: where the current sample
+    sees background or the warped history shows another surface (or where ``offscreen``,
+    (H, W) bool: ``jnds_deploy.filters.offscreen``; None: no motion), and next to such a
+    pixel that sees a surface, the history's 12 channels become the current inputs'
+    (current (13, H, W), warped (12, H, W) float32, albedo at channels 6-8 and normals at
+    9-11 of both). Returns how many pixels."""
+    rej = np.empty(warped.shape[1:], np.uint8)
+    _mark_rows(current, warped, np.float32(cos), np.float32(background), np.float32(albedo), rej)
+    if offscreen is not None:
+        surface = np.abs(current[_NX:_NZ + 1]).sum(0) >= np.float32(background)
+        rej = np.where(offscreen & (rej == 0), 1 + surface, rej).astype(np.uint8)
     counts = np.zeros(warped.shape[1], np.int64)
-    off = np.zeros((0, 0), np.bool_) if offscreen is None else np.ascontiguousarray(offscreen, np.bool_)
-    _reject_rows(current, warped, np.float32(cos), np.float32(background), np.float32(albedo), off, counts)
+    _replace_rejected(current, warped, rej, counts)
     return int(counts.sum())
 
 
