@@ -1,329 +1,270 @@
-"""Write the shipped checkpoint and its model card from a finished (or stopped) run.
+"""Write the model card of the shipped checkpoint; ship a training run's checkpoint with it.
 
-    python experiments/model_card.py --run runs/small --eval benchmarks/results/model_eval.json
-    python experiments/model_card.py --run runs/ft-feature-long --base-run runs/small runs/ft-feature \
-        --model ft-feature-long --compare runs/ft-l1 runs/ft-feature --eval benchmarks/results/model_eval.json
-    python experiments/model_card.py --run runs/gpu-mixed-from-l1 --base-run runs/small \
-        --compare runs/gpu-feature runs/gpu-mixed runs/gpu-mixed-from-l1 --limitations L.md --gap G.md
-    python experiments/model_card.py --run runs/gen3 --lineage HEAD:jnds_deploy/checkpoints/MODEL_CARD.md \
-        --eval benchmarks/results/model_eval.json --model gen3 --gap docs/model-gap.md
+    python tools/model_card.py --eval "benchmarks/results/model_eval*.json"
+    python tools/model_card.py --run runs/NAME --model NAME --eval runs/NAME/eval.json
 
-The run directories (``runs/``, not tracked in git) are the ones training wrote
-(``jnds train --run DIR``): ``checkpoint.pt`` and ``log.jsonl`` in each.
+The first writes ``jnds_deploy/checkpoints/MODEL_CARD.md`` for the checkpoint beside it
+(``--checkpoint``). The second ships a run first: its ``checkpoint.pt``, stripped of the
+optimizer state (``checkpoint.ship_checkpoint``), becomes ``jnds.pt`` with the reports as
+its metrics, then the card is written for it.
 
-A run trained with ``--device cuda`` (``scripts/gpu_train.sh``) is described as trained
-on ``--gpu`` with the data that script renders.
-
-A run started with ``jnds train --init`` (fine-tuning) is described with the runs it
-descends from (``--base-run``); ``--compare`` adds a table of runs and the training
-settings they differ in (e.g. the L1 / feature-loss comparison of Sec. 3.3).
-
-Copies ``<run>/checkpoint.pt`` (stripped of optimizer state, ``checkpoint.ship_checkpoint``)
-to ``jnds_deploy/checkpoints/jnds.pt`` (or --out-dir) and writes ``MODEL_CARD.md``
-beside it with the configuration, data, steps, hours and the validation numbers of
-``jnds evaluate``.
+Everything on the card is read from the checkpoint and from ``jnds evaluate`` reports, so
+the card cannot say more than they hold: the configuration, the training data and the
+recipe in brief (``docs/training.md`` owns the full recipe), the scores per set against
+OIDN ``balanced`` + bicubic, and where the model falls behind (``docs/model-gap.md`` says
+why). The lineage of shipped models is in ``docs/changelog.md``, not on the card.
+``--note`` adds a line under the scores, e.g. how the reports' settings differ from the
+checkpoint's.
 """
 from __future__ import annotations
 
+import argparse
+import glob
 import json
-import re
-import shlex
-import subprocess
-import sys
+import textwrap
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
-import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
+from jnds_deploy.checkpoint import read_checkpoint, ship_checkpoint
+from jnds_deploy.model import ModelConfig, count_macs
 
-from benchmarks.common import ROOT, arguments, cpu_model, write_text  # noqa: E402
-from jnds_deploy.checkpoint import read_checkpoint, ship_checkpoint  # noqa: E402
-from jnds_deploy.model import ModelConfig, count_macs  # noqa: E402
-from jnds_deploy.training.evaluate import markdown_sets, markdown_table  # noqa: E402
-
+ROOT = Path(__file__).resolve().parents[1]  # the repository root
 PKG = ROOT / "jnds_deploy" / "checkpoints"
+BASELINE = "oidn-balanced"
+BASELINES = {"bicubic", "oidn-fast", "oidn-balanced", "oidn-high"}
+METRICS = ("psnr", "flip", "temporal")
+# the settings of ModelConfig that change no weight, and how `jnds run` turns each off
+INFERENCE_SETTINGS = {
+    "firefly_clamp": ("the firefly clamp at k = {v:g}", "--firefly-clamp 0"),
+    "diffuse_fill": ("the diffuse fill", "--diffuse-fill off"),
+    "albedo_at_holes": ("the albedo at holes", "--albedo-at-holes off"),
+}
 
 
 def main() -> None:
-    ap = arguments(__doc__)
-    ap.add_argument("--run", default="runs/small")
-    ap.add_argument("--eval", default="benchmarks/results/model_eval.json")
-    ap.add_argument("--command", default="", help="the jnds evaluate command that made --eval")
-    ap.add_argument("--model", default=None, help="the method of --eval that is this run (default: the first)")
-    ap.add_argument("--base-run", nargs="*", default=[],
-                    help="the runs a fine-tuning run (--init) descends from, from scratch to its parent")
-    ap.add_argument("--compare", nargs="*", default=[], help="runs to tabulate with the training settings they differ in")
-    ap.add_argument("--cpu", default=cpu_model(), help="processor the run trained on (default: this one)")
-    ap.add_argument("--gpu", default="one NVIDIA H100 80GB HBM3 of a lent machine, shared by the 3 runs of "
-                    "scripts/gpu_train.sh", help="the GPU a --device cuda run trained on")
-    ap.add_argument("--limitations", default=None, help="a markdown file of known limitations to include")
-    ap.add_argument("--gap", default=None, help="a markdown file: where it falls short of OIDN and why")
-    ap.add_argument("--lineage", default=None,
-                    help="a previous model card (a file, or REV:PATH in git) whose runs this run descends "
-                         "from, when their run directories are gone (sessions start without runs/): its run "
-                         "paragraphs, totals and validation histories are carried over")
-    ap.add_argument("--data-command", default=None, help="the jnds dataset commands that rendered the run's data/train")
-    ap.add_argument("--out-dir", default=str(PKG), help="where the checkpoint and card go (default: the package)")
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--eval", nargs="+", required=True, metavar="REPORT",
+                    help="jnds evaluate reports (JSON) or quoted globs of them; a report of one set is named "
+                         "after its file (model_eval_<set>.json)")
+    ap.add_argument("--model", default="jnds", help="the method in the reports that is this checkpoint")
+    ap.add_argument("--checkpoint", default=str(PKG / "jnds.pt"), help="the checkpoint the card describes")
+    ap.add_argument("--run", default=None, help="ship this training run's checkpoint.pt as --out-dir/jnds.pt first")
+    ap.add_argument("--note", action="append", default=[], help="a line under the scores (repeatable)")
+    ap.add_argument("--out-dir", default=str(PKG), help="where the card (and a shipped checkpoint) go")
     args = ap.parse_args()
 
-    run = Path(args.run)
-    log = _log(run)
-    ckpt = read_checkpoint(run / "checkpoint.pt")
-    sets = json.loads(Path(args.eval).read_text())
-    if any("mean" in v for v in sets.values()):  # one set's report (jnds evaluate --data with one set)
-        sets = {"val": sets}
-    report = sets["val"] if "val" in sets else next(iter(sets.values()))  # validation: the card's verdict
-    training = [_training_lines(run, ckpt, log, args.cpu, args.gpu, args.data_command)]
-    if ckpt["train_config"].get("init") and not (args.base_run or args.lineage):
-        raise SystemExit(f"{run} was fine-tuned from {ckpt['train_config']['init']}: pass --base-run or --lineage")
-    if args.lineage:
-        training.insert(0, _lineage(Path(args.lineage)))
-    for i, base in enumerate(map(Path, args.base_run)):
-        # the first run of the chain trained in an earlier session, on another machine
-        cpu = "AMD EPYC with AVX-512, as recorded by hand then" if i == 0 else args.cpu
-        base_ckpt = read_checkpoint(base / "checkpoint.pt")
-        training.insert(i, _training_lines(base, base_ckpt, _log(base), cpu, args.gpu))
+    sets = read_reports(args.eval, args.model)
     out_dir = Path(args.out_dir)
-    out = ship_checkpoint(run / "checkpoint.pt", out_dir / "jnds.pt", metrics=sets)
+    ckpt_path = Path(args.checkpoint)
+    if args.run:
+        metrics = {name: {k: v for k, v in rep.items() if k != "_report"} for name, rep in sets.items()}
+        ckpt_path = ship_checkpoint(Path(args.run) / "checkpoint.pt", out_dir / "jnds.pt", metrics=metrics)
+    ckpt = read_checkpoint(ckpt_path)
+    text = card(ckpt, sets, args.model, args.eval, args.note)
+    out = out_dir / "MODEL_CARD.md"
+    out.write_text(text)
+    print(f"wrote {out} ({len(text.splitlines())} lines) for {ckpt_path}")
 
+
+def read_reports(patterns: list[str], model: str) -> dict[str, dict]:
+    """{set name: {method: result}} from every report, each set's report path under
+    ``"_report"``; a set without ``model`` is an error."""
+    sets: dict[str, dict] = {}
+    for pattern in patterns:
+        paths = sorted(glob.glob(pattern)) or [pattern]
+        for path in map(Path, paths):
+            report = json.loads(path.read_text())
+            if any("mean" in v for v in report.values()):  # one set: name it after the file
+                report = {path.stem.removeprefix("model_eval_") if path.stem != "model_eval" else "val": report}
+            for name, rep in report.items():
+                if model not in rep:
+                    raise SystemExit(f"{path}: set {name} has no method {model!r} (it has {', '.join(rep)})")
+                sets[name] = {**rep, "_report": str(path)}
+    return sets
+
+
+def parse_sequence(name: str) -> tuple[str, str, int]:
+    """(renderer, scene kind, seed) of a sequence name: cycles-<kind>-<camera>-<seed> or
+    <kind>-<camera>-<seed> (Mitsuba)."""
+    head, seed = name.rsplit("-", 1)
+    if head.startswith("cycles-"):
+        return "Cycles", head.split("-")[1], int(seed)
+    return "Mitsuba", head.split("-")[0], int(seed)
+
+
+def _para(text: str) -> str:
+    """A paragraph wrapped at 100 characters (markdown reads the same)."""
+    return textwrap.fill(" ".join(text.split()), width=100, break_on_hyphens=False, break_long_words=False)
+
+
+def card(ckpt: dict, sets: dict, model: str, reports: list[str], notes: list[str]) -> str:
     cfg = ModelConfig(**ckpt["model_config"])
+    tcfg = ckpt.get("train_config") or {}
+    trained = {parse_sequence(n)[:2] for n in ckpt.get("train_sequences") or []}
+    intro = _para(f"""The default checkpoint of `jnds export` and the runtime (`jnds_deploy/checkpoints/jnds.pt`):
+        the network of Thomas et al. 2022, "Temporally Stable Real-Time Joint Neural Denoising and
+        Supersampling", in the `{tcfg.get("preset", "?")}` configuration. It denoises a frame of 1 sample per
+        pixel and upsamples it {cfg.scale}x; trained in full precision, then quantization-aware for the int8
+        pipeline. Where it falls short of OIDN and why: [docs/model-gap.md](../../docs/model-gap.md). How it
+        came to be: [docs/changelog.md](../../docs/changelog.md).""")
+    parts = ["# Model card: jnds", intro, configuration(ckpt, cfg), data(ckpt), recipe(tcfg, ckpt.get("state") or {}),
+             scores(sets, model, trained, reports, notes), limitations(sets, model, trained)]
+    return "\n\n".join(parts) + "\n"
+
+
+def configuration(ckpt: dict, cfg: ModelConfig) -> str:
     macs = count_macs(cfg)
-    baselines = {"bicubic", "oidn-fast", "oidn-balanced", "oidn-high"}
-    model_key = args.model or next(k for k in report if k not in baselines)
-    verdict = []
-    for (set_name, rep), b in ((x, b) for x in sets.items() for b in ("bicubic", "oidn-balanced")):
-        if b in rep:
-            m, o = rep[model_key]["mean"], rep[b]["mean"]
-            verdict.append(f"- {set_name}, vs {b}: PSNR {m['psnr'] - o['psnr']:+.2f} dB, FLIP {m['flip'] - o['flip']:+.4f}, "
-                           f"temporal error {m['temporal'] - o['temporal']:+.5f} "
-                           f"({'beats' if m['psnr'] > o['psnr'] and m['flip'] < o['flip'] else 'does not beat'} it "
-                           f"in PSNR and FLIP; temporal error {'lower' if m['temporal'] < o['temporal'] else 'higher'})")
-    verdict += _renderer_verdict(sets, model_key)
-    verdict = "\n".join(verdict)
-    steps = sum(t["steps"] for t in training)
-    hours = sum(t["hours"] for t in training)
-    training_text = "\n\n".join(t["text"] for t in training)
-    compare = _compare_table(args.compare, report) if args.compare else ""
-    limitations = (f"Known limitations:\n\n{Path(args.limitations).read_text().strip()}\n\n"
-                   if args.limitations else "")
-    history = "\n\n".join(t["history"] for t in training)
-    gap = (Path(args.gap).read_text().strip() if args.gap else
-           f"Where it falls short of OIDN, what would close the gap: this is {steps} steps ({hours:.1f} h; "
-           "the paper trains 500 + 500 epochs on GPUs); longer training and the wider `paper` preset.")
-    text = f"""# Model card: jnds
+    params = sum(p.numel() for p in ckpt["model"].values() if p.dtype.is_floating_point)
+    rows = "\n".join(f"| `{k}` | `{json.dumps(v)}` |" for k, v in asdict(cfg).items())
+    upsample = ("one learned upsample kernel for every pixel, no upsample graph" if cfg.upsample_width == 0
+                else f"upsample block {macs.get('upsample_block', 0):.1f}")
+    on = [f"- {text.format(v=getattr(cfg, k))}: `jnds run {off}` turns it off" for k, (text, off)
+          in INFERENCE_SETTINGS.items() if getattr(cfg, k)]
+    size = _para(f"""{params:,} parameters (activation ranges included); {macs["total"]:.1f} GMAC per 1280x720
+        frame: input block {macs["input_block"]:.1f}, feature extractor {macs["feature_extractor"]:.1f}, output
+        block {macs["output_block"]:.1f}; {upsample} (`jnds_deploy.model.count_macs`).""")
+    settings = ("\n\nSettings that change no weight (not in the paper; docs/model-gap.md says why), on:\n\n"
+                + "\n".join(on)) if on else ""
+    return f"""## Configuration
 
-The default checkpoint of `jnds export` and the runtime: the JNDS network
-(Thomas et al. 2022) in the `{ckpt["train_config"]["preset"]}` configuration, trained on this project's renders
-(docs/dataset.md), full precision then quantization-aware (int8 fake quantization).
+`model_config` of the checkpoint (`jnds_deploy.model.ModelConfig`; its comments say what each
+field is):
 
-## Configuration
+| field | value |
+| --- | --- |
+{rows}
 
-```json
-{json.dumps(ckpt["model_config"], indent=1)}
-```
-
-{sum(p.numel() for p in ckpt["model"].values() if p.dtype.is_floating_point):,} parameters (activation ranges included);
-{macs["total"]:.1f} GMAC per 1280x720 frame (input block {macs["input_block"]:.1f}, feature extractor
-{macs["feature_extractor"]:.1f}, output block {macs["output_block"]:.1f}, upsample block
-{macs.get("upsample_block", 0):.1f}{"; one fixed upsample kernel, no upsample graph" if ckpt["model_config"].get("upsample_width", 8) == 0 else ""}), counted by `jnds_deploy.model.count_macs`.
-
-## Training
-
-Data: `jnds dataset --out data` (docs/dataset.md): data/train, 24 sequences x 12 frames at
-192x108 -> 384x216 by default, reference 64 spp per target pixel; `--train-sequences`
-adds seeds (a run below that had more says so), and runs on a GPU render their own
-copy. In all: {steps} steps, {hours:.2f} h (machines per run below).
-
-{training_text}
-{compare}
-## Validation{" and test" if len(sets) > 1 else ""} ({", ".join(f"{k}: {len(v[model_key]['sequences'])} sequences" for k, v in sets.items())}; 12 frames each, unseen seeds, 128 spp references)
-
-Against the 2x reference colour; metrics of `jnds_deploy.metrics` (LDR: Reinhard then
-gamma 2.2); temporal error is Eq. 5 against the reference. {args.command}
-
-{markdown_table(report) if len(sets) == 1 else markdown_sets(sets)}
-
-`{model_key}` is this checkpoint at int8 fake quantization.
-
-{verdict}
-
-{limitations}{gap}
-
-During training (step, phase, PSNR, SSIM, FLIP, temporal error; validation inside
-`jnds train`, on the sequences present at the time, by the model code of the time:
-runs before 2026-11-23 had no geometric history rejection):
-
-{history}
-
-This card: `python experiments/model_card.py {" ".join(shlex.quote(a) for a in sys.argv[1:])}`.
-"""
-    write_text(out_dir / "MODEL_CARD.md", text)
-    print(f"wrote {out} ({out.stat().st_size / 1e3:.0f} kB) and {out_dir / 'MODEL_CARD.md'}")
+{size}{settings}"""
 
 
-def _log(run: Path) -> list[dict]:
-    return [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines() if line.strip()]
+def _counts(items) -> list[tuple[str, int]]:
+    counts: dict[str, int] = {}
+    for item in items:
+        counts[item] = counts.get(item, 0) + 1
+    return sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))
 
 
-def _lineage(card: Path) -> dict:
-    """The runs of a previous model card, as that card described them: its run paragraphs
-    (from its Training section), its step and hour totals and its validation histories."""
-    # a file, or a card in git (REV:PATH, e.g. the one shipped before: HEAD:jnds_deploy/checkpoints/MODEL_CARD.md)
-    text = card.read_text() if card.is_file() else subprocess.run(["git", "show", str(card)], cwd=ROOT, check=True,
-                                                                  capture_output=True, text=True).stdout
-    body = text.split("## Training\n", 1)[1].split("\n\n", 1)[1]
-    runs = re.split(r"\nRuns compared|\n## Validation", body, maxsplit=1)[0].strip()
-    history = text.split("had no geometric history rejection):\n\n", 1)[1].split("\n\nThis card:", 1)[0].strip()
-    steps, hours = re.search(r"In all: (\d+) steps, ([\d.]+) h", text).groups()
-    return {"text": runs, "history": history, "steps": int(steps), "hours": float(hours)}
+def data(ckpt: dict) -> str:
+    parsed = [parse_sequence(n) for n in ckpt.get("train_sequences") or []]
+    if parsed:
+        per = [f"{n} {r} ({', '.join(f'{k} {c}' for k, c in _counts(p[1] for p in parsed if p[0] == r))})"
+               for r, n in _counts(p[0] for p in parsed)]
+        what = f"{len(parsed)} training sequences: {' and '.join(per)}"
+    else:
+        what = "The training sequences are not recorded in the checkpoint"
+    return "## Data\n\n" + _para(f"""{what}; 12 frames each at 192x108, 1 sample per pixel, with references
+        at 384x216 rendered at 64 samples per target pixel. The scene kinds, camera paths and the commands
+        that render them: [docs/dataset.md](../../docs/dataset.md). The evaluation sets below are other seeds,
+        with references at 128 samples per target pixel.""")
 
 
-def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str, data_command: str | None = None) -> dict:
-    """One run's part of the card: what it trained, how long, with which command."""
-    tcfg = ckpt["train_config"]
-    # wall-clock hours from the log's timestamps, skipping gaps (pauses) longer than 10 min
-    times = [r["time"] for r in log]
-    hours = sum(min(b - a, 600) for a, b in zip(times, times[1:])) / 3600
-    step = ckpt["state"]["step"]
-    init = tcfg.get("init")
-    on_gpu = tcfg.get("device", "cpu") != "cpu"
-    data = "/tmp/data" if on_gpu else "data"
-    cmd = (f"jnds train --data {data} --run {run} --preset {tcfg['preset']} --fp32-steps {tcfg['fp32_steps']} "
-           f"--qat-steps {tcfg['qat_steps']}")
-    if tcfg.get("upsample_root", 1) != 1:
-        cmd += f" --upsample-root {tcfg['upsample_root']}"
-    if tcfg.get("firefly_clamp"):
-        cmd += f" --firefly-clamp {tcfg['firefly_clamp']:g}"
-    for key, default in (("batch", 4), ("patch", 64), ("unroll", 6), ("burn_in", 0), ("seed", 0)):
-        if tcfg.get(key, default) != default:
-            cmd += f" --{key.replace('_', '-')} {tcfg[key]}"
-    if tcfg.get("threads", 2) != 2:
-        cmd += f" --threads {tcfg['threads']}"
-    if init:
-        cmd += f" --init {init} --lr {tcfg['lr']} --qat-lr {tcfg['qat_lr']}"
-        if tcfg.get("deepen_blend", -4.0) != -4.0:
-            cmd += f" --deepen-blend {tcfg['deepen_blend']:g}"
-    if tcfg.get("warmup_steps"):
-        cmd += f" --warmup-steps {tcfg['warmup_steps']}"
-    if tcfg["spatial_loss"] != "l1":
-        cmd += f" --spatial-loss {tcfg['spatial_loss']} --feature-net {tcfg['feature_net']}"
+def recipe(tcfg: dict, state: dict) -> str:
+    if not tcfg:
+        return "## Recipe\n\nNot recorded in the checkpoint."
+    start = "Fine-tuned from the checkpoint shipped before it" if tcfg.get("init") else "Trained from scratch"
+    aug = [text for key, text in (("rotate_normals", "normal rotations"), ("flips", "flips"),
+                                  ("colours", "colour permutations"), ("cross_cuts", "windows across camera cuts"),
+                                  ("balance_renderers", "each renderer drawn half the time")) if tcfg.get(key)]
     if tcfg.get("exposure"):
-        cmd += " --exposure {:g} {:g}".format(*tcfg["exposure"])
-    for key in ("rotate_normals", "flips", "colours", "fixed_upsample", "cross_cuts", "balance_renderers"):
-        if tcfg.get(key):
-            cmd += " --" + key.replace("_", "-")
-    if tcfg.get("clean_references"):
-        cmd += f" --clean-references {tcfg['clean_references']}"
-    if on_gpu:
-        cmd += f" --device {tcfg['device']}"
-    where = f"one GPU ({gpu})" if on_gpu else f"2 CPU cores ({cpu})"
-    data_line = ("\n- Data: rendered on that machine by `scripts/gpu_train.sh` (`jnds dataset --train-sequences "
-                 "40 --variant cuda_ad_rgb`): the 24 training sequences and 16 more seeds (1024-1039), "
-                 "same sizes and spp; validation inside the run on its own render of data/val."
-                 if on_gpu else _data_line(ckpt.get("train_sequences"), data_command))
-    # --init widens a narrower checkpoint to the run's preset (train._widened)
-    start = (f"fine-tuned from `{init}` as it was then (the run above) in the `{tcfg['preset']}` preset"
-             if init else "trained from scratch")
-    text = f"""`{run}`, {start}:
-- Steps: {step} ({tcfg["fp32_steps"]} fp32, then up to {tcfg["qat_steps"]} QAT; phase at save:
-  {ckpt["state"]["phase"]}); batch {tcfg["batch"]} x unroll {tcfg["unroll"]} frames x {tcfg["patch"]}^2 native patches;
-  AdamW, lr {tcfg["lr"]} (QAT {tcfg["qat_lr"]}) decaying x{tcfg["lr_decay"]} per phase.
-- Loss: Eq. 3-5, w_spatial {tcfg["w_spatial"]}, spatial loss `{tcfg["spatial_loss"]}`{_lowfreq(tcfg)}.{_feature_net_line(tcfg)}{data_line}
-- Time: {hours:.2f} h on {where}.
-- Command: `{cmd}`"""
-    vals = [r for r in log if r.get("event") == "val"]
-    history = "\n".join([f"`{run}`:", "", "| step | phase | PSNR | SSIM | FLIP | temporal |",
-                         "| --- | --- | --- | --- | --- | --- |"]
-                        + [f"| {r['step']} | {r['phase']} | {r['mean']['psnr']:.2f} | {r['mean']['ssim']:.4f} | "
-                           f"{r['mean']['flip']:.4f} | {r['mean']['temporal']:.5f} |" for r in vals])
-    return {"text": text, "history": history, "steps": step, "hours": hours}
+        aug.insert(0, "exposure x2^{:g}..2^{:g}".format(*tcfg["exposure"]))
+    loss = f"Eq. 3-5 (spatial weight {tcfg.get('w_spatial')}, spatial loss `{tcfg.get('spatial_loss')}`"
+    loss += ", the feature loss being Eq. 6" if "feature" in str(tcfg.get("spatial_loss")) else ""
+    loss += (f"), plus {tcfg['lowfreq_loss']:g} x the L1 of 4-, 8- and 16-pixel box averages (not in the paper)"
+             if tcfg.get("lowfreq_loss") else ")")
+    device = f"{tcfg.get('threads', 2)} CPU cores" if tcfg.get("device", "cpu") == "cpu" else tcfg["device"]
+    return "## Recipe\n\n" + _para(f"""{start}: {tcfg.get("fp32_steps")} fp32 steps, then
+        {tcfg.get("qat_steps")} quantization-aware ({state.get("step", "?")} in all; phase at save:
+        {state.get("phase", "?")}); batches of {tcfg.get("batch")} x {tcfg.get("unroll")} frames x
+        {tcfg.get("patch")}^2 native pixels; AdamW at {tcfg.get("lr")} (quantization-aware {tcfg.get("qat_lr")}),
+        x{tcfg.get("lr_decay")} over each phase; seed {tcfg.get("seed")}; on {device}. Loss: {loss}.
+        Augmentations: {", ".join(aug) or "none"}. The recipe in full, its commands and why each choice:
+        [docs/training.md](../../docs/training.md).""")
 
 
-def _data_line(names: list[str] | None, command: str | None = None) -> str:
-    """The training sequences a CPU run sampled from, as its checkpoint recorded them
-    (older checkpoints did not record them: they sampled the default 24)."""
-    if not names:
-        return ""
-    if command:  # several generators: count each (the name's prefix up to its seed says which)
-        groups: dict[str, list[int]] = {}
-        for n in names:
-            head, seed = n.rsplit("-", 1)
-            kind = "Cycles " + head.split("-")[1] if head.startswith("cycles-") else "Mitsuba " + head.split("-")[0]
-            groups.setdefault(kind, []).append(int(seed))
-        parts = ", ".join(f"{len(v)} {k} (seed{'s' if len(v) > 1 else ''} {min(v)}{f'-{max(v)}' if len(v) > 1 else ''})"
-                          for k, v in sorted(groups.items()))
-        return f"\n- Data: {len(names)} sequences of data/train: {parts}; rendered by `{command}`."
-    tails = [n.rsplit("-", 1)[-1] for n in names]
-    seeds = sorted(int(t) for t in tails if t.isdigit())
-    which = f"seeds {seeds[0]}-{seeds[-1]}" if len(seeds) == len(names) else ", ".join(names)
-    return (f"\n- Data: {len(names)} sequences of data/train ({which}; "
-            f"`jnds dataset --out data --split train --train-sequences {len(names)}` renders seeds 1000 on).")
+def _means(results: dict, names: list[str]) -> dict[str, float]:
+    return {q: float(np.mean([results["sequences"][n][q] for n in names])) for q in METRICS}
 
 
-def _lowfreq(tcfg: dict) -> str:
-    """The low-frequency term of the spatial loss, where the run had one (not in the paper)."""
-    w = tcfg.get("lowfreq_loss", 0.0)
-    return (f" plus {w:g} x the L1 of 4-, 8- and 16-pixel box averages on the radiance tasks "
-            "(`--lowfreq-loss`, `training.losses.lowfreq`)") if w else ""
+def _seeds(parsed: list[tuple[str, str, int]]) -> str:
+    """Seed ranges per renderer: '2000-2005, 6000-6005'."""
+    ranges = []
+    for r in sorted({p[0] for p in parsed}):
+        seeds = [p[2] for p in parsed if p[0] == r]
+        ranges.append(f"{min(seeds)}-{max(seeds)}" if len(seeds) > 1 else str(seeds[0]))
+    return ", ".join(ranges)
 
 
-def _feature_net_line(tcfg: dict) -> str:
-    if "feature" not in tcfg["spatial_loss"]:
-        return ""
-    f = torch.load(tcfg["feature_net"], weights_only=False)
-    return (f"\n- Feature-loss network (Eq. 6, `jnds_deploy.training.feature_loss`): `{tcfg['feature_net']}`, "
-            f"`jnds train-feature-net`, {f['config']['steps']} steps predicting the G-buffer from converged "
-            f"renders of data/train, final L1 {f['final_l1']:.4f}.")
+def _rows(sets: dict, model: str, trained: set) -> list[tuple[str, str, dict, dict]]:
+    """(label, sequences, model means, baseline means) per set, its renderers apart where it
+    has both, then every set's sequences of trained and of unseen kinds together."""
+    rows, pooled = [], {True: {}, False: {}}
+    for name, rep in sets.items():
+        seqs = list(rep[model]["sequences"])
+        parsed = {n: parse_sequence(n) for n in seqs}
+        renderers = sorted({p[0] for p in parsed.values()})
+        label = name if name in ("val", "test") else " and ".join(sorted({p[1] for p in parsed.values()}))
+        rows.append((label, f"{len(seqs)} ({_seeds(list(parsed.values()))})", _means(rep[model], seqs),
+                     _means(rep[BASELINE], seqs)))
+        if len(renderers) > 1:
+            for r in renderers:
+                part = [n for n in seqs if parsed[n][0] == r]
+                rows.append((f"{label}, its {r} half", str(len(part)), _means(rep[model], part),
+                             _means(rep[BASELINE], part)))
+        for n in seqs:
+            pooled[parsed[n][:2] in trained][n] = (rep[model]["sequences"][n], rep[BASELINE]["sequences"][n])
+    for seen, label in ((True, "**all: kinds it trained on**"), (False, "**all: kinds it never trained on**")):
+        if pooled[seen]:
+            m, b = ({q: float(np.mean([v[i][q] for v in pooled[seen].values()])) for q in METRICS} for i in (0, 1))
+            rows.append((label, str(len(pooled[seen])), m, b))
+    return rows
 
 
-def _renderer_verdict(sets: dict, model_key: str, baseline: str = "oidn-balanced") -> list[str]:
-    """Verdict lines against ``baseline`` for each renderer's sequences apart, in the sets
-    that hold both: the test set's Cycles half is made of scene kinds no training
-    generator makes, its Mitsuba half of new seeds of the training generators, and a
-    mean over both can hide a loss on the first (issue 24)."""
-    lines = []
-    for set_name, rep in sets.items():
-        if baseline not in rep:
+def scores(sets: dict, model: str, trained: set, reports: list[str], notes: list[str]) -> str:
+    lines = [f"| {label} | {n} | {m['psnr']:.2f} / {m['flip']:.4f} / {m['temporal']:.4f} | "
+             f"{b['psnr']:.2f} / {b['flip']:.4f} / {b['temporal']:.4f} | {m['psnr'] - b['psnr']:+.2f} dB, "
+             f"{m['flip'] - b['flip']:+.4f}, {m['temporal'] / b['temporal']:.2f}x |"
+             for label, n, m, b in _rows(sets, model, trained)]
+    kinds = {parse_sequence(n)[:2] for rep in sets.values() for n in rep[model]["sequences"]}
+    unseen = sorted(k for r, k in kinds - trained)
+    multi: dict[str, list[str]] = {}
+    for name, rep in sets.items():
+        multi.setdefault(rep["_report"], []).append(name)
+    commands = [f"`jnds evaluate --checkpoint jnds_deploy/checkpoints/jnds.pt --data "
+                f"{' '.join('data/' + n for n in names)} --baselines bicubic oidn-balanced --threads 2 --out {path}`"
+                for path, names in multi.items() if len(names) > 1]
+    how = _para(f"""The checkpoint at int8 fake quantization, as `jnds evaluate` runs it (the deployed int8
+        pipeline against fp32: [benchmarks/results/exposure_sweep.md](../../benchmarks/results/exposure_sweep.md)),
+        against OIDN `balanced` on the 1-spp frame, upsampled bicubically; OIDN is given the albedo and
+        normals (on Cycles frames Cycles' Denoising Albedo, as Blender's Denoise node). Every frame of
+        every sequence against the reference at the target size; PSNR and FLIP on the displayed image
+        (Reinhard, then gamma 2.2); temporal error is Eq. 5. The reports: `{"`, `".join(reports)}`, the column
+        `{model}`, a contact sheet beside each; {" and ".join(commands) or "one `jnds evaluate` per set"},
+        the other reports likewise on their sets. Scene kinds it never trained on: {", ".join(unseen) or "none"}.""")
+    note = "\n" + "\n".join(_para(f"- {n}").replace("\n", "\n  ") for n in notes) if notes else ""
+    return f"""## Scores
+
+{how}
+
+| set | sequences (seeds) | PSNR / FLIP / temporal | OIDN `balanced` + bicubic | difference, temporal ratio |
+| --- | --- | --- | --- | --- |
+{chr(10).join(lines)}
+{note}"""
+
+
+def limitations(sets: dict, model: str, trained: set) -> str:
+    behind, ahead = [], []
+    for label, _, m, b in _rows(sets, model, trained):
+        if label.startswith("**") or ", its " in label:
             continue
-        names = list(rep[model_key]["sequences"])
-        halves = {"Cycles": [n for n in names if n.startswith("cycles-")],
-                  "Mitsuba": [n for n in names if not n.startswith("cycles-")]}
-        if not all(halves.values()):
-            continue
-        for renderer, part in halves.items():
-            m, o = ({q: float(np.mean([rep[k]["sequences"][n][q] for n in part])) for q in ("psnr", "flip", "temporal")}
-                    for k in (model_key, baseline))
-            lines.append(f"- {set_name}, {renderer} sequences only ({len(part)}), vs {baseline}: "
-                         f"PSNR {m['psnr'] - o['psnr']:+.2f} dB, FLIP {m['flip'] - o['flip']:+.4f}, "
-                         f"temporal error {m['temporal'] / o['temporal']:.2f}x")
-    return lines
-
-
-def _compare_table(runs: list[str], report: dict) -> str:
-    """Runs scored by the same ``jnds evaluate``, with the training settings they differ in
-    (read from their checkpoints, so the sentence cannot go stale)."""
-    ckpts = [read_checkpoint(Path(r) / "checkpoint.pt") for r in runs]
-    tcfgs = [c["train_config"] for c in ckpts]
-    seqs = [len(c["train_sequences"]) if c.get("train_sequences") else "not recorded" for c in ckpts]
-    keys = sorted({k for t in tcfgs for k in t} - {"run"})
-    differ = [k for k in keys if len({json.dumps(t.get(k), sort_keys=True) for t in tcfgs}) > 1]
-    rows = []
-    for r, tcfg, n in zip(runs, tcfgs, seqs):
-        m = report[Path(r).name]["mean"]
-        rows.append(f"| `{r}` | `{tcfg.get('init')}` | {n} | {tcfg['spatial_loss']} | {tcfg.get('upsample_root', 1)} | "
-                    f"{tcfg['fp32_steps']} + {tcfg['qat_steps']} | {tcfg['batch']} x {tcfg['unroll']} x "
-                    f"{tcfg['patch']}^2 | {m['psnr']:.2f} | {m['ssim']:.4f} | {m['flip']:.4f} | "
-                    f"{m['temporal']:.5f} |")
-    same = ", ".join(f"`{k}`" for k in differ) or "nothing"
-    return "\n".join(["", "Runs compared (scores from `--eval`, int8 fake quantization). Their training",
-                      f"settings (`train_config` in the checkpoints) differ only in: {same}. An init",
-                      "of the shipped checkpoint means the one shipped when the run started.", "",
-                      "Training sequences: the number in data/train when the run sampled it (checkpoints",
-                      "record it since 2026-11-23; earlier CPU runs sampled the default 24, GPU runs 40).", "",
-                      "| run | init | training sequences | spatial loss | upsample root | steps (fp32 + QAT) "
-                      "| batch x unroll x patch | PSNR (dB) | SSIM | FLIP | temporal error |",
-                      "| --- | --- | ---: | --- | ---: | --- | --- | --- | --- | --- | --- |", *rows, ""])
+        (behind if m["psnr"] < b["psnr"] else ahead).append(f"{label} ({m['psnr'] - b['psnr']:+.2f} dB)")
+    return "## Limitations\n\n" + _para(f"""- Behind OIDN `balanced` + bicubic in PSNR on: {"; ".join(behind)
+        or "no set"}. Ahead on: {"; ".join(ahead) or "no set"}.""").replace("\n", "\n  ") + "\n" + _para(
+        """- Known failures, measured and explained in [docs/model-gap.md](../../docs/model-gap.md): scene
+        kinds unlike its training data, participating media, mirrors and glossy reflections, hair, thin
+        geometry, the first frame and the frame after a camera cut, and trails behind moving objects where
+        the history is wrong.""").replace("\n", "\n  ")
 
 
 if __name__ == "__main__":
