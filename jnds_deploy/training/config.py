@@ -6,8 +6,14 @@ from dataclasses import dataclass
 from ..errors import ConfigError
 
 SPATIAL_LOSSES = ("l1", "feature", "l1+feature")
-# how --init starts the guide input's weights (train._guided), the first the default
+# how --init starts the guide input's weights (surgery.guided), the first the default
 GUIDE_INITS = ("zero", "split")
+# the default blend weight (sigmoid of this) of the new coarsest filter level where it
+# enters the old one when --init deepens a checkpoint (surgery.deepened): near 0, so that
+# the deepened model starts close to the old. AdamW moves a bias by about the learning
+# rate a step, so a fine-tune hardly moves it from there (docs/training.md):
+# TrainConfig.deepen_blend enters further in
+DEEPENED_BLEND = -4.0
 
 
 @dataclass
@@ -23,7 +29,7 @@ class TrainConfig:
     diffuse_fill: bool = False  # ModelConfig.diffuse_fill of the trained model
     albedo_at_holes: bool = False  # ModelConfig.albedo_at_holes of the trained model
     # ModelConfig.guide_albedo of the trained model; --init from a checkpoint without it adds the
-    # input with zero weights, or with "split" half of the albedo's (train._guided)
+    # input with zero weights, or with "split" half of the albedo's (surgery.guided)
     guide_albedo: bool = False
     guide_init: str = "zero"
     # ModelConfig.input_block / input_hidden of the trained model; --init from a checkpoint of
@@ -55,7 +61,7 @@ class TrainConfig:
     # (training.losses.lowfreq; 0: off, the paper's loss)
     lowfreq_loss: float = 0.0
     init: str | None = None  # start a new run from this checkpoint's weights (fine-tuning)
-    deepen_blend: float = -4.0  # an init one U-Net level shallower: the new level's blend logit (train._deepened)
+    deepen_blend: float = DEEPENED_BLEND  # an init one U-Net level shallower: the new level's blend logit
     observe_batches: int = 8  # batches to observe activation ranges before QAT
     val_every: int = 500
     checkpoint_every: int = 100
