@@ -24,7 +24,8 @@ from typing import Callable
 from .errors import ConfigError, JndsError
 from .io import OUTPUT_FORMATS
 from .options import option
-from .runtime.config import ARTIFACTS_HELP, FILTER_DTYPE_HELP, FILTER_DTYPES, PRECISION_HELP, PRECISIONS
+from .runtime.config import (ARTIFACTS_HELP, DEFAULT_PRECISION, FILTER_DTYPE_HELP, FILTER_DTYPES, PRECISION_HELP,
+                             PRECISIONS)
 
 SUMMARY = "batch.json"
 OUTPUT_FORMAT_HELP = "output frames: float (32-bit, uncompressed) or half (16-bit, PIZ: a quarter of the size)"
@@ -56,7 +57,7 @@ class BatchConfig:
     artifacts: str = option(help=ARTIFACTS_HELP)
     input: str = option(help="ROOT: every directory under it with a sequence.json")
     output: str = option(help="OUT: ROOT/<path> goes to OUT/<path>; OUT/batch.json sums up")
-    precision: str = option("fp32", PRECISION_HELP, choices=PRECISIONS)
+    precision: str = option(DEFAULT_PRECISION, PRECISION_HELP, choices=PRECISIONS)
     filter_dtype: str = option(FILTER_DTYPES[0], FILTER_DTYPE_HELP, choices=FILTER_DTYPES)
     adaptive: bool = option(True, "skip the work a frame does not need where the result is the same")
     threads: int = option(1, "ONNX Runtime and numba threads per worker (and the Ray CPUs it reserves)")

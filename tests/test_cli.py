@@ -59,3 +59,18 @@ def test_dataset_reports_a_resumed_sequence(tmp_path, capsys, monkeypatch):
     assert main(["dataset", "--out", str(tmp_path), "--split", "train", "--quiet"]) == 0
     out = capsys.readouterr().out
     assert f"{seq}: inputs none rendered in this run, reference 12.50 s/frame" in out
+
+
+def test_int8_by_default_needs_calibrated_artifacts(tiny_artifacts, tmp_path, capsys):
+    """`jnds run`, `jnds batch`, `jnds serve` and PipelineConfig run int8 unless told
+    otherwise: artifacts without int8 graphs are a one-line error saying what to do."""
+    from jnds_deploy.cluster import BatchConfig
+    from jnds_deploy.runtime import PipelineConfig
+    from jnds_deploy.serve import ServeConfig
+    assert PipelineConfig(artifacts="a").precision == BatchConfig("a", "b", "c").precision == \
+        ServeConfig(artifacts="a").precision == "int8"
+    assert main(["run", "--artifacts", str(tiny_artifacts[0]), "--input", str(SAMPLE), "--output",
+                 str(tmp_path / "o"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no int8 graphs" in err[0], err
+    assert "`jnds calibrate" in err[0] and "--precision fp32" in err[0]

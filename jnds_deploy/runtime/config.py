@@ -8,7 +8,9 @@ from dataclasses import dataclass
 from ..errors import ConfigError
 from ..options import option
 
-PRECISIONS = ("fp32", "int8")
+# the network graphs' precisions, the first the default of the library and of every command
+PRECISIONS = ("int8", "fp32")
+DEFAULT_PRECISION = PRECISIONS[0]
 PRECISION_HELP = ("int8: the int8 graphs `jnds calibrate` wrote (the artifacts must have them); fp32: the "
                   "exported graphs")
 FILTER_DTYPES = ("float32", "float16")
@@ -19,7 +21,7 @@ ARTIFACTS_HELP = "a directory written by `jnds export` (and `jnds calibrate`)"
 @dataclass(frozen=True)
 class PipelineConfig:
     artifacts: str = option(help=ARTIFACTS_HELP)
-    precision: str = option("fp32", PRECISION_HELP, choices=PRECISIONS)
+    precision: str = option(DEFAULT_PRECISION, PRECISION_HELP, choices=PRECISIONS)
     filter_dtype: str = option(FILTER_DTYPES[0], FILTER_DTYPE_HELP, choices=FILTER_DTYPES)
     threads: int = option(2, "ONNX Runtime threads per graph run")
     int8_method: str | None = None  # which calibration's int8 graphs; None: the last calibrated

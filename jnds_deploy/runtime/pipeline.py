@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..artifacts import Manifest, variant_key
-from ..errors import FrameError
+from ..errors import ArtifactError, FrameError
 from ..heap import keep_freed_memory
 from ..layout import CURRENT, GUIDE, HISTORY, INPUT_CHANNELS, RADIANCE, channels, guide_of
 from . import filters as F
@@ -133,6 +133,10 @@ class Pipeline:
         self.cfg = cfg
         root = Path(cfg.artifacts)
         self.manifest = Manifest.load(root)
+        if cfg.precision == "int8" and not any(g.int8 for g in self.manifest.graphs.values()):
+            raise ArtifactError(f"{root}: no int8 graphs, and precision is int8 (the default): run `jnds calibrate "
+                                f"--artifacts {root} --data SEQUENCES` first, or choose precision fp32 "
+                                f"(`--precision fp32`)")
         self.scale = self.manifest.scale
         self.out_scale = 1 if cfg.native_output else self.scale  # output size / input size
         self.multiple = self.manifest.pad_multiple

@@ -32,7 +32,7 @@ from ..errors import BadRequest, ConfigError, JndsError
 from ..io import INPUT_LAYERS, OPTIONAL_INPUT_LAYERS, OUTPUT_LAYERS, channels_to_layers, exr_bytes, read_exr_bytes
 from ..layout import INPUT_CHANNELS
 from ..options import gib, option, parse_size
-from ..runtime.config import ARTIFACTS_HELP, PRECISION_HELP, PRECISIONS
+from ..runtime.config import ARTIFACTS_HELP, DEFAULT_PRECISION, PRECISION_HELP, PRECISIONS
 from ..runtime.pipeline import Pipeline, PipelineConfig
 
 log = logging.getLogger("jnds.serve")
@@ -77,7 +77,7 @@ class ServeConfig:
     artifacts: str = option(help=ARTIFACTS_HELP)
     host: str = option("127.0.0.1", "the address to listen on")
     port: int = option(8765, "0 picks a free port")
-    precision: str = option("int8", PRECISION_HELP, choices=PRECISIONS)
+    precision: str = option(DEFAULT_PRECISION, PRECISION_HELP, choices=PRECISIONS)
     threads: int = option(2, "ONNX Runtime threads per graph run")
     workers: int = option(1, "frames processed at once, over all streams")
     queue: int = option(2, "frames waiting per stream (beyond the one running) before 429")
