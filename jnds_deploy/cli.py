@@ -105,10 +105,16 @@ def cmd_dataset(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from .training.config import TrainConfig
+    from .training.config import TrainConfig, init_settings
+
+    options = given(args, TrainConfig)
+    if options.get("init"):
+        from .checkpoint import read_checkpoint
+
+        options = {**init_settings(read_checkpoint(options["init"]), options), **options}
     from .training.train import train
 
-    ckpt = train(TrainConfig(**given(args, TrainConfig)), progress=not args.quiet)
+    ckpt = train(TrainConfig(**options), progress=not args.quiet)
     print(f"checkpoint: {ckpt}")
     return 0
 

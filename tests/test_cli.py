@@ -74,3 +74,34 @@ def test_int8_by_default_needs_calibrated_artifacts(tiny_artifacts, tmp_path, ca
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no int8 graphs" in err[0], err
     assert "`jnds calibrate" in err[0] and "--precision fp32" in err[0]
+
+
+def test_train_init_carries_the_checkpoints_model_settings_unless_given(tmp_path, monkeypatch):
+    """`jnds train --init CKPT` trains the checkpoint's model: the settings a flag does not
+    give (preset and output width, upsample root, firefly clamp, fill, albedo at holes,
+    fixed upsample...) are the checkpoint's, not the command line's defaults."""
+    import torch
+
+    import jnds_deploy.training.train as training
+    from jnds_deploy.model import ModelConfig
+    from jnds_deploy.training.config import TrainConfig
+
+    model = ModelConfig.preset("tiny", output_width=2, upsample_root=4, firefly_clamp=16.0, diffuse_fill=True,
+                               albedo_at_holes=True, upsample_width=0, upsample_features=0)
+    ckpt = tmp_path / "init.pt"
+    torch.save({"model": {}, "model_config": model.__dict__, "train_config": {"preset": "tiny"}}, ckpt)
+    seen = []
+    monkeypatch.setattr(training, "train", lambda cfg, progress: seen.append(cfg) or tmp_path / "c.pt")
+
+    def trained(*flags):
+        assert main(["train", "--run", str(tmp_path / "r"), "--quiet", *flags]) == 0
+        return seen[-1]
+
+    cfg = trained("--init", str(ckpt))
+    assert cfg.model_config() == model
+    assert (cfg.preset, cfg.output_width, cfg.fixed_upsample, cfg.init) == ("tiny", 2, True, str(ckpt))
+    cfg = trained("--init", str(ckpt), "--upsample-root", "1", "--firefly-clamp", "0", "--no-diffuse-fill")
+    assert (cfg.upsample_root, cfg.firefly_clamp, cfg.diffuse_fill, cfg.albedo_at_holes) == (1, 0.0, False, True)
+    cfg = trained("--init", str(ckpt), "--preset", "small")  # the architecture as a whole from the flags
+    assert (cfg.preset, cfg.output_width, cfg.upsample_root) == ("small", 0, 4)
+    assert trained() == TrainConfig(run=str(tmp_path / "r"))  # no --init: the dataclass's defaults

@@ -8,6 +8,10 @@ from ..errors import ConfigError
 from ..layout import INPUT_BLOCKS, UPSAMPLE_ROOTS
 from ..options import option
 
+# the fields that say which model a run trains (TrainConfig.model_config); `jnds train
+# --init` takes those it is not given from the checkpoint (init_settings)
+MODEL_SETTINGS = ("preset", "output_width", "upsample_root", "firefly_clamp", "diffuse_fill", "albedo_at_holes",
+                  "guide_albedo", "input_block", "input_hidden", "fixed_upsample")
 SPATIAL_LOSSES = ("l1", "feature", "l1+feature")
 # how --init starts the guide input's weights (surgery.guided), the first the default
 GUIDE_INITS = ("zero", "split")
@@ -23,7 +27,7 @@ DEEPENED_BLEND = -4.0
 class TrainConfig:
     data: str = option("data", "directory with train/ and val/ sequences")
     run: str = option("runs/small", "output directory (checkpoint, log, config)")
-    # preset to fixed_upsample: the trained model's settings (model_config)
+    # preset to fixed_upsample: the trained model's settings (MODEL_SETTINGS, model_config)
     preset: str = option("small", "the network's widths and depths (model.ModelConfig.preset)")
     output_width: int = option(
         0, "the output block's hidden channels instead of the preset's (0: the preset's; an AVX2 CPU's int8 "
@@ -80,7 +84,10 @@ class TrainConfig:
         0.0, "add W x the L1 of 4-, 8- and 16-pixel box averages (target pixels) of output and reference to each "
              "radiance task's spatial loss (training.losses.lowfreq; 0: the paper's loss)", metavar="W")
     init: str | None = option(
-        None, "start a new run from this checkpoint's weights (e.g. the shipped one) to fine-tune it")
+        None, "start a new run from this checkpoint's weights (e.g. the shipped one) to fine-tune it; the "
+              "trained model's settings (--preset, --output-width, --upsample-root, --firefly-clamp, "
+              "--diffuse-fill, --albedo-at-holes, --guide-albedo, --input-block, --input-hidden, "
+              "--fixed-upsample) are the checkpoint's where not given")
     deepen_blend: float = option(
         DEEPENED_BLEND, "--init one U-Net level shallower than --preset: the new level enters the old coarsest one "
                         "with blend weight sigmoid(LOGIT)", metavar="LOGIT")
@@ -158,3 +165,24 @@ class TrainConfig:
         if not 0 <= self.w_spatial <= 1:
             raise ConfigError(f"w_spatial must be in [0, 1], got {self.w_spatial}")
 
+
+def init_settings(checkpoint: dict, given=()) -> dict:
+    """The model settings (``MODEL_SETTINGS``) of the model in ``checkpoint`` (a checkpoint
+    dict, ``checkpoint.read_checkpoint``), but those named in ``given``: ``jnds train
+    --init`` trains the initial checkpoint's model unless told otherwise. The preset comes
+    from the checkpoint's ``train_config``, and with it the output width, unless either is
+    given; the input block's projection width comes with its design."""
+    from ..model import ModelConfig
+
+    given = set(given)
+    model = ModelConfig(**checkpoint["model_config"])
+    out = dict(upsample_root=model.upsample_root, firefly_clamp=model.firefly_clamp, diffuse_fill=model.diffuse_fill,
+               albedo_at_holes=model.albedo_at_holes, guide_albedo=model.guide_albedo,
+               input_block=model.input_block, fixed_upsample=model.fixed_upsample)
+    if "input_block" not in given:
+        out["input_hidden"] = model.input_hidden
+    preset = (checkpoint.get("train_config") or {}).get("preset")
+    if preset and not given & {"preset", "output_width"}:
+        width = ModelConfig.preset(preset).output_width
+        out.update(preset=preset, output_width=0 if model.output_width == width else model.output_width)
+    return {k: v for k, v in out.items() if k not in given}
