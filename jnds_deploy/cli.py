@@ -381,7 +381,7 @@ def _evaluate_options(e: argparse.ArgumentParser) -> None:
     e.add_argument("--baselines", nargs="*", default=["bicubic", "oidn-balanced"],
                    help="bicubic, oidn-fast, oidn-balanced, oidn-high")
     e.add_argument("--out", default=None, help="write the report as JSON")
-    e.add_argument("--threads", type=int, default=2, help="torch and OIDN threads")
+    e.add_argument("--threads", type=int, default=2, help="torch threads")
 
 
 # name: (help, options, the function that runs it)
