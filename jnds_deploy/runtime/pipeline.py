@@ -2,7 +2,8 @@
 the filter stage, and the history between frames.
 
 ``Pipeline(PipelineConfig(artifacts=DIR))`` needs nothing but the artifact directory
-(its ``manifest.json``, ``artifacts.Manifest``). Each call takes one frame's input layers
+(its ``manifest.json``, ``artifacts.Manifest``, and the int8 graphs of ``jnds calibrate``
+unless ``precision="fp32"``). Each call takes one frame's input layers
 as read by ``jnds_deploy.io`` (HWC float32) and returns a ``FrameResult``: the output
 colour (HWC float32, linear, at target resolution), the time of every stage in
 milliseconds, and what the frame met and decided.
