@@ -23,8 +23,12 @@ from typing import Callable
 
 from .errors import ConfigError, JndsError
 from .io import OUTPUT_FORMATS
+from .options import option
+from .runtime.config import (ARTIFACTS_HELP, DEFAULT_PRECISION, FILTER_DTYPE_HELP, FILTER_DTYPES, PRECISION_HELP,
+                             PRECISIONS)
 
 SUMMARY = "batch.json"
+OUTPUT_FORMAT_HELP = "output frames: float (32-bit, uncompressed) or half (16-bit, PIZ: a quarter of the size)"
 
 
 def connect(address: str | None = None, cpus: int | None = None) -> dict:
@@ -50,17 +54,18 @@ def connect(address: str | None = None, cpus: int | None = None) -> dict:
 
 @dataclass
 class BatchConfig:
-    artifacts: str
-    input: str  # ROOT: every directory under it holding a sequence.json is a sequence
-    output: str  # OUT: a sequence at ROOT/<path> goes to OUT/<path>
-    precision: str = "fp32"
-    filter_dtype: str = "float32"
-    adaptive: bool = True
-    threads: int = 1  # ONNX Runtime and numba threads per worker (and the CPUs it reserves)
-    workers: int | None = None  # default: the cluster's CPUs // threads
-    address: str | None = None
-    retries: int = 2  # further attempts of a sequence whose worker died
-    output_format: str = "float"  # io.OUTPUT_FORMATS
+    artifacts: str = option(help=ARTIFACTS_HELP)
+    input: str = option(help="ROOT: every directory under it with a sequence.json")
+    output: str = option(help="OUT: ROOT/<path> goes to OUT/<path>; OUT/batch.json sums up")
+    precision: str = option(DEFAULT_PRECISION, PRECISION_HELP, choices=PRECISIONS)
+    filter_dtype: str = option(FILTER_DTYPES[0], FILTER_DTYPE_HELP, choices=FILTER_DTYPES)
+    adaptive: bool = option(True, "skip the work a frame does not need where the result is the same")
+    threads: int = option(1, "ONNX Runtime and numba threads per worker (and the Ray CPUs it reserves)")
+    workers: int | None = option(None, "default: the cluster's CPUs / --threads")
+    address: str | None = option(None, "a Ray cluster (ray start --head prints it; default RAY_ADDRESS, else a "
+                                       "local Ray)")
+    retries: int = option(2, "further attempts of a sequence whose worker died")
+    output_format: str = option("float", OUTPUT_FORMAT_HELP, choices=tuple(OUTPUT_FORMATS))
 
     def __post_init__(self):
         if self.threads < 1:

@@ -58,8 +58,8 @@ def _assert_same_as_run(artifacts, seq, out, tmp_path, precision="fp32"):
 
 def test_batch_writes_what_run_writes_and_a_rerun_skips(local_ray, tiny_artifacts, shots, tmp_path):
     from jnds_deploy.cluster import SUMMARY, BatchConfig, batch
-    cfg = BatchConfig(artifacts=str(tiny_artifacts[0]), input=str(shots), output=str(tmp_path / "out"),
-                      workers=2, threads=1)
+    cfg = BatchConfig(artifacts=str(tiny_artifacts[0]), precision="fp32", input=str(shots),
+                      output=str(tmp_path / "out"), workers=2, threads=1)
     summary = batch(cfg, progress=False)
     assert summary["counts"] == {"done": 3, "skipped": 0, "failed": 0, "pending": 0}
     assert summary["frames_processed"] == 8 + 8 + 4
@@ -86,8 +86,8 @@ def test_a_worker_killed_mid_sequence_loses_nothing(local_ray, tiny_artifacts, s
             killed.append(item["pid"])
             os.kill(item["pid"], signal.SIGKILL)
 
-    cfg = BatchConfig(artifacts=str(tiny_artifacts[0]), input=str(shots), output=str(tmp_path / "out"),
-                      workers=2, threads=1)
+    cfg = BatchConfig(artifacts=str(tiny_artifacts[0]), precision="fp32", input=str(shots),
+                      output=str(tmp_path / "out"), workers=2, threads=1)
     summary = batch(cfg, progress=False, on_frame=kill_once)
     assert killed
     assert summary["counts"] == {"done": 3, "skipped": 0, "failed": 0, "pending": 0}
@@ -105,8 +105,8 @@ def test_a_bad_sequence_fails_alone_with_its_error(local_ray, tiny_artifacts, sh
     (root / "bad" / "inputs" / "0001.exr").write_bytes(b"not an EXR")
     shutil.copytree(shots / "c", root / "nometa")
     (root / "nometa" / "sequence.json").write_text("{")
-    summary = batch(BatchConfig(artifacts=str(tiny_artifacts[0]), input=str(root), output=str(tmp_path / "out"),
-                                workers=1, threads=1), progress=False)
+    summary = batch(BatchConfig(artifacts=str(tiny_artifacts[0]), precision="fp32", input=str(root),
+                                output=str(tmp_path / "out"), workers=1, threads=1), progress=False)
     assert summary["sequences"]["good"]["status"] == "done"
     bad = summary["sequences"]["bad"]
     assert bad["status"] == "failed" and "0001.exr" in bad["error"]
@@ -120,7 +120,7 @@ def test_batch_errors_name_the_bad_argument(tmp_path, tiny_artifacts):
     from jnds_deploy.errors import ConfigError
     (tmp_path / "empty").mkdir()
     with pytest.raises(ConfigError, match="no sequence"):
-        batch(BatchConfig(artifacts=str(tiny_artifacts[0]), input=str(tmp_path / "empty"),
+        batch(BatchConfig(artifacts=str(tiny_artifacts[0]), precision="fp32", input=str(tmp_path / "empty"),
                           output=str(tmp_path / "o")), progress=False)
     with pytest.raises(ConfigError, match="threads"):
         BatchConfig(artifacts="a", input="b", output="c", threads=0)

@@ -354,18 +354,18 @@ def test_init_with_the_other_input_block_fits_it_to_the_old_features(tmp_path):
 @pytest.mark.parametrize("fixed,narrow,wide", [(True, "small", "medium"), (False, "small", "medium"),
                                                 (True, "medium", "large"), (True, "large", "wide")])
 def test_init_widens_a_checkpoint_to_a_wider_preset_computing_the_same(fixed, narrow, wide):
-    from jnds_deploy.training.train import _widened, _widens
+    from jnds_deploy.training.surgery import widened, widens
     up = dict(upsample_width=0, upsample_features=0) if fixed else {}
     lo, hi = ModelConfig.preset(narrow, **up), ModelConfig.preset(wide, **up)
-    assert _widens(lo, hi) and not _widens(hi, lo)
-    assert not _widens(lo, ModelConfig.preset(narrow, encoder_widths=(*lo.encoder_widths, 64), **up))  # deeper
-    assert not _widens(lo, ModelConfig.preset(narrow, filter_levels=2, **up))
+    assert widens(lo, hi) and not widens(hi, lo)
+    assert not widens(lo, ModelConfig.preset(narrow, encoder_widths=(*lo.encoder_widths, 64), **up))  # deeper
+    assert not widens(lo, ModelConfig.preset(narrow, filter_levels=2, **up))
     torch.manual_seed(0)
     old = JNDS(lo)
     for p in old.parameters():  # away from the identity initialization
         torch.nn.init.normal_(p, std=0.1)
     new = JNDS(hi)
-    new.load_state_dict(_widened(lo, old.state_dict(), new))
+    new.load_state_dict(widened(lo, old.state_dict(), new))
     # in float64 the zero-weight reads add exact zeros: the same outputs to rounding (in
     # float32 the wider sums round differently, by up to 1.5e-5 from large to wide)
     old, new = old.double(), new.double()
@@ -382,11 +382,11 @@ def test_init_widens_a_checkpoint_to_a_wider_preset_computing_the_same(fixed, na
 
 
 def test_init_narrows_the_output_block_keeping_the_channels_that_matter():
-    from jnds_deploy.training.train import _narrowed, _narrows
+    from jnds_deploy.training.surgery import narrowed, narrows
     up = dict(upsample_width=0, upsample_features=0)
     wide, narrow = ModelConfig.preset("large", **up), ModelConfig.preset("large", output_width=16, **up)
-    assert _narrows(wide, narrow) and not _narrows(narrow, wide)
-    assert not _narrows(wide, ModelConfig.preset("medium", output_width=16, **up))  # other widths too
+    assert narrows(wide, narrow) and not narrows(narrow, wide)
+    assert not narrows(wide, ModelConfig.preset("medium", output_width=16, **up))  # other widths too
     torch.manual_seed(0)
     old = JNDS(wide)
     for p in old.parameters():
@@ -397,7 +397,7 @@ def test_init_narrows_the_output_block_keeping_the_channels_that_matter():
         conv.weight[dead] = 0.0
         conv.bias[dead] = -1.0
     new = JNDS(narrow)
-    new.load_state_dict(_narrowed(wide, old.state_dict(), 16))
+    new.load_state_dict(narrowed(wide, old.state_dict(), 16))
     x, mv = _inputs(1, 32, 48)
     h = torch.rand(1, 12, 32, 48)
     with torch.no_grad():
@@ -408,14 +408,14 @@ def test_init_narrows_the_output_block_keeping_the_channels_that_matter():
 
 @pytest.mark.parametrize("fixed", [True, False])
 def test_init_deepens_a_checkpoint_by_one_unet_level_computing_nearly_the_same(fixed):
-    from jnds_deploy.training import train
+    from jnds_deploy.training import surgery
     up = dict(upsample_width=0, upsample_features=0) if fixed else {}
     lo = ModelConfig.preset("small", **up)
     hi = ModelConfig.preset("small", encoder_widths=(24, 32, 48), bottleneck_width=64, filter_levels=4, **up)
-    assert train._deepens(lo, hi) and not train._deepens(hi, lo)
-    assert not train._deepens(lo, replace(hi, filter_levels=3))  # the old coarsest level must go on
-    assert not train._deepens(lo, replace(hi, encoder_widths=(24, 32, 40)))  # not the old bottleneck's width
-    assert train._deepens(ModelConfig.preset("large"), ModelConfig.preset("deep"))
+    assert surgery.deepens(lo, hi) and not surgery.deepens(hi, lo)
+    assert not surgery.deepens(lo, replace(hi, filter_levels=3))  # the old coarsest level must go on
+    assert not surgery.deepens(lo, replace(hi, encoder_widths=(24, 32, 40)))  # not the old bottleneck's width
+    assert surgery.deepens(ModelConfig.preset("large"), ModelConfig.preset("deep"))
     torch.manual_seed(0)
     old = JNDS(lo)
     for p in old.parameters():  # away from the identity initialization
@@ -426,7 +426,7 @@ def test_init_deepens_a_checkpoint_by_one_unet_level_computing_nearly_the_same(f
         a = old.network(x, h)
         # with the new level blended in at weight ~0 the mapping is exact: every old output as before
         exact = JNDS(hi)
-        exact.load_state_dict(train._deepened(lo, old.state_dict(), exact, blend=-40.0))
+        exact.load_state_dict(surgery.deepened(lo, old.state_dict(), exact, blend=-40.0))
         b = exact.network(x, h)
         assert set(b) - set(a) == {f"{p}.{n}" for p in ("diffuse", "specular")
                                    for n in ("level4.down", "level3.up", "level3.up_blend")}
@@ -435,7 +435,7 @@ def test_init_deepens_a_checkpoint_by_one_unet_level_computing_nearly_the_same(f
         assert torch.allclose(old(x, mv, None).output, exact(x, mv, None).output, atol=1e-4)
         # by default the new level enters with weight sigmoid(-4): close, and a live path to learn
         new = JNDS(hi)
-        new.load_state_dict(train._deepened(lo, old.state_dict(), new))
+        new.load_state_dict(surgery.deepened(lo, old.state_dict(), new))
         c = new.network(x, h)
         for k in a:
             assert torch.allclose(a[k], c[k], atol=1e-5), k
@@ -443,7 +443,7 @@ def test_init_deepens_a_checkpoint_by_one_unet_level_computing_nearly_the_same(f
         assert 0.005 < blend.min() and blend.max() < 0.05
         # --deepen-blend -2: further in (sigmoid(-2) = 0.12), the other outputs unchanged
         further = JNDS(hi)
-        further.load_state_dict(train._deepened(lo, old.state_dict(), further, blend=-2.0))
+        further.load_state_dict(surgery.deepened(lo, old.state_dict(), further, blend=-2.0))
         d = further.network(x, h)
         assert 0.08 < d["specular.level3.up_blend"].min() and d["specular.level3.up_blend"].max() < 0.16
         for k in a:
@@ -992,7 +992,8 @@ def test_the_guide_albedo_input_starts_at_zero_from_a_checkpoint_without_it_and_
     from jnds_deploy.training.config import TrainConfig
     from jnds_deploy.training.data import Augment, PatchSampler, load_sequence
     from jnds_deploy.training.evaluate import infer_sequence
-    from jnds_deploy.training.train import GUIDED, train
+    from jnds_deploy.training.surgery import GUIDED
+    from jnds_deploy.training.train import train
     from .conftest import SAMPLE
     data = _data_dir(tmp_path, guided_sample)
     common = dict(data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1,
@@ -1036,7 +1037,8 @@ def test_the_guide_albedo_input_split_from_the_albedo_reads_both_and_agrees_wher
     from jnds_deploy.training.config import TrainConfig
     from jnds_deploy.training.data import load_sequence
     from jnds_deploy.training.evaluate import infer_sequence
-    from jnds_deploy.training.train import GUIDED, train
+    from jnds_deploy.training.surgery import GUIDED
+    from jnds_deploy.training.train import train
     from .conftest import SAMPLE
     data = _data_dir(tmp_path, guided_sample)
     common = dict(data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1,

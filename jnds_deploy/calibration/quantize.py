@@ -34,6 +34,7 @@ from onnx import numpy_helper
 from ..artifacts import MANIFEST, Int8Graph, Manifest, file_hash, write_json
 from ..errors import CalibrationError
 from ..export.prune import INT8_VARIANT_TOL, validate_variant, write_variants
+from ..options import option
 from .block import cut_blocks
 from .head import HEAD_NODE, RADIANCE, STOPS, channel_ranges, code_levels, quantize_head, raw_ranges
 from .inputs import quantize_inputs
@@ -58,21 +59,25 @@ INT8_MEAN_TOL = 0.03
 
 @dataclass(frozen=True)
 class CalibrateConfig:
-    artifacts: str
-    data: tuple[str, ...]
-    method: str = "qat"
-    activation_type: str = "u8"
+    artifacts: str = option(help="a directory written by `jnds export`")
+    data: tuple[str, ...] = option(help="sequences, or directories of sequences", nargs="+")
+    method: str = option("qat", "qat: the activation ranges learned in quantization-aware training (the rest "
+                                "from the data); minmax, percentile, entropy: ONNX Runtime's static calibration",
+                         choices=METHODS)
+    activation_type: str = option("u8", "the int8 activations' type", choices=ACTIVATION_TYPES)
     op_types: tuple[str, ...] = DEFAULT_OP_TYPES
     float_nodes: tuple[str, ...] = FLOAT_NODES
-    frames: int | None = None  # per sequence; None: all
+    frames: int | None = option(None, "at most this many frames per sequence (default: all)")
     percentile: float = 99.999
-    checkpoint: str | None = None  # PyTorch reference for validation; default: the manifest's
-    threads: int = 2
+    checkpoint: str | None = option(None, "PyTorch reference for validation (default: the manifest's)")
+    threads: int = option(2, "ONNX Runtime threads")
     # the int8 network graph's edges in u8 (u8 activations only): its input the packed,
     # quantized preprocessing of the input block (calibration.inputs), its output the
     # output block's head, read by the filter stage (calibration.head). False: both stay
     # float, the head as FLOAT_NODES says
-    u8_edges: bool = True
+    u8_edges: bool = option(True, "keep the input block's preprocessing and the output block's head float "
+                                  "(default: the graph takes u8 inputs packed by the runtime and gives the head's u8 "
+                                  "output to the filters)", flag="--float-edges", action="store_false")
 
     def __post_init__(self):
         if self.method not in METHODS:

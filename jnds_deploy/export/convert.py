@@ -15,6 +15,7 @@ from ..errors import ValidationError
 from ..filters import to_phases
 from ..layout import GUIDE
 from ..model import CURRENT, HISTORY, N_CURRENT, N_GUIDE, N_HISTORY, JNDS, quant_ranges
+from ..options import option
 from .prune import validate_variant, write_variants
 
 OPSET = 17
@@ -23,8 +24,8 @@ FIXED_CONVS = ("/input_block/mean/Conv",)  # Conv nodes of no QConv (model.Phase
 
 @dataclass(frozen=True)
 class ExportConfig:
-    checkpoint: str | None = None  # None: the shipped default checkpoint
-    out: str = "artifacts"
+    checkpoint: str | None = option(None, "the checkpoint to export (default: the shipped one)")
+    out: str = option("artifacts", "the artifact directory to write", required=True)
     validate_size: tuple[int, int] = (96, 64)  # native W, H of the validation inputs
     atol: float = 1e-4  # max |ONNX Runtime - PyTorch| allowed per output (fp32)
     seed: int = 0

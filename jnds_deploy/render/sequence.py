@@ -34,6 +34,7 @@ from ..io import (
     read_layers,
 )
 from ..blender_scene import CYCLES_SCENE_KINDS
+from ..options import option, parse_size, show_size
 from ..sampling import jitter
 from .camera import CAMERA_PATHS, Camera, camera_path
 from .scene import EXTENT, OBJECT_PREFIX, SCENE_KINDS, build_scene, object_motion
@@ -47,22 +48,28 @@ ENGINES = ("mitsuba", "cycles")
 
 @dataclass(frozen=True)
 class RenderConfig:
-    scene: str = "procedural"  # one of SCENE_KINDS (mitsuba) or CYCLES_SCENE_KINDS (cycles)
-    seed: int = 0
-    camera: str = "orbit"  # one of CAMERA_PATHS
-    frames: int = 8
-    size: tuple[int, int] = (160, 90)  # native (W, H)
-    scale: int = 2  # target = scale x native
-    spp: int = 64  # reference samples per target pixel
-    spp_input: int = 1  # input samples per native pixel, all at the jittered position
-    max_depth: int = 5  # path vertices, the first included
-    reference: bool = True
-    variant: str | None = None  # Mitsuba variant; None picks llvm_ad_rgb or scalar_rgb
-    engine: str = "mitsuba"  # mitsuba (this package's path tracer) | cycles (Blender, render.cycles)
+    scene: str | None = option(
+        None, f"one of the engine's scene kinds (default: {SCENE_KINDS[0]} with mitsuba, {CYCLES_SCENE_KINDS[0]} "
+              f"with cycles)", choices=SCENE_KINDS + CYCLES_SCENE_KINDS)
+    seed: int = option(0, "scene, camera path and noise seed")
+    camera: str = option("orbit", "the camera path", choices=CAMERA_PATHS)
+    frames: int = option(8, "frames of the sequence")
+    size: tuple[int, int] = option((160, 90), "native size WxH", type=parse_size, show=show_size)
+    scale: int = option(2, "reference size = scale x native")
+    spp: int = option(64, "reference samples per target pixel")
+    spp_input: int = option(1, "input samples per native pixel, all at the jittered position")
+    max_depth: int = option(5, "path vertices, the first included")
+    reference: bool = option(True, "render the reference frames too (off: inputs only)")
+    variant: str | None = option(None, "Mitsuba variant (default: llvm_ad_rgb if LLVM 19 is installed, else "
+                                       "scalar_rgb)")
+    engine: str = option("mitsuba", "mitsuba: this package's path tracer; cycles: Blender (its environment, "
+                                    ".venv-blender; render.cycles)", choices=ENGINES)
 
     def __post_init__(self):
         if self.engine not in ENGINES:
             raise RenderError(f"--engine {self.engine!r}: expected one of {', '.join(ENGINES)}")
+        if self.scene is None:
+            object.__setattr__(self, "scene", (CYCLES_SCENE_KINDS if self.engine == "cycles" else SCENE_KINDS)[0])
         kinds = CYCLES_SCENE_KINDS if self.engine == "cycles" else SCENE_KINDS
         if self.scene not in kinds:
             raise RenderError(f"--scene {self.scene!r} (engine {self.engine}): expected one of {', '.join(kinds)}")

@@ -7,15 +7,26 @@ stage, no torch. ``Pipeline`` runs frames; ``jnds run`` (``run``) runs sequences
   head's u8 output, decoded where the filters read it;
 - ``history``: the previous frame's signals warped, cleaned and stored;
 - ``filters``: the filter stage (the numpy/numba implementation of ``jnds_deploy.filters``);
-- ``pipeline``: ``Pipeline``, ``PipelineConfig``, ``FrameResult``;
+- ``config``: ``PipelineConfig`` (cheap to import); ``pipeline``: ``Pipeline``, ``FrameResult``;
 - ``run``: ``jnds run``; ``profile``: ONNX Runtime's profiler per network stage.
+
+``Pipeline`` and ``FrameResult`` are imported on first use, so that ``PipelineConfig`` and
+``tune_numba`` come without numba and ONNX Runtime (``jnds run`` reads its options first).
 """
 import os
 import sys
 
-from .pipeline import FrameResult, Pipeline, PipelineConfig
+from .config import PipelineConfig
 
 __all__ = ["FrameResult", "Pipeline", "PipelineConfig", "tune_numba"]
+
+
+def __getattr__(name):
+    if name in ("FrameResult", "Pipeline"):
+        from . import pipeline
+
+        return getattr(pipeline, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def tune_numba() -> None:

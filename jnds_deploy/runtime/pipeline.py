@@ -2,7 +2,8 @@
 the filter stage, and the history between frames.
 
 ``Pipeline(PipelineConfig(artifacts=DIR))`` needs nothing but the artifact directory
-(its ``manifest.json``, ``artifacts.Manifest``). Each call takes one frame's input layers
+(its ``manifest.json``, ``artifacts.Manifest``, and the int8 graphs of ``jnds calibrate``
+unless ``precision="fp32"``). Each call takes one frame's input layers
 as read by ``jnds_deploy.io`` (HWC float32) and returns a ``FrameResult``: the output
 colour (HWC float32, linear, at target resolution), the time of every stage in
 milliseconds, and what the frame met and decided.
@@ -27,10 +28,11 @@ from pathlib import Path
 import numpy as np
 
 from ..artifacts import Manifest, variant_key
-from ..errors import ConfigError, FrameError
+from ..errors import ArtifactError, FrameError
 from ..heap import keep_freed_memory
 from ..layout import CURRENT, GUIDE, HISTORY, INPUT_CHANNELS, RADIANCE, channels, guide_of
 from . import filters as F
+from .config import PipelineConfig
 from .head import Coded
 from .history import History, Warped, replace_nonfinite
 from .network import quiet, run_network
@@ -76,46 +78,6 @@ def check_layers(layers: dict, guide: bool = False) -> tuple[int, int]:
     if h < 1 or w < 1:
         raise FrameError(f"frame: empty image {w}x{h}")
     return h, w
-
-
-@dataclass(frozen=True)
-class PipelineConfig:
-    artifacts: str
-    precision: str = "fp32"  # fp32 | int8 (graphs written by `jnds calibrate`)
-    filter_dtype: str = "float32"  # float32 | float16 (the paper's filter precision)
-    threads: int = 2
-    int8_method: str | None = None  # which calibration's int8 graphs; None: the last calibrated
-    # graphs that stay fp32 when precision is int8: the upsample block's int8 graph is
-    # slower on the CPUs measured (benchmarks/results/calibration.md)
-    fp32_graphs: tuple[str, ...] = ("upsample",)
-    # skip work a frame does not need, where the result is the same (see FrameResult.decisions)
-    adaptive: bool = True
-    # denoise only: output at the input resolution, the upsample block (and the network's
-    # features for it) not computed -- for a renderer that already renders at display size
-    native_output: bool = False
-    # with adaptive: pass empty background tiles through the filter stage (approximate; off by
-    # default: finding the tiles and putting them back costs about what the smaller upsample
-    # box saves, benchmarks/results/adaptive.md)
-    tile_skip: bool = False
-    # let malloc reuse freed memory (process-wide, see keep_freed_memory): off in the
-    # library, on in `jnds run` and `jnds serve`, which own their process
-    keep_freed_memory: bool = False
-    # the firefly clamp's factor (model.ModelConfig.firefly_clamp; 0: off); None: the model's
-    firefly_clamp: float | None = None
-    # fill the diffuse of samples that hit no diffuse surface (model.ModelConfig.diffuse_fill);
-    # None: the model's
-    diffuse_fill: bool | None = None
-    # the composite takes the mean filtered albedo where diffuse holes lie scattered
-    # (model.ModelConfig.albedo_at_holes); None: the model's
-    albedo_at_holes: bool | None = None
-
-    def __post_init__(self):
-        if self.precision not in ("fp32", "int8"):
-            raise ConfigError(f"precision must be fp32 or int8, got {self.precision!r}")
-        if self.firefly_clamp is not None and not (self.firefly_clamp == 0 or self.firefly_clamp >= 1):
-            raise ConfigError(f"firefly_clamp must be 0 (off) or >= 1, got {self.firefly_clamp!r}")
-        if self.filter_dtype not in ("float32", "float16"):
-            raise ConfigError(f"filter_dtype must be float32 or float16, got {self.filter_dtype!r}")
 
 
 @dataclass
@@ -172,6 +134,10 @@ class Pipeline:
         self.cfg = cfg
         root = Path(cfg.artifacts)
         self.manifest = Manifest.load(root)
+        if cfg.precision == "int8" and not any(g.int8 for g in self.manifest.graphs.values()):
+            raise ArtifactError(f"{root}: no int8 graphs, and precision is int8 (the default): run `jnds calibrate "
+                                f"--artifacts {root} --data SEQUENCES` first, or choose precision fp32 "
+                                f"(`--precision fp32`)")
         self.scale = self.manifest.scale
         self.out_scale = 1 if cfg.native_output else self.scale  # output size / input size
         self.multiple = self.manifest.pad_multiple

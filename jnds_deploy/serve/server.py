@@ -31,6 +31,8 @@ import OpenEXR
 from ..errors import BadRequest, ConfigError, JndsError
 from ..io import INPUT_LAYERS, OPTIONAL_INPUT_LAYERS, OUTPUT_LAYERS, channels_to_layers, exr_bytes, read_exr_bytes
 from ..layout import INPUT_CHANNELS
+from ..options import gib, option, parse_size
+from ..runtime.config import ARTIFACTS_HELP, DEFAULT_PRECISION, PRECISION_HELP, PRECISIONS
 from ..runtime.pipeline import Pipeline, PipelineConfig
 
 log = logging.getLogger("jnds.serve")
@@ -72,37 +74,41 @@ and the connection closes; beyond --max-connections a connection gets 503 at onc
 
 @dataclass(frozen=True)
 class ServeConfig:
-    artifacts: str
-    host: str = "127.0.0.1"
-    port: int = 8765
-    precision: str = "int8"
-    threads: int = 2  # ONNX Runtime intra-op threads per graph run
-    workers: int = 1  # frames processed at once, over all streams
-    queue: int = 2  # frames waiting per stream (beyond the one running) before 429
-    max_streams: int = 64
-    idle_timeout: float = 300.0  # seconds without a request before a stream is closed
+    artifacts: str = option(help=ARTIFACTS_HELP)
+    host: str = option("127.0.0.1", "the address to listen on")
+    port: int = option(8765, "0 picks a free port")
+    precision: str = option(DEFAULT_PRECISION, PRECISION_HELP, choices=PRECISIONS)
+    threads: int = option(2, "ONNX Runtime threads per graph run")
+    workers: int = option(1, "frames processed at once, over all streams")
+    queue: int = option(2, "frames waiting per stream (beyond the one running) before 429")
+    max_streams: int = option(64, "streams open at once")
+    idle_timeout: float = option(300.0, "seconds without a request before a stream is closed")
     max_frame_bytes: int = 512 << 20
-    # native pixels per frame, checked on the EXR header before anything is decoded: the
-    # pipeline's memory grows with the frame (a compressed EXR of zeros declaring 4000x4000
-    # is a few hundred kB), so the size a body declares is refused, not discovered
-    max_pixels: int = 1920 * 1080
-    # bytes the frames in flight may take, estimated at FRAME_BYTES_PER_PIXEL per native
-    # pixel; None: half the machine's memory. A frame that alone exceeds it gets 413, one
-    # that does not fit beside the frames in flight 503 + Retry-After
-    max_memory: int | None = None
+    # checked on the EXR header before anything is decoded: the pipeline's memory grows with
+    # the frame (a compressed EXR of zeros declaring 4000x4000 is a few hundred kB), so the
+    # size a body declares is refused, not discovered
+    max_pixels: int = option(1920 * 1080, "native pixels a frame may have (checked on its EXR header before "
+                                          "decoding; 413 beyond)")
+    # estimated at FRAME_BYTES_PER_PIXEL per native pixel. A frame that alone exceeds it gets
+    # 413, one that does not fit beside the frames in flight 503 + Retry-After
+    max_memory: int | None = option(None, "GiB the frames in flight may take (estimated per pixel); default: half "
+                                          "the machine's memory", type=gib, metavar="GIB")
     max_channels: int = 64  # EXR channels per frame (the format uses 15 or 16)
     # slow or careless clients: a connection is closed when a read waits longer than
     # request_timeout (the request line and headers, or idle between keep-alive requests),
     # or its body takes longer than body_timeout in all (408); at most max_connections at
     # once, each a thread, the next one refused with 503
-    request_timeout: float = 30.0
+    request_timeout: float = option(30.0, "seconds a read may wait (request line, headers, keep-alive idle) "
+                                          "before the connection closes")
     body_timeout: float = 60.0
-    max_connections: int = 256
+    max_connections: int = option(256, "connections at once; the next gets a 503")
     max_nonfinite: float = 0.5  # a layer with more NaN/Inf than this fraction: 400 (a NaN flood)
     keep_freed_memory: bool = False  # PipelineConfig.keep_freed_memory (process-wide; `jnds serve` sets it)
-    # native (W, H) sizes to run one frame at before serving: the first frame at a new size
-    # otherwise pays ONNX Runtime's allocations at that size (docs/performance.md)
-    warmup: tuple[tuple[int, int], ...] = ()
+    # the first frame at a new size otherwise pays ONNX Runtime's allocations at that size
+    # (docs/performance.md)
+    warmup: tuple[tuple[int, int], ...] = option(
+        (), "run one frame at each of these native sizes before serving, so that a stream's first frame at that "
+            "size is not the slow one", type=parse_size, nargs="+", metavar="WxH")
 
     def __post_init__(self):
         object.__setattr__(self, "warmup", tuple(tuple(int(v) for v in size) for size in self.warmup))

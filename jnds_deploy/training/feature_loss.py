@@ -26,6 +26,7 @@ import torch.nn.functional as F
 from .. import filters
 from ..errors import TrainError
 from ..layout import channels
+from ..options import option
 
 
 class _MeanAbs(torch.autograd.Function):
@@ -101,17 +102,17 @@ def load_feature_net(path: str | Path) -> FeatureNet:
 
 @dataclass
 class FeatureNetConfig:
-    data: str = "data"
-    out: str = "runs/feature/feature_net.pt"
-    steps: int = 1500
+    data: str = option("data", "directory with train/ sequences")
+    out: str = option("runs/feature/feature_net.pt", "the checkpoint to write")
+    steps: int = option(1500, "training steps")
     batch: int = 16
     patch: int = 64
     lr: float = 2e-3
     seed: int = 0
-    threads: int = 2
-    # "oidn": from the references as `jnds train --clean-references oidn` cleans them (cheap
-    # references keep too much noise to read a G-buffer from, docs/dataset.md)
-    clean_references: str | None = None
+    threads: int = option(2, "torch threads")
+    # cheap references keep too much noise to read a G-buffer from (docs/dataset.md)
+    clean_references: str | None = option(
+        None, "learn from the references cleaned as jnds train --clean-references cleans them", choices=("oidn",))
 
 
 def _examples(data_root: str, clean: str | None = None):

@@ -64,7 +64,7 @@ def test_configured_render_imports_validates_and_runs(renders, tmp_path, tiny_ar
     assert np.isclose(np.median(roughness[roughness < 1]), 0.6 ** 2, atol=1e-3)  # floor: alpha = r^2
     assert main(["validate", str(tmp_path / "seq"), "--strict"]) == 0
     assert main(["run", "--artifacts", str(tiny_artifacts[0]), "--input", str(tmp_path / "seq"),
-                 "--output", str(tmp_path / "run"), "--quiet"]) == 0
+                 "--output", str(tmp_path / "run"), "--precision", "fp32", "--quiet"]) == 0
     for i in range(len(seq)):
         out = read_exr(tmp_path / "run" / f"{i:04d}.exr")
         out = np.stack([out[f"color.{c}"] for c in "RGB"], -1)

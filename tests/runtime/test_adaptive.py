@@ -16,7 +16,7 @@ from ..conftest import SAMPLE
 
 def _run(artifacts, frames, adaptive):
     # the default: the exact skips only (tile skipping is approximate and opt-in, tested below)
-    pipe = Pipeline(PipelineConfig(artifacts=str(artifacts), adaptive=adaptive))
+    pipe = Pipeline(PipelineConfig(artifacts=str(artifacts), precision="fp32", adaptive=adaptive))
     outs, decisions = [], []
     for i, layers in enumerate(frames):
         frame = pipe(layers, camera_cut=i == 0)
@@ -92,7 +92,7 @@ def test_empty_tiles_need_no_geometry_and_a_flat_background():
 
 def test_tile_skip_passes_the_background_through(tiny_artifacts):
     f = _sky_frame()
-    pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0]), tile_skip=True))
+    pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32", tile_skip=True))
     comps = []
     pipe.on_feeds = lambda name, feeds: comps.append(feeds["composite"][0]) if name == "upsample" else None
     frame = pipe(f)
@@ -109,7 +109,7 @@ def test_tile_skip_passes_the_background_through(tiny_artifacts):
 def test_upsample_block_on_the_box_equals_the_whole_frame(tiny_artifacts):
     """The upsample block run on the bounding box of the non-empty tiles (with its halo)
     gives the whole frame's kernel inside the tiles that use it."""
-    pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0])))
+    pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"))
     rng = np.random.default_rng(1)
     nf = pipe.sessions["upsample"].get_inputs()[1].shape[1]
     feeds = {"composite": rng.random((1, 3, 64, 96), np.float32), "features": rng.random((1, nf, 64, 96), np.float32)}
@@ -124,8 +124,8 @@ def test_upsample_block_on_the_box_equals_the_whole_frame(tiny_artifacts):
 
 def test_native_output_is_the_composite_without_the_upsample_block(tiny_artifacts, tmp_path):
     seq = open_sequence(SAMPLE)
-    full = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0])))
-    native = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0]), native_output=True))
+    full = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"))
+    native = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32", native_output=True))
     assert "upsample" not in native.sessions
     comps = []
     full.on_feeds = lambda name, feeds: comps.append(feeds["composite"][0]) if name == "upsample" else None
@@ -137,7 +137,7 @@ def test_native_output_is_the_composite_without_the_upsample_block(tiny_artifact
         assert out.shape == (h, w, 3) and "upsample_kernel" not in ms
         assert frame.decisions["network_graph"].endswith("features")  # variant without the features
         np.testing.assert_array_equal(out, comps[-1][:, :h, :w].transpose(1, 2, 0))
-    report = run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), native_output=True), SAMPLE,
-                          tmp_path / "run", progress=False)
+    report = run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32", native_output=True),
+                          SAMPLE, tmp_path / "run", progress=False)
     assert report["output_size"] == list(seq.native_size) and "psnr" in report["metrics"]
     assert json.loads((tmp_path / "run" / "run.json").read_text())["native_output"] is True

@@ -19,10 +19,11 @@ def artifacts(tiny_artifacts):
 @pytest.mark.parametrize("root", [1, 4, "fixed"])
 def test_pipeline_matches_torch_over_a_sequence(artifacts, tiny_artifacts_root4, tiny_artifacts_fixed, root):
     path, model = {1: artifacts, 4: tiny_artifacts_root4, "fixed": tiny_artifacts_fixed}[root]
-    assert Pipeline(PipelineConfig(artifacts=str(path))).upsample_root == (4 if root == "fixed" else root)
+    assert (Pipeline(PipelineConfig(artifacts=str(path), precision="fp32")).upsample_root
+            == (4 if root == "fixed" else root))
     seq = open_sequence(SAMPLE)
     ref = infer_sequence(model, load_sequence(SAMPLE))[:4]
-    pipe = Pipeline(PipelineConfig(artifacts=str(path)))
+    pipe = Pipeline(PipelineConfig(artifacts=str(path), precision="fp32"))
     for i in range(4):
         frame = pipe(seq.inputs(i), seq.frames[i].camera_cut)
         out, ms = frame.output, frame.ms
@@ -41,7 +42,7 @@ def test_pipeline_matches_torch_over_a_sequence(artifacts, tiny_artifacts_root4,
 def test_pipeline_resets_on_cut_and_resize(artifacts):
     path, _ = artifacts
     seq = open_sequence(SAMPLE)
-    pipe = Pipeline(PipelineConfig(artifacts=str(path)))
+    pipe = Pipeline(PipelineConfig(artifacts=str(path), precision="fp32"))
     first = pipe(seq.inputs(0)).output
     pipe(seq.inputs(1))
     again = pipe(seq.inputs(0), camera_cut=True).output  # cut: no history, same as a first frame
@@ -49,15 +50,15 @@ def test_pipeline_resets_on_cut_and_resize(artifacts):
     crop = {k: v[:37, :51] for k, v in seq.inputs(2).items()}  # odd size: padded, cropped back
     out = pipe(crop).output
     assert out.shape == (74, 102, 3) and pipe.history.size == (51, 37)
-    fresh = Pipeline(PipelineConfig(artifacts=str(path)))
+    fresh = Pipeline(PipelineConfig(artifacts=str(path), precision="fp32"))
     np.testing.assert_array_equal(out, fresh(crop).output)
 
 
 def test_pipeline_fp16_filters_close_to_fp32(artifacts):
     path, _ = artifacts
     seq = open_sequence(SAMPLE)
-    a = Pipeline(PipelineConfig(artifacts=str(path)))
-    b = Pipeline(PipelineConfig(artifacts=str(path), filter_dtype="float16"))
+    a = Pipeline(PipelineConfig(artifacts=str(path), precision="fp32"))
+    b = Pipeline(PipelineConfig(artifacts=str(path), precision="fp32", filter_dtype="float16"))
     for i in range(3):
         oa = a(seq.inputs(i)).output
         ob = b(seq.inputs(i)).output
@@ -96,22 +97,22 @@ def test_jnds_run_does_not_need_torch(artifacts, tmp_path):
             "import jnds_deploy.serve\n"
             "from jnds_deploy.cli import main\n"
             f"sys.exit(main(['run', '--artifacts', {str(artifacts[0])!r}, '--input', {str(SAMPLE)!r}, "
-            f"'--output', {str(tmp_path / 'out')!r}, '--quiet']))")
+            f"'--output', {str(tmp_path / 'out')!r}, '--precision', 'fp32', '--quiet']))")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert (tmp_path / "out" / "0007.exr").is_file()
 
 
 def test_jnds_run_skips_numbas_blas_probe_and_leaves_scipy_importable(artifacts, tmp_path):
-    """``tune_numba`` keeps numba's BLAS probe from importing scipy.linalg (a tenth of a
-    second of a cold start); a run loads its numba loops without it, and scipy imports
-    as usual afterwards."""
+    """``tune_numba`` keeps numba's BLAS probe from importing scipy.linalg (a part of every
+    cold start, docs/performance.md); a run loads its numba loops without it, and scipy
+    imports as usual afterwards."""
     import subprocess
     import sys
     code = ("import sys\n"
             "from jnds_deploy.cli import main\n"
             f"assert main(['run', '--artifacts', {str(artifacts[0])!r}, '--input', {str(SAMPLE)!r}, "
-            f"'--output', {str(tmp_path / 'out')!r}, '--quiet']) == 0\n"
+            f"'--output', {str(tmp_path / 'out')!r}, '--precision', 'fp32', '--quiet']) == 0\n"
             "assert 'scipy.linalg' not in sys.modules, 'scipy.linalg was imported'\n"
             "import numba.np.arraymath, scipy.linalg\n"
             "assert not numba.np.arraymath._HAVE_BLAS and scipy.linalg.norm([3.0, 4.0]) == 5.0\n")
@@ -125,7 +126,7 @@ def test_jnds_run_writes_frames_and_report(artifacts, tmp_path):
     import sys
     out = tmp_path / "out"
     proc = subprocess.run([sys.executable, "-m", "jnds_deploy", "run", "--artifacts", str(artifacts[0]),
-                           "--input", str(SAMPLE), "--output", str(out), "--quiet"],
+                           "--input", str(SAMPLE), "--output", str(out), "--precision", "fp32", "--quiet"],
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     assert "against the reference: PSNR" in proc.stdout
@@ -149,7 +150,7 @@ def test_nonfinite_inputs_are_replaced_and_counted(artifacts, layer):
     output and history stay finite and non-negative frame after frame."""
     path, _ = artifacts
     seq = open_sequence(SAMPLE)
-    pipe = Pipeline(PipelineConfig(artifacts=str(path)))
+    pipe = Pipeline(PipelineConfig(artifacts=str(path), precision="fp32"))
     for i, bad in enumerate([np.nan, np.inf, -np.inf, "frame"]):
         layers = {k: v.copy() for k, v in seq.inputs(i).items()}
         if bad == "frame":
@@ -197,7 +198,7 @@ def test_to_chw_stacks_sanitizes_pads_and_renormalizes():
 def test_frame_errors_name_the_layer(artifacts):
     path, _ = artifacts
     layers = open_sequence(SAMPLE).inputs(0)
-    pipe = Pipeline(PipelineConfig(artifacts=str(path)))
+    pipe = Pipeline(PipelineConfig(artifacts=str(path), precision="fp32"))
     with pytest.raises(FrameError, match="missing layer.*motion"):
         pipe({k: v for k, v in layers.items() if k != "motion"})
     with pytest.raises(FrameError, match="'albedo' is 80x90, diffuse is 160x90"):
@@ -218,8 +219,8 @@ def test_firefly_clamp_matches_torch(artifacts):
         model.cfg = dataclasses.replace(model.cfg, firefly_clamp=0.0)
     plain = infer_sequence(model, load_sequence(SAMPLE))[:4]
     seq = open_sequence(SAMPLE)
-    pipe = Pipeline(PipelineConfig(artifacts=str(path), firefly_clamp=2.0))
-    assert Pipeline(PipelineConfig(artifacts=str(path))).firefly_clamp == 0  # the manifest's: off
+    pipe = Pipeline(PipelineConfig(artifacts=str(path), precision="fp32", firefly_clamp=2.0))
+    assert Pipeline(PipelineConfig(artifacts=str(path), precision="fp32")).firefly_clamp == 0  # the manifest's: off
     for i in range(4):
         frame = pipe(seq.inputs(i), seq.frames[i].camera_cut)
         assert (frame.clamped > 0) == (i > 0)  # no history on the first frame: nothing to clamp against
@@ -244,8 +245,8 @@ def test_hole_settings_match_torch(artifacts, setting):
         model.cfg = dataclasses.replace(model.cfg, **{setting: False})
     plain = infer_sequence(model, load_sequence(SAMPLE))[:3]
     seq = open_sequence(SAMPLE)
-    pipe = Pipeline(PipelineConfig(artifacts=str(path), **{setting: True}))
-    assert not getattr(Pipeline(PipelineConfig(artifacts=str(path))), setting)  # the manifest's: off
+    pipe = Pipeline(PipelineConfig(artifacts=str(path), precision="fp32", **{setting: True}))
+    assert not getattr(Pipeline(PipelineConfig(artifacts=str(path), precision="fp32")), setting)  # the manifest's: off
     for i in range(3):
         frame = pipe(seq.inputs(i), seq.frames[i].camera_cut)
         assert setting in frame.ms
@@ -268,7 +269,7 @@ def test_pipeline_reads_the_guide_albedo_as_torch_does(tiny_artifacts_guided, gu
     outs = {}
     for src in (guided_sample, SAMPLE):
         ref = infer_sequence(model, load_sequence(src))[:3]
-        seq, pipe = open_sequence(src), Pipeline(PipelineConfig(artifacts=str(path)))
+        seq, pipe = open_sequence(src), Pipeline(PipelineConfig(artifacts=str(path), precision="fp32"))
         assert pipe.guide_albedo
         outs[src] = [pipe(seq.inputs(i), seq.frames[i].camera_cut).output for i in range(3)]
         for i in range(3):
@@ -278,4 +279,4 @@ def test_pipeline_reads_the_guide_albedo_as_torch_does(tiny_artifacts_guided, gu
     layers = dict(open_sequence(guided_sample).inputs(0))
     layers["denoising_albedo"] = layers["denoising_albedo"][:, :, :2]
     with pytest.raises(FrameError, match="denoising_albedo"):
-        Pipeline(PipelineConfig(artifacts=str(path)))(layers)
+        Pipeline(PipelineConfig(artifacts=str(path), precision="fp32"))(layers)

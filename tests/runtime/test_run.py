@@ -14,7 +14,8 @@ from ..conftest import SAMPLE
 
 
 def test_run_writes_a_contact_sheet_of_first_middle_last_frames(tiny_artifacts, tmp_path):
-    report = run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0])), SAMPLE, tmp_path, progress=False)
+    report = run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), SAMPLE, tmp_path,
+                          progress=False)
     sheet = cv2.imread(report["contact_sheet"])
     columns = 4 if importlib.util.find_spec("pyoidn") else 3  # input, (OIDN,) JNDS, reference
     w, h = 320, 180
@@ -42,7 +43,7 @@ def test_output_formats_store_the_frames_as_computed(tiny_artifacts, tmp_path):
     from jnds_deploy.runtime.pipeline import Pipeline
     from jnds_deploy.runtime.run import iter_run
 
-    cfg = PipelineConfig(artifacts=str(tiny_artifacts[0]))
+    cfg = PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32")
     frames = {}
     for fmt in ("float", "half"):
         report = run_sequence(cfg, SAMPLE, tmp_path / fmt, progress=False, metrics=False, output_format=fmt)
@@ -65,7 +66,7 @@ def test_run_yields_each_frame_once_its_file_is_complete(tiny_artifacts, tmp_pat
     from jnds_deploy.runtime.pipeline import Pipeline
     from jnds_deploy.runtime.run import iter_run
 
-    cfg = PipelineConfig(artifacts=str(tiny_artifacts[0]))
+    cfg = PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32")
     seen = []
     for item in iter_run(Pipeline(cfg), SAMPLE, tmp_path, metrics=False):
         if isinstance(item, dict):

@@ -26,8 +26,8 @@ def pipes(request):
     """Pipelines of a model predicting its upsample kernel, and of one with a fixed kernel
     (whose upsample filter is one fused pass into the output, ``filters.upsample_fixed_hwc``)."""
     a = str(request.getfixturevalue({"predicted": "tiny_artifacts", "fixed": "tiny_artifacts_fixed"}[request.param])[0])
-    return {"float32": Pipeline(PipelineConfig(artifacts=a)),
-            "float16": Pipeline(PipelineConfig(artifacts=a, filter_dtype="float16"))}
+    return {"float32": Pipeline(PipelineConfig(artifacts=a, precision="fp32")),
+            "float16": Pipeline(PipelineConfig(artifacts=a, precision="fp32", filter_dtype="float16"))}
 
 
 def _ok(out, shape=None):
@@ -202,7 +202,7 @@ def test_jnds_run_stops_at_a_bad_frame_keeping_what_it_wrote(tiny_artifacts, tmp
         else:
             ch["roughness"] = ch["roughness"].astype(np.uint32)
         OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, ch).write(str(bad))
-    cfg = PipelineConfig(artifacts=str(tiny_artifacts[0]))
+    cfg = PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32")
     with pytest.raises(JndsError, match="0005.exr") as exc:
         run_sequence(cfg, seq, tmp_path / "out", progress=False, metrics=False)
     assert isinstance(exc.value, SequenceError)

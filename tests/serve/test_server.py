@@ -23,8 +23,8 @@ def _frames():
 
 def test_stream_round_trip_equals_jnds_run(server, tiny_artifacts, tmp_path):
     url, _ = server()
-    run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0])), SAMPLE, tmp_path / "run", progress=False,
-                 metrics=False)
+    run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), SAMPLE, tmp_path / "run",
+                 progress=False, metrics=False)
     client = Client(url)
     assert client.health()["status"] == "ok"
     with client.open_stream() as stream:
@@ -43,8 +43,8 @@ def test_warmup_sizes_leave_no_trace_in_the_streams(server, tiny_artifacts, tmp_
     what `jnds run` does. Sizes that are not positive or exceed max_pixels are refused."""
     import logging
 
-    run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0])), SAMPLE, tmp_path / "run", progress=False,
-                 metrics=False)
+    run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), SAMPLE, tmp_path / "run",
+                 progress=False, metrics=False)
     with caplog.at_level(logging.INFO, logger="jnds.serve"):
         url, _ = server(warmup=((160, 90), (64, 36)))
     assert "warmed up at 160x90" in caplog.text and "warmed up at 64x36" in caplog.text
@@ -63,7 +63,7 @@ def test_concurrent_streams_keep_separate_histories(server, tiny_artifacts):
     orders = {"forward": frames, "backward": frames[::-1]}
     want = {}
     for name, fr in orders.items():
-        pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0])))
+        pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"))
         want[name] = [pipe(layers, False).output for layers, _ in fr]
     got, errors = {}, []
 
@@ -100,7 +100,7 @@ def _exr(layers, drop=(), uint=None):
 def test_bad_frames_get_clear_errors_and_the_stream_goes_on(server, tiny_artifacts):
     url, _ = server()
     frames = _frames()
-    pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0])))
+    pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"))
     client = Client(url)
     stream = client.open_stream()
     other = client.open_stream()
@@ -135,7 +135,7 @@ def test_bad_frames_get_clear_errors_and_the_stream_goes_on(server, tiny_artifac
 def test_stream_control_reset_resize(server, tiny_artifacts):
     url, fs = server()
     frames = _frames()
-    pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0])))
+    pipe = Pipeline(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"))
     stream = Client(url).open_stream()
     stream.denoise(frames[0][0])
     stream.denoise(frames[1][0])
