@@ -30,10 +30,9 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
+from ..artifacts.layouts import BLOCK_KEY, HEAD, INPUTS, BlockLayout, Cut
 from ..errors import CalibrationError
-from ..runtime.head import HEAD
 from ..runtime.profile import stage_of
-from ..runtime.reformat import BLOCK_KEY, INPUTS, BlockLayout, Cut
 from .head import save_extracted
 
 # where the cuts are: the output block's and the feature extractor's decoder blocks'. In stop

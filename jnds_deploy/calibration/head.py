@@ -21,7 +21,6 @@ apart (kernels are clamped to [-1, 1], a sigmoid is flat beyond +-12, a ReLU bel
 from __future__ import annotations
 
 import itertools
-import json
 import os
 import tempfile
 from pathlib import Path
@@ -32,7 +31,7 @@ from onnx import helper, numpy_helper
 
 from ..errors import CalibrationError
 from ..layout import channels, head_kind
-from ..runtime.head import HEAD, LAYOUT_KEY, LEVELS_KEY, HeadLayout
+from ..artifacts.layouts import HEAD, HEAD_KEY, LEVELS_KEY, HeadLayout, levels_to_json
 from .reader import exposed
 
 HEAD_NODE = "/network/output_block/head/Conv"
@@ -184,7 +183,7 @@ def quantize_head(src: Path, dst: Path, ranges: dict[str, dict[str, list[float]]
     g.output.append(helper.make_tensor_value_info(HEAD, onnx.TensorProto.UINT8, ["N", "H", "W", c]))
     layout = HeadLayout(tuple(zip(names, sizes)), tuple(float(v) for v in r * CODE_SCALE),
                         tuple(float(v) for v in m), ZERO_POINT, c)
-    save_extracted(model, dst, [i.name for i in g.input], keep + [HEAD], {LAYOUT_KEY: layout.to_json()})
+    save_extracted(model, dst, [i.name for i in g.input], keep + [HEAD], {HEAD_KEY: layout.to_json()})
     return layout
 
 
@@ -251,7 +250,7 @@ def code_levels(src: Path, dst: Path) -> dict[str, HeadLayout]:
     keep = [o.name for o in g.output if o.name not in gone]
     g.output.extend(helper.make_tensor_value_info(h, onnx.TensorProto.UINT8, ["N", lay.channels, f"h{h}", f"w{h}"])
                     for h, lay in layouts.items())
-    props = {LEVELS_KEY: json.dumps({h: json.loads(lay.to_json()) for h, lay in layouts.items()})}
+    props = {LEVELS_KEY: levels_to_json(layouts)}
     save_extracted(model, dst, [i.name for i in g.input], keep + list(layouts), props)
     return layouts
 

@@ -32,7 +32,7 @@ from onnx import helper, numpy_helper
 from ..errors import CalibrationError
 from ..errors import ArtifactError
 from ..layout import HDR_MAX, N_CURRENT, N_HISTORY
-from ..runtime.reformat import INPUTS, INPUTS_KEY, InputsLayout, preprocess
+from ..artifacts.layouts import INPUTS, INPUTS_KEY, InputsLayout, preprocess
 from .head import save_extracted
 
 PROJECT = "/network/input_block/project/Conv"
@@ -60,7 +60,7 @@ def quantize_inputs(src: Path, dst: Path) -> InputsLayout:
     # a space-to-depth input block (model.InputBlock) projects 2x2 blocks: 4x the channels
     block = 2 if w.shape[1] > CHANNELS else 1
     channels = -(-w.shape[1] // 8) * 8 if block == 2 else CHANNELS
-    try:  # safe_slots refuses a projection of neither 25 nor 28 inputs, or 4x (runtime.reformat.preprocess)
+    try:  # safe_slots refuses a projection of neither 25 nor 28 inputs, or 4x (layouts.preprocess)
         slots = safe_slots(w[:, :, 0, 0], scale, int(zp), channels)
     except ArtifactError as e:
         raise CalibrationError(f"{src.name}: {e}") from e
@@ -87,7 +87,7 @@ I16 = (-32768, 32767)
 
 def code_bounds(scale: float, zero_point: int, kinds: np.ndarray | None = None) -> np.ndarray:
     """The largest u8 code each of current and history's channels (``kinds``, from
-    ``runtime.reformat.preprocess``; current and history's by default) can take in
+    ``artifacts.layouts.preprocess``; current and history's by default) can take in
     ``inputs``: radiance through Eq. 1's tonemap up to HDR_MAX, the other layers (albedo,
     roughness, normals mapped to [0, 1], the guide albedo) up to 1; the inputs are clamped to
     these ranges on reading."""

@@ -31,7 +31,7 @@ import numpy as np
 import onnx
 from onnx import numpy_helper
 
-from ..artifacts import MANIFEST, Int8Graph, Manifest, file_hash, write_json
+from ..artifacts import ACTIVATION_TYPES, MANIFEST, Block, Edge, Int8Graph, Manifest, file_hash, write_json
 from ..errors import CalibrationError
 from ..export.prune import INT8_VARIANT_TOL, validate_variant, write_variants
 from .block import cut_blocks
@@ -41,7 +41,6 @@ from .reader import FeedReader, collect_feeds
 from .rewrite import pools_as_convolutions, resizes_into_concat_scale
 
 METHODS = ("qat", "minmax", "percentile", "entropy")
-ACTIVATION_TYPES = ("u8", "s8")
 # operators quantized: the convolutions and everything between them, so int8 tensors flow
 # from one convolution to the next without a float round trip (ReLU folds into the
 # quantized convolution output): the fastest in benchmarks/results/calibration.md
@@ -259,10 +258,8 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
             weights="int8 per output channel, symmetric", op_types=list(cfg.op_types),
             float_nodes=[n for n in cfg.float_nodes if not (head and n == HEAD_NODE)],
             ranges=f"calibration.{cfg.method}.json", variants=variants,
-            head="u8, channels last, a range per channel (calibration.head)" if head else "float",
-            inputs="u8, channels last, preprocessed (calibration.inputs)" if head else "float",
-            block="between the graph's runs, u8 (calibration.block)" if head else "in the graph",
-            levels="u8 planes, the heads' own codes (calibration.head.code_levels)" if head else "float")
+            head=Edge.U8 if head else Edge.FLOAT, inputs=Edge.U8 if head else Edge.FLOAT,
+            block=Block.CUT if head else Block.GRAPH, levels=Edge.U8 if head else Edge.FLOAT)
     write_json(root / f"calibration.{cfg.method}.json",
                {"method": cfg.method, "activation_type": cfg.activation_type,
                 "data": [str(d) for d in cfg.data], "frames_per_sequence": cfg.frames,

@@ -27,7 +27,7 @@ from numba import njit, prange
 
 from ..layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_COS, ROOT_FLOOR,
                       SCATTERED_CHANGES, SCATTERED_SHARE, channels)
-from .head import Coded, _decode_row
+from .head import Coded, decode_row
 
 # channel indices of the stacked inputs (layout.CURRENT; the history shares its first 12):
 # numba compiles them as constants
@@ -138,9 +138,9 @@ def _lerp_coded(a, b, q, ca, cb, ct, kinds, scale, offset, table, out, relu):
         kb = np.empty((9, 1, W), np.float32)
         t = np.empty((1, 1, W), np.float32)
         if not plain:
-            _decode_row(q, y, ca, 9, kinds, scale, offset, table, ka, 0)
-        _decode_row(q, y, cb, 9, kinds, scale, offset, table, kb, 0)
-        _decode_row(q, y, ct, 1, kinds, scale, offset, table, t, 0)
+            decode_row(q, y, ca, 9, kinds, scale, offset, table, ka, 0)
+        decode_row(q, y, cb, 9, kinds, scale, offset, table, kb, 0)
+        decode_row(q, y, ct, 1, kinds, scale, offset, table, t, 0)
         _lerp_row(a, ka, b, kb, t, 0, out, relu, plain, y, max(y - 1, 0), min(y + 1, H - 1))
 
 
@@ -251,7 +251,7 @@ def _pool_coded(x, q, c0, kinds, scale, offset, table, out):
     _pool(x, pooled)
     for y in prange(H):
         k = np.empty((9, 1, W), np.float32)
-        _decode_row(q, y, c0, 9, kinds, scale, offset, table, k, 0)
+        decode_row(q, y, c0, 9, kinds, scale, offset, table, k, 0)
         ya, yc = max(y - 1, 0), min(y + 1, H - 1)
         for c in range(C):
             _apply_row(pooled, k, 0, out, True, c, ya, y, yc)

@@ -19,8 +19,8 @@ from jnds_deploy.export.convert import report_validation
 from jnds_deploy.io import open_sequence
 from jnds_deploy.layout import head_kind
 from jnds_deploy.metrics import psnr
-from jnds_deploy.runtime.head import HEAD, LAYOUT_KEY, HeadLayout
-from jnds_deploy.runtime.reformat import BLOCK_KEY, INPUTS, INPUTS_KEY, BlockLayout, InputsLayout
+from jnds_deploy.artifacts import (BLOCK_KEY, HEAD, HEAD_KEY, INPUTS, INPUTS_KEY, Block, BlockLayout, Edge, HeadLayout,
+                                   InputsLayout)
 from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
 
 from ..conftest import SAMPLE
@@ -72,12 +72,12 @@ def test_every_convolution_is_quantized(calibrated):
         assert len(heads) == (name == "upsample")
         assert all(h.input[1] not in prod for h in heads)  # float weights
         if name == "network":
-            assert HEAD_NODE not in float_nodes and g.int8["qat"].head.startswith("u8")
+            assert HEAD_NODE not in float_nodes and g.int8["qat"].head == Edge.U8
             out = {o.name: o for o in model.graph.output}
             assert out[HEAD].type.tensor_type.elem_type == onnx.TensorProto.UINT8
             assert "diffuse.spatial" not in out and prod[HEAD].op_type == "Transpose"
             props = {p.key: p.value for p in model.metadata_props}
-            assert HeadLayout.from_json(props[LAYOUT_KEY]).channels % 16 == 0
+            assert HeadLayout.from_json(props[HEAD_KEY]).channels % 16 == 0
             # its input: the u8 packed preprocessing, channels last, a multiple of 8
             # and an entry per cut at an upsampling + concatenation (calibration.block), with
             # u8 defaults: each decoder block's, then the output block's
@@ -89,7 +89,7 @@ def test_every_convolution_is_quantized(calibrated):
             defaults = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer if i.name in entries}
             assert {k: v.dtype for k, v in defaults.items()} == {e: np.uint8 for e in entries}
             assert layout.internal <= set(out) and HEAD in dict(layout.segments)[entries[-1]]
-            assert g.int8["qat"].block.startswith("between the graph's runs")
+            assert g.int8["qat"].block == Block.CUT
             assert not ops["Resize"] and not ops["Concat"]
             assert InputsLayout.from_json(props[INPUTS_KEY]).channels % 8 == 0
             project = next(n for n in model.graph.node if n.name == PROJECT)
@@ -326,12 +326,12 @@ def test_coded_level_heads_give_the_outputs_their_nodes_gave(calibrated, tmp_pat
     import onnxruntime as ort
 
     import jnds_deploy.calibration.quantize as quantize
-    from jnds_deploy.runtime.head import LEVELS_KEY
+    from jnds_deploy.artifacts import LEVELS_KEY
     from jnds_deploy.runtime.network import Edges, quiet, run_network
 
     d, manifest, _ = calibrated
     entry = manifest.graphs["network"].int8["qat"]
-    assert entry.levels.startswith("u8")
+    assert entry.levels == Edge.U8
     plain = tmp_path / "plain"
     shutil.copytree(d, plain)
     monkeypatch.setattr(quantize, "code_levels", lambda src, dst: {})
@@ -466,7 +466,7 @@ def _calibrated_copy(src, sequence, tmp_path):
 
 def test_a_network_with_the_guide_albedo_calibrates_and_packs_it(tiny_artifacts_guided, guided_sample, tmp_path):
     """int8 graphs of a network that reads the guide albedo: its u8 input holds the guide's
-    channels too (runtime.reformat.InputsLayout.guided), they pass validation against PyTorch,
+    channels too (artifacts.InputsLayout.guided), they pass validation against PyTorch,
     and the int8 pipeline stays close to fp32 on a sequence with the layer, where the guide
     moves the output."""
     d, props = _calibrated_copy(tiny_artifacts_guided[0], guided_sample, tmp_path)
