@@ -83,7 +83,7 @@ def _warp_input_grad():
     """The numba kernel (compiled on first use; numba is the runtime's, not the model's,
     dependency): the adjoint of PyTorch's bicubic ``grid_sample`` (aten's
     GridSamplerKernel.cpp: the source coordinate (g + 1) * size / 2 - 0.5, the cubic
-    convolution of A = -0.75 as the runtime's warp weighs it, ``runtime.filters._cubic``,
+    convolution of A = -0.75 as the runtime's warp weighs it, ``bicubic.cubic_weights``,
     each of the 4x4 taps clamped to the border), scattering each output's gradient onto its
     16 taps, the 16 weights computed once per output pixel for every channel. Images in
     parallel, so no two threads add to one value. Written here: PyTorch has no faster
@@ -91,7 +91,7 @@ def _warp_input_grad():
     import numpy as np
     from numba import njit, prange
 
-    from .runtime.filters import _cubic  # the runtime warp's weights, the same cubic
+    from .bicubic import cubic_weights  # the runtime warp's weights, the same cubic
 
     @njit(parallel=True, cache=True)
     def kernel(g, grid, out):
@@ -112,8 +112,8 @@ def _warp_input_grad():
                     fy = min(max(fy, np.float32(-4)), np.float32(hi + 3)) if fy == fy else np.float32(0)
                     x0, y0 = np.floor(fx), np.floor(fy)
                     tx, ty = fx - x0, fy - y0
-                    wx[0], wx[1], wx[2], wx[3] = _cubic(tx)
-                    wy[0], wy[1], wy[2], wy[3] = _cubic(ty)
+                    wx[0], wx[1], wx[2], wx[3] = cubic_weights(tx)
+                    wy[0], wy[1], wy[2], wy[3] = cubic_weights(ty)
                     for k in range(4):
                         cols[k] = min(max(np.int64(x0) - 1 + k, 0), wi - 1)
                         rows[k] = min(max(np.int64(y0) - 1 + k, 0), hi - 1)

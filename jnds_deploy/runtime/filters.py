@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
+from ..bicubic import cubic_weights
 from ..layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_COS, ROOT_FLOOR,
                       SCATTERED_CHANGES, SCATTERED_SHARE, channels)
 from .head import Coded, decode_row
@@ -283,20 +284,6 @@ def apply_kernel(x: np.ndarray, kernel: np.ndarray, relu: bool = False, skip=Non
     return np.maximum(out, 0, out=out) if relu else out
 
 
-# bicubic convolution weights (a = -0.75: opencv's INTER_CUBIC and torch's grid_sample)
-_A = np.float32(-0.75)
-
-
-@njit(inline="always", fastmath={"contract"})
-def _cubic(t):
-    """The 4 weights of taps -1, 0, 1, 2 at fraction t in [0, 1)."""
-    u, v = t + np.float32(1), np.float32(1) - t
-    w0 = ((_A * u - np.float32(5) * _A) * u + np.float32(8) * _A) * u - np.float32(4) * _A
-    w1 = ((_A + np.float32(2)) * t - (_A + np.float32(3))) * t * t + np.float32(1)
-    w2 = ((_A + np.float32(2)) * v - (_A + np.float32(3))) * v * v + np.float32(1)
-    return w0, w1, w2, np.float32(1) - w0 - w1 - w2
-
-
 @njit(inline="always", fastmath={"contract"})
 def _bicubic(r0, r1, r2, r3, xs, wx, wy, c):
     """Channel c of the 4x4 taps: rows r0..r3 (W, C), columns xs, weights wx, wy."""
@@ -335,9 +322,9 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, counts):
             sy = min(max(np.float32(y) + motion[1, y, x], np.float32(-3)), np.float32(H + 2))
             fx, fy = np.floor(sx), np.floor(sy)
             taps[0, x], taps[1, x] = np.int64(fx), np.int64(fy)
-            w0, w1, w2, w3 = _cubic(sx - fx)
+            w0, w1, w2, w3 = cubic_weights(sx - fx)
             weights[0, x], weights[1, x], weights[2, x], weights[3, x] = w0, w1, w2, w3
-            w0, w1, w2, w3 = _cubic(sy - fy)
+            w0, w1, w2, w3 = cubic_weights(sy - fy)
             weights[4, x], weights[5, x], weights[6, x], weights[7, x] = w0, w1, w2, w3
         for x in range(W):
             ix, iy = taps[0, x], taps[1, x]
