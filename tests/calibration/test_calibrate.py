@@ -122,10 +122,12 @@ def test_a_quantized_pool_rewritten_as_a_depthwise_convolution_pools_the_same(tm
     graph = helper.make_graph(nodes, "g", [helper.make_tensor_value_info("x", TensorProto.UINT8, [1, 16, None, None])],
                               [helper.make_tensor_value_info("y", TensorProto.UINT8, None)], [scale, zp])
     path = tmp_path / "pool.onnx"
-    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)]), path)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    onnx.save(model, path)
     x = np.random.default_rng(0).integers(0, 256, (1, 16, 36, 64), dtype=np.uint8)
     before = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"x": x})[0]
-    assert pools_as_convolutions(path) == 1
+    assert pools_as_convolutions(model) == 1
+    onnx.save(model, path)
     opts = ort.SessionOptions()
     opts.optimized_model_filepath = str(tmp_path / "optimized.onnx")
     after = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"]).run(None, {"x": x})[0]
@@ -296,7 +298,7 @@ def test_the_cut_graph_computes_what_the_whole_graph_did(calibrated, tmp_path, m
     d, manifest, _ = calibrated
     whole = tmp_path / "whole"
     shutil.copytree(d, whole)
-    monkeypatch.setattr(quantize, "cut_blocks", lambda src, dst, multiple: None)
+    monkeypatch.setattr(quantize, "cut_blocks", lambda model, multiple, label: model)
     calibrate(CalibrateConfig(artifacts=str(whole), data=(str(SAMPLE),), method="qat", frames=3), log=lambda s: None)
     file = manifest.graphs["network"].int8["qat"].file
     _check_concats(onnx.load(whole / file))  # the cut graph has none left
@@ -314,7 +316,7 @@ def test_the_cut_graph_computes_what_the_whole_graph_did(calibrated, tmp_path, m
             else:
                 np.testing.assert_array_equal(got[name], want[name], err_msg=name)
     with pytest.raises(CalibrationError, match="Resize"):
-        cut_blocks(d / file, tmp_path / "again.onnx", manifest.pad_multiple)
+        cut_blocks(onnx.load(d / file), manifest.pad_multiple)
 
 
 def test_coded_level_heads_give_the_outputs_their_nodes_gave(calibrated, tmp_path, monkeypatch):
@@ -334,7 +336,7 @@ def test_coded_level_heads_give_the_outputs_their_nodes_gave(calibrated, tmp_pat
     assert entry.levels == Edge.U8
     plain = tmp_path / "plain"
     shutil.copytree(d, plain)
-    monkeypatch.setattr(quantize, "code_levels", lambda src, dst: {})
+    monkeypatch.setattr(quantize, "code_levels", lambda model, label: model)
     calibrate(CalibrateConfig(artifacts=str(plain), data=(str(SAMPLE),), method="qat", frames=3), log=lambda s: None)
     feeds = collect_feeds(d, [SAMPLE], frames=2)["network"]
     for file in [entry.file] + [v.file for v in entry.variants.values()]:
