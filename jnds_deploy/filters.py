@@ -24,7 +24,7 @@ def tonemap(x: torch.Tensor) -> torch.Tensor:
 
     The power is written as exp(log(.) / 2.2) (the floor keeps the log finite): the same
     values, but ONNX Runtime's Pow is scalar code where Exp and Log are vectorized
-    (docs/design-notes.md)."""
+    (docs/design-notes.md at commit 5431ce1)."""
     return torch.exp(torch.log(torch.log1p(x.clamp(0.0, HDR_MAX)).clamp_min(TONEMAP_FLOOR)) * (1.0 / 2.2))
 
 
@@ -37,7 +37,8 @@ def apply_kernel(x: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
     h, w = x.shape[-2:]
     p = F.pad(x, (1, 1, 1, 1), mode="replicate")
     out = p[:, :, :h, :w] * kernel[:, 0:1]
-    for i in range(1, 9):  # shifted views, no im2col copy (faster than unfold, docs/design-notes.md)
+    # shifted views, no im2col copy (faster than unfold: docs/design-notes.md at commit 5431ce1)
+    for i in range(1, 9):
         dy, dx = divmod(i, 3)
         out = out + p[:, :, dy:dy + h, dx:dx + w] * kernel[:, i:i + 1]
     return out
@@ -133,7 +134,8 @@ def _warp_input_grad():
 # must learn where not to trust it): the per-pixel normal test of SVGF (Schied et al.
 # 2017) with a 3x3 tolerance. Without it the shipped model pulled an area light's
 # radiance across the black background next to it and kept the ghost frame after frame,
-# and history cost more than no history at all (benchmarks/results/history_gain.md).
+# and history cost more than no history at all (benchmarks/results/history_gain.md at commit
+# 5431ce1).
 def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor) -> torch.Tensor:
     """(N, 1, H, W) bool: where the warped history must not be used, from the current
     normals and the warped history's (N, 3, H, W; background 0).
@@ -144,7 +146,7 @@ def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor) -> torch.Tens
     - The history holds a surface whose normal is further than acos(REJECT_COS) from the
       normal of every current pixel in the 3x3 neighbourhood (a disocclusion). The
       neighbourhood tolerates the one-pixel silhouette shifts of the jittered, aliased
-      G-buffer; without it every silhouette pixel lost its history (docs/design-notes.md).
+      G-buffer; without it every silhouette pixel lost its history (commit 44f2027).
     """
     h, w = normal.shape[-2:]
     background = normal.abs().sum(1, keepdim=True) < BACKGROUND
@@ -329,8 +331,8 @@ def upsample_filter(color: torch.Tensor, kernel: torch.Tensor, factor: int, root
     raises the result back to the power ``root`` before the kernel: a bright pixel then
     does not spread its linear energy into its neighbours' target pixels, which after
     display tonemapping reads as a halo. Validation references pooled to native and
-    upsampled back score higher in fourth roots than linearly
-    (benchmarks/results/error_sources.md)."""
+    upsampled back score higher in fourth roots than linearly (measured at commit
+    6008607)."""
     if factor == 1:
         up = color
     elif root == 1:

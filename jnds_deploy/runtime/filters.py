@@ -6,8 +6,8 @@ float16 (``dtype`` of the inputs is kept); kernels (9, H, W) in row-major 3x3 or
 borders replicate the edge pixel.
 
 Notes: the warp is a numba loop with exact coordinates (cv2.remap quantizes them to 1/32
-pixel and took twice as long); both it and torch.grid_sample use the bicubic kernel with
-a = -0.75. ``cv2.resize(INTER_LINEAR)`` has the pixel-centre convention of
+pixel, and was slower: commit e833640); both it and torch.grid_sample use the bicubic
+kernel with a = -0.75 (``jnds_deploy.bicubic``). ``cv2.resize(INTER_LINEAR)`` has the pixel-centre convention of
 ``align_corners=False``.
 
 float32 takes the fast path: the per-pixel kernel application and everything fused
@@ -15,9 +15,9 @@ around it (the lerp of the spatiotemporal filter and of the up levels, the ReLU,
 pooling) are single-pass loops compiled by numba and run over rows on all threads; the
 same sums in the same order as the numpy code (bit-equal, a test holds it). numpy
 makes ~36 passes over memory for one spatiotemporal filter where the fused loop makes
-one (docs/design-notes.md has the speed-ups). numba has no float16 arithmetic on the
-CPU, so float16 runs the numpy code, which rounds every operation to float16 as a GPU's half
-arithmetic would (and is slow: numpy emulates half precision).
+one (the speed-ups: docs/design-notes.md at commit 5431ce1). numba has no float16
+arithmetic on the CPU, so float16 runs the numpy code, which rounds every operation to
+float16 as a GPU's half arithmetic would (and is slow: numpy emulates half precision).
 """
 from __future__ import annotations
 
@@ -62,7 +62,7 @@ def _taps(src, k, c, ya, yb, yc, y, xa, xb, xc, x):
 # The row loops below filter a row's first and last pixels (whose clamped neighbours are
 # the border) apart from its interior, where the neighbours are i - 1 and i + 1: with
 # clamped indices in the loop LLVM kept it scalar on AVX2 (same sums, bit-equal;
-# docs/design-notes.md).
+# measured at commit 9404749).
 
 
 @njit(inline="always")
@@ -182,7 +182,7 @@ def _pass_tiles(src: np.ndarray, out: np.ndarray, skip, tile: int) -> np.ndarray
     """Empty tiles (``skip``, float32 only) take the source's values. The filter loops
     run over every pixel and the tiles are put back afterwards: loops that skipped the
     tiles themselves lost their vectorization and ran slower per pixel
-    (docs/design-notes.md)."""
+    (docs/design-notes.md at commit 5431ce1)."""
     if skip is not None:
         _restore_tiles(src, out, skip, tile)
     return out
@@ -315,7 +315,7 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, counts):
         weights = np.empty((8, W), np.float32)
         # the row's tap positions and weights first, in a loop of their own: independent per
         # pixel, it vectorizes. Computed inside the sampling loop, they left the channel sums
-        # scalar too, and the warp took 1.5-1.8x the time (docs/performance.md, stop 74)
+        # scalar too, and the warp took longer (measured at commit ef27908)
         for x in range(W):
             # clamped before the integer conversion: beyond 2 px outside, every tap is the edge
             sx = min(max(np.float32(x) + motion[0, y, x], np.float32(-3)), np.float32(W + 2))
@@ -347,7 +347,7 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, counts):
                 out[c, y, x] = min(max(row[x, c], lo[c]), hi[c])
         if reject:
             # on the clamped row just written (cache-resident); a select in the loop above
-            # kept LLVM from vectorizing it (docs/design-notes.md)
+            # kept LLVM from vectorizing it (measured at commit 0211b63)
             counts[y] = _reject_row(current, out, y, cos, background)
 
 
@@ -372,7 +372,7 @@ def _interleave(a, b, d, e, out, flush, nonfinite):
         if ca == 3 and cb == 3 and cd == 3 and ce == 3:
             # the history's four layers: with the channel count a constant, the 12 values of
             # a pixel are one unrolled run of loads and stores, faster than the loop below
-            # (docs/performance.md, "Speed", stop 51)
+            # (measured at commit 22e394c)
             o = out[y]
             for x in range(W):
                 for c in range(3):
@@ -431,8 +431,8 @@ def tile_sums(x, c0, tile):
     out = np.zeros((th, tw))
     for ty in prange(th):
         # each column summed down the tile row first: sums independent along the row, which
-        # vectorize. One running sum per tile was a chain of dependent float64 adds, 3.9x
-        # the time (docs/performance.md, stop 74)
+        # vectorize. One running sum per tile was a chain of dependent float64 adds, and
+        # slower (measured at commit c419e9e)
         col = np.zeros(W)
         for y in range(ty * tile, min((ty + 1) * tile, H)):
             a, b, d = x[c0, y], x[c0 + 1, y], x[c0 + 2, y]
@@ -451,7 +451,8 @@ def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None, curr
     (2, H, W): out(x, y) = x_prev(x + mx, y + my), pixel centres at integers, taps beyond
     the border replicate it (``jnds_deploy.filters.warp``, exact coordinates: no 1/32-pixel
     quantization as in cv2.remap). Returns (12, H, W) float32, channel c clamped to
-    [lo[c], hi[c]] if given. Faster than one cv2.remap per channel (docs/design-notes.md).
+    [lo[c], hi[c]] if given. Faster than one cv2.remap per channel (docs/design-notes.md at
+    commit 5431ce1).
 
     With ``current`` (the frame's (13, H, W) inputs), the geometric rejection runs in the
     same pass (``reject_disoccluded``) and the result is (warped, pixels rejected)."""
@@ -505,7 +506,7 @@ def _reject_row(current, warped, y, cos, background):
     n = _disoccluded_row(current, warped[_NX, y], warped[_NY, y], warped[_NZ, y], y, cos, background, bad)
     if n:
         # one channel at a time: the planes of a frame are far apart, and touching all 25
-        # per pixel thrashed the cache (docs/design-notes.md)
+        # per pixel thrashed the cache (measured at commit 44f2027)
         for c in range(WARP_CHANNELS):
             for x in range(w):
                 if bad[x]:
@@ -567,7 +568,7 @@ def _max3(row, out, skip_centre):
 def _clamp_rows(current, lum, k, counts):
     # the 3x3 maximum as maxima of three along each row (border columns apart: clamped
     # indices in the loop kept it scalar) taken over the three rows; maxima are exact, so
-    # the bounds are the 3x3 loop's bit for bit (docs/design-notes.md)
+    # the bounds are the 3x3 loop's bit for bit, and faster (measured at commit 386b9bf)
     h, w = current.shape[1], current.shape[2]
     for y in prange(h):
         ya, yc = max(y - 1, 0), min(y + 1, h - 1)
@@ -925,7 +926,7 @@ def _apply_phases(x, k, out, s):
     Each target row's taps are first interleaved into a row buffer (cache-resident), so the
     tap loop stays contiguous and vectorizes; reading the phases in place was slower, and
     making a target-layout kernel with ONNX Runtime's DepthToSpace slower still
-    (docs/design-notes.md)."""
+    (docs/design-notes.md at commit 5431ce1)."""
     C, H, W = x.shape
     w = W // s
     for y in prange(H):
@@ -1032,7 +1033,7 @@ def _upsample2_fixed_hwc(r, k, squarings, out):
                               + k[3] * m[x] + k[4] * m[x + 1] + k[5] * m[x + 2]
                               + k[6] * z[x] + k[7] * z[x + 1] + k[8] * z[x + 2])
             # stored interleaved with selects, not a branch, and counted as a sum: the
-            # branch kept this loop scalar, half the pass (docs/performance.md, stop 75)
+            # branch kept this loop scalar (measured at commit 67e04b5)
             if C == 3:
                 a0, a1, a2, o = acc[0], acc[1], acc[2], out[y].reshape(3 * Wo)  # flat: a stride LLVM knows
                 n = 0
