@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -57,9 +58,24 @@ def _metadata(sess, key: str) -> str | None:
     return sess.get_modelmeta().custom_metadata_map.get(key)
 
 
+class _Kept:
+    """A layout kept as JSON (``to_json``, ``from_json``) under ``KEY`` in a graph's metadata."""
+
+    KEY: ClassVar[str]
+
+    @classmethod
+    def of_session(cls, sess):
+        """The layout of an ONNX Runtime session's graph, or None where it has none (the
+        graph does not have that u8 edge)."""
+        text = _metadata(sess, cls.KEY)
+        return None if text is None else cls.from_json(text)
+
+
 @dataclass(frozen=True)
-class InputsLayout:
+class InputsLayout(_Kept):
     """The u8 ``inputs`` of an int8 network graph: value = (q - zero_point) * scale."""
+
+    KEY: ClassVar[str] = INPUTS_KEY
 
     scale: float
     zero_point: int
@@ -108,19 +124,15 @@ class InputsLayout:
             raise ArtifactError(f"inputs metadata {INPUTS_KEY!r}: {layout}")
         return layout
 
-    @classmethod
-    def of_session(cls, sess) -> InputsLayout | None:
-        """The layout of an ONNX Runtime session whose graph takes ``inputs``, else None."""
-        text = _metadata(sess, INPUTS_KEY)
-        return None if text is None else cls.from_json(text)
-
 
 @dataclass(frozen=True)
-class HeadLayout:
+class HeadLayout(_Kept):
     """Where each output lies in a u8 head (the output block's, or a level head's) and how
     it dequantizes: channel c of output ``name`` holds ``raw = (q - zero_point) * scale[c] +
     centre[c]``, the head's float output, to which ``layout.head_kind(name)`` applies as in
     ``model.OutputBlock``."""
+
+    KEY: ClassVar[str] = HEAD_KEY
 
     parts: tuple[tuple[str, int], ...]  # (network output, channels), in channel order
     scale: tuple[float, ...]  # per channel (padding excluded): raw = (q - zero_point) * scale + centre
@@ -162,12 +174,6 @@ class HeadLayout:
         except (ValueError, KeyError, TypeError) as exc:
             raise ArtifactError(f"head layout metadata {HEAD_KEY!r} malformed ({exc!r})") from exc
 
-    @classmethod
-    def of_session(cls, sess) -> HeadLayout | None:
-        """The layout of an ONNX Runtime session whose graph ends in a u8 head, else None."""
-        text = _metadata(sess, HEAD_KEY)
-        return None if text is None else cls.from_json(text)
-
 
 def levels_to_json(layouts: dict[str, HeadLayout]) -> str:
     """``LEVELS_KEY``'s value: {graph output: layout}."""
@@ -207,10 +213,12 @@ class Cut:
 
 
 @dataclass(frozen=True)
-class BlockLayout:
+class BlockLayout(_Kept):
     """An int8 network graph cut at upsamplings and concatenations (``calibration.block``,
     its ``CUT_AT``): ``segments`` in the order they run, each (the input it is fed, the graph
     outputs it computes), and the ``cuts``."""
+
+    KEY: ClassVar[str] = BLOCK_KEY
 
     cuts: tuple[Cut, ...]
     segments: tuple[tuple[str, tuple[str, ...]], ...]
@@ -239,12 +247,6 @@ class BlockLayout:
                 or not all(s > 0 and 0 <= z <= 255 for c in layout.cuts for s, z in (c.up_q, c.skip_q, c.entry_q))):
             raise ArtifactError(f"block metadata {BLOCK_KEY!r}: {layout}")
         return layout
-
-    @classmethod
-    def of_session(cls, sess) -> BlockLayout | None:
-        """The layout of an ONNX Runtime session whose graph is cut, else None."""
-        text = _metadata(sess, BLOCK_KEY)
-        return None if text is None else cls.from_json(text)
 
     @property
     def internal(self) -> set[str]:
