@@ -62,6 +62,7 @@ class Block(str, Enum):
     def __str__(self) -> str:
         return self.value
 
+
 # what the runtime must do around the graphs, written for a reader of the manifest
 DESCRIPTION = {
     "pad_mode": "replicate the last row/column up to a multiple, crop the output back",
