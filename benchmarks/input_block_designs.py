@@ -124,7 +124,9 @@ def quantized(module: nn.Module, shape: tuple[int, ...], folder: Path) -> Path:
     quantize_static(str(float_path), str(int8_path), Reader(), quant_format=QuantFormat.QDQ,
                     activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
                     extra_options={"WeightSymmetric": True, "ActivationSymmetric": False})
-    rewrite.pools_as_convolutions(int8_path)  # as `jnds calibrate` does: the pool on MLAS's depthwise kernel
+    model = onnx.load(str(int8_path))
+    rewrite.pools_as_convolutions(model)  # as `jnds calibrate` does: the pool on MLAS's depthwise kernel
+    rewrite.write_model(model, int8_path)
     return int8_path
 
 

@@ -24,7 +24,7 @@ def tonemap(x: torch.Tensor) -> torch.Tensor:
 
     The power is written as exp(log(.) / 2.2) (the floor keeps the log finite): the same
     values, but ONNX Runtime's Pow is scalar code where Exp and Log are vectorized
-    (docs/design-notes.md)."""
+    (docs/design-notes.md at commit 5431ce1)."""
     return torch.exp(torch.log(torch.log1p(x.clamp(0.0, HDR_MAX)).clamp_min(TONEMAP_FLOOR)) * (1.0 / 2.2))
 
 
@@ -37,7 +37,8 @@ def apply_kernel(x: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
     h, w = x.shape[-2:]
     p = F.pad(x, (1, 1, 1, 1), mode="replicate")
     out = p[:, :, :h, :w] * kernel[:, 0:1]
-    for i in range(1, 9):  # shifted views, no im2col copy (faster than unfold, docs/design-notes.md)
+    # shifted views, no im2col copy (faster than unfold: docs/design-notes.md at commit 5431ce1)
+    for i in range(1, 9):
         dy, dx = divmod(i, 3)
         out = out + p[:, :, dy:dy + h, dx:dx + w] * kernel[:, i:i + 1]
     return out
@@ -95,7 +96,7 @@ def _warp_input_grad():
     """The numba kernel (compiled on first use; numba is the runtime's, not the model's,
     dependency): the adjoint of PyTorch's bicubic ``grid_sample`` (aten's
     GridSamplerKernel.cpp: the source coordinate (g + 1) * size / 2 - 0.5, the cubic
-    convolution of A = -0.75 as the runtime's warp weighs it, ``runtime.filters._cubic``,
+    convolution of A = -0.75 as the runtime's warp weighs it, ``bicubic.cubic_weights``,
     each of the 4x4 taps clamped to the border), scattering each output's gradient onto its
     16 taps, the 16 weights computed once per output pixel for every channel. Images in
     parallel, so no two threads add to one value. Written here: PyTorch has no faster
@@ -103,7 +104,7 @@ def _warp_input_grad():
     import numpy as np
     from numba import njit, prange
 
-    from .runtime.filters import _cubic  # the runtime warp's weights, the same cubic
+    from .bicubic import cubic_weights  # the runtime warp's weights, the same cubic
 
     @njit(parallel=True, cache=True)
     def kernel(g, grid, out):
@@ -124,8 +125,8 @@ def _warp_input_grad():
                     fy = min(max(fy, np.float32(-4)), np.float32(hi + 3)) if fy == fy else np.float32(0)
                     x0, y0 = np.floor(fx), np.floor(fy)
                     tx, ty = fx - x0, fy - y0
-                    wx[0], wx[1], wx[2], wx[3] = _cubic(tx)
-                    wy[0], wy[1], wy[2], wy[3] = _cubic(ty)
+                    wx[0], wx[1], wx[2], wx[3] = cubic_weights(tx)
+                    wy[0], wy[1], wy[2], wy[3] = cubic_weights(ty)
                     for k in range(4):
                         cols[k] = min(max(np.int64(x0) - 1 + k, 0), wi - 1)
                         rows[k] = min(max(np.int64(y0) - 1 + k, 0), hi - 1)
@@ -145,7 +146,8 @@ def _warp_input_grad():
 # must learn where not to trust it): the per-pixel normal test of SVGF (Schied et al.
 # 2017) with a 3x3 tolerance. Without it the shipped model pulled an area light's
 # radiance across the black background next to it and kept the ghost frame after frame,
-# and history cost more than no history at all (benchmarks/results/history_gain.md).
+# and history cost more than no history at all (benchmarks/results/history_gain.md at commit
+# 5431ce1).
 def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor, albedo: torch.Tensor,
                 warped_albedo: torch.Tensor) -> torch.Tensor:
     """(N, 1, H, W) bool: where the warped history must not be used, from the current
@@ -157,7 +159,7 @@ def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor, albedo: torch
     - The history holds a surface whose normal is further than acos(REJECT_COS) from the
       normal of every current pixel in the 3x3 neighbourhood (a disocclusion). The
       neighbourhood tolerates the one-pixel silhouette shifts of the jittered, aliased
-      G-buffer; without it every silhouette pixel lost its history (docs/architecture.md).
+      G-buffer; without it every silhouette pixel lost its history (commit 44f2027).
     - The history's albedo lies outside the range of the current 3x3 albedos, per channel,
       widened by REJECT_ALBEDO: another surface facing the same way, or a surface where
       the history saw background (docs/ghosting.md).
@@ -363,8 +365,8 @@ def upsample_filter(color: torch.Tensor, kernel: torch.Tensor, factor: int, root
     raises the result back to the power ``root`` before the kernel: a bright pixel then
     does not spread its linear energy into its neighbours' target pixels, which after
     display tonemapping reads as a halo. Validation references pooled to native and
-    upsampled back score higher in fourth roots than linearly
-    (benchmarks/results/error_sources.md)."""
+    upsampled back score higher in fourth roots than linearly (measured at commit
+    6008607)."""
     if factor == 1:
         up = color
     elif root == 1:

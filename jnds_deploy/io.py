@@ -1,8 +1,8 @@
 """Read and write frame sequences in the ``jnds-sequence/1`` format.
 
-The format is specified in ``shared/docs/sequence-format.md``. Frames are loaded lazily:
-opening a sequence checks ``sequence.json`` and the frame files' presence; each frame's
-pixels are read (and checked) when asked for.
+The format is specified in docs/sequence-format.md; this module is its reference reader
+and writer. Frames are loaded lazily: opening a sequence checks ``sequence.json`` and the
+frame files' presence; each frame's pixels are read (and checked) when asked for.
 
 Array contract: every layer is a float32 HWC array, linear values as stored, pixel
 (0, 0) top-left. Single-channel layers keep a trailing axis of 1.
@@ -35,8 +35,7 @@ FORMAT = "jnds-sequence/1"
 INPUT_LAYERS: dict[str, tuple[str, ...]] = {layer.name: layer.suffixes for layer in LAYERS}
 # ``denoising_albedo`` (layout.GUIDE): the guide albedo a single-frame denoiser takes, a
 # metal's tint and what lies behind glass included (Cycles' Denoising Albedo pass); the OIDN
-# baseline reads it (docs/dataset.md, "The OIDN baseline's albedo"), and a network trained
-# with it (ModelConfig.guide_albedo)
+# baseline reads it (commit 225f36d), and a network trained with it (ModelConfig.guide_albedo)
 OPTIONAL_INPUT_LAYERS: dict[str, tuple[str, ...]] = {"depth": ("",), GUIDE.name: GUIDE.suffixes}
 REFERENCE_LAYERS: dict[str, tuple[str, ...]] = {"color": ("R", "G", "B")}
 OPTIONAL_REFERENCE_LAYERS: dict[str, tuple[str, ...]] = {
@@ -46,9 +45,9 @@ OPTIONAL_REFERENCE_LAYERS: dict[str, tuple[str, ...]] = {
 }
 OUTPUT_LAYERS = REFERENCE_LAYERS
 # how `jnds run` and `jnds batch` store output frames: {name: (layers stored as half,
-# compression)}. float: 32-bit, uncompressed (ZIP took 4.6x as long as the frame write
-# without it and saved 14 % on a denoised 2560x1440 frame; docs/performance.md); half:
-# 16-bit, PIZ (lossless for half data), a quarter of float ZIP's size
+# compression)}. float: 32-bit, uncompressed (ZIP took several times as long to write and
+# saved little); half: 16-bit, PIZ (lossless for half data), small. Both against float ZIP:
+# benchmarks/results/exr_write.md
 OUTPUT_FORMATS = {"float": (frozenset(), OpenEXR.NO_COMPRESSION), "half": (frozenset({"color"}), OpenEXR.PIZ_COMPRESSION)}
 
 _FRAME_RE = re.compile(r"^(\d{4,})\.exr$")
@@ -186,9 +185,9 @@ def write_output(path: str | Path, color: np.ndarray, fmt: str = "float") -> Non
 
 def exr_threads(n: int) -> None:
     """OpenEXR compresses and decompresses with ``n`` threads (process-wide; 0: in the
-    calling thread, OpenEXR's default). Writing a 2x output frame takes longer than
-    computing it without (docs/design-notes.md): `jnds run`, `jnds batch`'s workers and
-    `jnds serve` set it to their thread count."""
+    calling thread, OpenEXR's default). Without threads, writing a 2x output frame took
+    longer than computing it (docs/design-notes.md at commit 5431ce1): `jnds run`,
+    `jnds batch`'s workers and `jnds serve` set it to their thread count."""
     OpenEXR.set_global_thread_count(max(0, int(n)))
 
 

@@ -84,3 +84,24 @@ def test_import_has_no_process_wide_side_effects():
     env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
     assert out.stdout.strip() == '{"env": [], "level": true}'
+
+
+def test_layers_import_downwards():
+    """The torch specification (model, filters) does not import the runtime it specifies,
+    and the artifact format (artifacts) imports none of its writers (export, calibration)
+    or readers (runtime): constants and functions they share live below them."""
+    graph = import_graph()
+
+    def reach(name: str) -> set[str]:
+        seen, todo = set(), [name]
+        while todo:
+            for d in graph[todo.pop()] - seen:
+                seen.add(d)
+                todo.append(d)
+        return seen
+
+    for spec in ("jnds_deploy.model", "jnds_deploy.filters"):
+        assert not {m for m in reach(spec) if m.startswith("jnds_deploy.runtime")}, spec
+    for fmt in ("jnds_deploy.artifacts", "jnds_deploy.artifacts.manifest", "jnds_deploy.artifacts.layouts"):
+        assert not {m for m in reach(fmt) if m.startswith(("jnds_deploy.runtime", "jnds_deploy.calibration",
+                                                           "jnds_deploy.export"))}, fmt

@@ -2,12 +2,13 @@
 
 ONNX Runtime's static quantization leaves the head float (``quantize.FLOAT_NODES``): its
 85 output channels go out of the graph as float, split, clamped, through a sigmoid or a
-softmax, all at native resolution (what that cost: docs/performance.md). ``quantize_head``
+softmax, all at native resolution (what that cost: commit 4a7fec9). ``quantize_head``
 replaces the head and everything after it with one quantized 1x1 convolution whose u8
 output is the graph output ``head``, channels last, padded to ``PAD`` channels (MLAS's
 fast int8 convolution wants multiples of 8 and at least 16; the NHWC transpose at the end
 is cancelled by ONNX Runtime's NHWC int8 layout). ``runtime.head`` does the split, clamp,
-sigmoid and softmax in the filter stage's reading pass.
+sigmoid and softmax in the filter stage's reading pass; the layout of ``head`` is
+``artifacts.layouts.HeadLayout``.
 
 One QLinearConv has one output scale and zero point, and the parts of the head span
 different ranges (kernel taps are clamped to [-1, 1], blend logits and the albedo/normal
@@ -21,19 +22,16 @@ apart (kernels are clamped to [-1, 1], a sigmoid is flat beyond +-12, a ReLU bel
 from __future__ import annotations
 
 import itertools
-import json
-import os
-import tempfile
-from pathlib import Path
 
 import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
+from ..artifacts.layouts import HEAD, HEAD_KEY, LEVELS_KEY, HeadLayout, levels_to_json
 from ..errors import CalibrationError
 from ..layout import channels, head_kind
-from ..runtime.head import HEAD, LAYOUT_KEY, LEVELS_KEY, HeadLayout
 from .reader import exposed
+from .rewrite import extracted
 
 HEAD_NODE = "/network/output_block/head/Conv"
 PAD = 16
@@ -44,8 +42,9 @@ CODE_SCALE = 1 / 127
 BOUNDS = {"kernel": (-1.0, 1.0), "blend": (-12.0, 12.0), "normalized": (-80.0, 80.0), "relu": (0.0, np.inf)}
 MIN_RANGE = 1e-2  # a channel that is (nearly) constant on the calibration data
 # the calibration frames' radiance x 2^k for these k: the ranges hold from 16x darker to
-# 256x brighter than the frames calibrated on (at exposure 1 alone, a sequence 16x brighter
-# lost 0.65 dB to fp32 where the float head lost none: docs/performance.md)
+# 256x brighter than the frames calibrated on; ranged at exposure 1 alone, brighter
+# sequences lost to fp32 where the float head did not (measured at commit d9314c4; int8
+# against fp32 over these exposures: benchmarks/results/exposure_sweep.md)
 STOPS = (-4, -2, 0, 2, 4, 6, 8)
 RADIANCE = slice(0, channels("specular").stop)  # diffuse, specular: current and history alike
 
@@ -90,13 +89,13 @@ def _split_sizes(graph: onnx.GraphProto, split) -> list[int]:
     return [int(s) for s in sizes]
 
 
-def raw_ranges(path: Path, feeds: list[dict[str, np.ndarray]], stops=STOPS) -> dict[str, np.ndarray]:
+def raw_ranges(model: onnx.ModelProto, feeds: list[dict[str, np.ndarray]], stops=STOPS) -> dict[str, np.ndarray]:
     """{output: (channels, 2) min and max of the head's raw output} over ``feeds``, each
     with its radiance (current and history) x 2^k for every k in ``stops``, run through
-    the graph at ``path`` (its head still float)."""
+    the int8 network graph ``model`` (its head still float; left as it is)."""
     import onnxruntime as ort
 
-    model = onnx.load(str(path))
+    model = onnx.load_from_string(model.SerializeToString())
     conv, split, parts = _head(model.graph)
     sizes = _split_sizes(model.graph, split)
     model.graph.output.append(helper.make_tensor_value_info(conv.output[0], onnx.TensorProto.FLOAT, None))
@@ -114,9 +113,8 @@ def channel_ranges(raw: dict[str, np.ndarray]) -> dict[str, dict[str, list[float
     """{output: {"centre": [...], "range": [...]}} per channel: its u8 code covers
     [centre - range, centre + range], the raw range within the part's ``BOUNDS``. A
     linear kernel's channels cover their whole clamp, [-1, 1], whatever the calibration
-    data reached: the ranges the bundled sample gave lost up to 0.24 dB on static
-    window-lit rooms, whose taps go further (docs/performance.md, "The u8 head's kernel
-    ranges")."""
+    data reached: the ranges the bundled sample gave lost on static window-lit rooms,
+    whose taps go further (measured at commit a701940)."""
     out = {}
     for name, mm in raw.items():
         lo, hi = BOUNDS[head_kind(name)]
@@ -128,24 +126,24 @@ def channel_ranges(raw: dict[str, np.ndarray]) -> dict[str, dict[str, list[float
     return out
 
 
-def quantize_head(src: Path, dst: Path, ranges: dict[str, dict[str, list[float]]]) -> HeadLayout:
-    """Write ``src`` (an int8 network graph or pruned variant, head float) with its head
-    quantized and its u8 NHWC output ``head`` in place of the outputs the head fed, to
-    ``dst`` (atomically); the layout goes into the graph's metadata. ``ranges``: centre and
-    range of every output the head feeds (``channel_ranges``; a variant uses those of its
-    outputs)."""
-    model = onnx.load(str(src))
+def quantize_head(model: onnx.ModelProto, ranges: dict[str, dict[str, list[float]]],
+                  label: str = "the graph") -> onnx.ModelProto:
+    """``model`` (an int8 network graph or pruned variant, head float; changed) with its head
+    quantized and its u8 NHWC output ``head`` in place of the outputs the head fed; its
+    layout (``HeadLayout``) in the graph's metadata. ``ranges``: centre and range of every
+    output the head feeds (``channel_ranges``; a variant uses those of its outputs).
+    ``label`` names the graph in errors."""
     g = model.graph
     conv, split, parts = _head(g)
     sizes = _split_sizes(g, split)
     names = [n for n, _ in parts]
     missing = [n for n in names if n not in ranges]
     if missing:
-        raise CalibrationError(f"{src.name}: no head range for {', '.join(missing)}")
+        raise CalibrationError(f"{label}: no head range for {', '.join(missing)}")
     r = np.concatenate([np.asarray(ranges[n]["range"], np.float64) for n in names])
     m = np.concatenate([np.asarray(ranges[n]["centre"], np.float64) for n in names])
     if [len(ranges[n]["range"]) for n in names] != sizes or len(m) != len(r):
-        raise CalibrationError(f"{src.name}: head ranges of {[len(ranges[n]['range']) for n in names]} channels, "
+        raise CalibrationError(f"{label}: head ranges of {[len(ranges[n]['range']) for n in names]} channels, "
                                f"the split has {sizes}")
     inits = {i.name: numpy_helper.to_array(i) for i in g.initializer}
     producers = {o: n for n in g.node for o in n.output}
@@ -184,20 +182,19 @@ def quantize_head(src: Path, dst: Path, ranges: dict[str, dict[str, list[float]]
     g.output.append(helper.make_tensor_value_info(HEAD, onnx.TensorProto.UINT8, ["N", "H", "W", c]))
     layout = HeadLayout(tuple(zip(names, sizes)), tuple(float(v) for v in r * CODE_SCALE),
                         tuple(float(v) for v in m), ZERO_POINT, c)
-    save_extracted(model, dst, [i.name for i in g.input], keep + [HEAD], {LAYOUT_KEY: layout.to_json()})
-    return layout
+    return extracted(model, [i.name for i in g.input], keep + [HEAD], {HEAD_KEY: layout.to_json()})
 
 
-def code_levels(src: Path, dst: Path) -> dict[str, HeadLayout]:
-    """Write ``src`` (an int8 network graph or pruned variant) with each of the feature
-    extractor's level heads ending in its u8 output, to ``dst`` (atomically): output
-    ``<path>.level<k>`` (N, C, h, w) in place of the outputs ``<path>.level<k>.<part>`` its
-    dequantization, split, clamps and sigmoid fed (about 5 ms of ONNX Runtime's time a 720p
-    frame on the Zen 5 of stop 69, docs/performance.md). The codes are the ones the head's
-    quantized convolution wrote; ``runtime.head`` decodes them in the filter loops as those
-    nodes did, so nothing is requantized. Returns {output: layout}, also in the graph's
-    metadata (``LEVELS_KEY``); none for a graph without level heads (written as it is)."""
-    model = onnx.load(str(src))
+def code_levels(model: onnx.ModelProto, label: str = "the graph") -> onnx.ModelProto:
+    """``model`` (an int8 network graph or pruned variant; changed) with each of the feature
+    extractor's level heads ending in its u8 output: output ``<path>.level<k>`` (N, C, h, w)
+    in place of the outputs ``<path>.level<k>.<part>`` its dequantization, split, clamps and
+    sigmoid fed, which ONNX Runtime ran at every level of every frame (measured at commit
+    46c2dca). The codes are the ones the head's quantized convolution wrote;
+    ``runtime.head`` decodes them in the filter loops as those nodes did, so nothing is
+    requantized. Their layouts, {output: ``HeadLayout``}, go into the graph's metadata
+    (``LEVELS_KEY``); a graph without level heads is returned as it is. ``label`` names the
+    graph in errors."""
     g = model.graph
     producers = {o: n for n in g.node for o in n.output}
     groups: dict[str, list[tuple[str, int]]] = {}  # per level head: (graph output, index in its split)
@@ -217,12 +214,12 @@ def code_levels(src: Path, dst: Path) -> dict[str, HeadLayout]:
         kind = head_kind(name)
         want = {"kernel": ["Clip"], "blend": ["Sigmoid"]}.get(kind)
         if q is None or q.op_type != "QuantizeLinear" or [n.op_type for n in chain] != want:
-            raise CalibrationError(f"{src.name}: level output {name} is not a {kind} of a quantized head "
+            raise CalibrationError(f"{label}: level output {name} is not a {kind} of a quantized head "
                                    f"(QuantizeLinear, DequantizeLinear, Split, {' '.join(want or ['?'])})")
         if kind == "kernel":
             bounds = [_constant(g, i) for i in chain[0].input[1:]]
             if any(b is None for b in bounds) or [float(b) for b in bounds] != list(BOUNDS["kernel"]):
-                raise CalibrationError(f"{src.name}: {name}'s clamp is not {BOUNDS['kernel']}")
+                raise CalibrationError(f"{label}: {name}'s clamp is not {BOUNDS['kernel']}")
         found[head] = (q, dq, split)
         groups.setdefault(head, []).append((name, list(split.output).index(t)))
     layouts = {}
@@ -231,11 +228,11 @@ def code_levels(src: Path, dst: Path) -> dict[str, HeadLayout]:
         sizes = _split_sizes(g, split)
         parts.sort(key=lambda p: p[1])
         if [i for _, i in parts] != list(range(len(sizes))):
-            raise CalibrationError(f"{src.name}: {split.name}'s parts {[i for _, i in parts]} do not each reach "
+            raise CalibrationError(f"{label}: {split.name}'s parts {[i for _, i in parts]} do not each reach "
                                    f"one output")
         scale, zp = _constant(g, dq.input[1]), _constant(g, dq.input[2])
         if scale is None or zp is None or zp.dtype != np.uint8 or scale.size != 1:
-            raise CalibrationError(f"{src.name}: {dq.name} is not a u8 per-tensor dequantization")
+            raise CalibrationError(f"{label}: {dq.name} is not a u8 per-tensor dequantization")
         n = sum(sizes)
         layouts[head] = HeadLayout(tuple((p, c) for (p, _), c in zip(parts, sizes)), (float(scale),) * n,
                                    (0.0,) * n, int(zp), n)
@@ -244,30 +241,9 @@ def code_levels(src: Path, dst: Path) -> dict[str, HeadLayout]:
         for node in g.node:
             node.input[:] = [head if i == old else i for i in node.input]
     if not layouts:  # a variant that filters neither path has no level heads
-        if Path(src).resolve() != Path(dst).resolve():
-            onnx.save(onnx.load(str(src)), str(dst))
-        return {}
+        return model
     gone = {p for lay in layouts.values() for p, _ in lay.parts}
     keep = [o.name for o in g.output if o.name not in gone]
     g.output.extend(helper.make_tensor_value_info(h, onnx.TensorProto.UINT8, ["N", lay.channels, f"h{h}", f"w{h}"])
                     for h, lay in layouts.items())
-    props = {LEVELS_KEY: json.dumps({h: json.loads(lay.to_json()) for h, lay in layouts.items()})}
-    save_extracted(model, dst, [i.name for i in g.input], keep + list(layouts), props)
-    return layouts
-
-
-def save_extracted(model: onnx.ModelProto, dst: Path, inputs: list[str], outputs: list[str], props: dict,
-                   defaults: dict[str, np.ndarray] | None = None) -> None:
-    """``model`` reduced to what ``outputs`` need from ``inputs`` (the nodes a surgery cut
-    off go), with ``props`` added to its metadata, checked and written to ``dst`` atomically.
-    ``defaults``: values of inputs a run may leave out (overridable initializers)."""
-    props = {**{p.key: p.value for p in model.metadata_props}, **props}
-    with tempfile.TemporaryDirectory(dir=dst.parent) as tmp:
-        onnx.save(model, f"{tmp}/m.onnx")
-        model = onnx.utils.Extractor(onnx.load(f"{tmp}/m.onnx")).extract_model(inputs, outputs)
-    model.graph.initializer.extend(numpy_helper.from_array(v, n) for n, v in (defaults or {}).items())
-    onnx.helper.set_model_props(model, props)
-    onnx.checker.check_model(model)
-    tmp = dst.with_name(f".{dst.name}.tmp")
-    onnx.save(model, str(tmp))
-    os.replace(tmp, dst)
+    return extracted(model, [i.name for i in g.input], keep + list(layouts), {LEVELS_KEY: levels_to_json(layouts)})

@@ -4,46 +4,43 @@ In the float graph the input block tonemaps the radiance layers (Eq. 1), maps th
 to [0, 1] and concatenates current and history (``model.tonemap_inputs``), all in float
 at native resolution, per channel group: a Slice, Clip, Log, Exp, a QuantizeLinear for
 each of 9 groups, a QLinearConcat of 25 channels and a transpose to channels last for the
-first int8 convolution (what they cost: docs/performance.md). ``quantize_inputs`` cuts
+first int8 convolution (what they cost: commit 14d0c4c). ``quantize_inputs`` cuts
 them off: the int8 graph's input is ``inputs``, u8 (N, H, W, ``CHANNELS``), the
 preprocessed inputs already quantized at the scale and zero point the projection
 convolution reads them with, channels last, padded to a multiple of 8 (MLAS's fast int8
 convolution wants input channels in multiples of 4; the padding's weights are 0).
-``runtime.reformat.pack_inputs`` computes it in one pass over the frame. A space-to-depth
-input block (``model.InputBlock``) projects each 2x2 block of pixels: its ``inputs`` is
-(N, H/2, W/2, 104), the four pixels of each channel side by side (``InputsLayout.block``).
+``runtime.reformat.pack_inputs`` computes it in one pass over the frame; its layout is
+``artifacts.layouts.InputsLayout``. A space-to-depth input block (``model.InputBlock``)
+projects each 2x2 block of pixels: its ``inputs`` is (N, H/2, W/2, 104), the four pixels
+of each channel side by side (``InputsLayout.block``).
 
 The channels are placed so that no two neighbours can overflow a 16-bit sum
 (``safe_slots``): on AVX2 without VNNI, MLAS multiplies u8 activations by s8 weights with
 ``vpmaddubsw``, which adds the products of channels 2j and 2j+1 into a saturating 16-bit
 integer. The radiance channels reach code 255 on bright frames, and in their first order two
-of them with large weights of one sign overflowed: the int8 graph lost 0.26 dB to fp32 at
-2^8 exposure (benchmarks/results/int8_exposure.md). Where no such placement exists the
-channels keep their order.
+of them with large weights of one sign overflowed: the int8 graph lost to fp32 on bright
+frames (measured at commit 84b3903). Where no such placement exists the channels keep their
+order.
 """
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
-from ..errors import CalibrationError
-from ..errors import ArtifactError
+from ..artifacts.layouts import INPUTS, INPUTS_KEY, InputsLayout, preprocess
+from ..errors import ArtifactError, CalibrationError
 from ..layout import HDR_MAX, N_CURRENT, N_HISTORY
-from ..runtime.reformat import INPUTS, INPUTS_KEY, InputsLayout, preprocess
-from .head import save_extracted
+from .rewrite import extracted
 
 PROJECT = "/network/input_block/project/Conv"
 CHANNELS = 32  # N_CURRENT + N_HISTORY = 25 (+ N_GUIDE = 28 with the guide albedo), padded
 
 
-def quantize_inputs(src: Path, dst: Path) -> InputsLayout:
-    """Write ``src`` (an int8 network graph or variant, inputs ``current`` and ``history``
-    float) with the u8 NHWC input ``inputs`` in their place, to ``dst`` (atomically); the
-    input's scale and zero point go into the graph's metadata."""
-    model = onnx.load(str(src))
+def quantize_inputs(model: onnx.ModelProto, label: str = "the graph") -> onnx.ModelProto:
+    """``model`` (an int8 network graph or variant, inputs ``current`` and ``history``
+    float; changed) with the u8 NHWC input ``inputs`` in their place; its layout
+    (``InputsLayout``) in the graph's metadata. ``label`` names the graph in errors."""
     g = model.graph
     conv = next((n for n in g.node if n.name == PROJECT), None)
     producers = {o: n for n in g.node for o in n.output}
@@ -51,19 +48,19 @@ def quantize_inputs(src: Path, dst: Path) -> InputsLayout:
     x_dq = producers.get(conv.input[0]) if conv is not None else None
     w_dq = producers.get(conv.input[1]) if conv is not None else None
     if x_dq is None or x_dq.op_type != "DequantizeLinear" or w_dq is None or w_dq.op_type != "DequantizeLinear":
-        raise CalibrationError(f"{src.name}: no quantized input projection {PROJECT!r}")
+        raise CalibrationError(f"{label}: no quantized input projection {PROJECT!r}")
     scale = float(numpy_helper.to_array(inits[x_dq.input[1]]))
     zp = numpy_helper.to_array(inits[x_dq.input[2]])
     if zp.dtype != np.uint8:
-        raise CalibrationError(f"{src.name}: the input projection reads {zp.dtype} activations, expected uint8")
+        raise CalibrationError(f"{label}: the input projection reads {zp.dtype} activations, expected uint8")
     w = numpy_helper.to_array(inits[w_dq.input[0]])
     # a space-to-depth input block (model.InputBlock) projects 2x2 blocks: 4x the channels
     block = 2 if w.shape[1] > CHANNELS else 1
     channels = -(-w.shape[1] // 8) * 8 if block == 2 else CHANNELS
-    try:  # safe_slots refuses a projection of neither 25 nor 28 inputs, or 4x (runtime.reformat.preprocess)
+    try:  # safe_slots refuses a projection of neither 25 nor 28 inputs, or 4x (layouts.preprocess)
         slots = safe_slots(w[:, :, 0, 0], scale, int(zp), channels)
     except ArtifactError as e:
-        raise CalibrationError(f"{src.name}: {e}") from e
+        raise CalibrationError(f"{label}: {e}") from e
     padded = np.zeros((w.shape[0], channels, *w.shape[2:]), w.dtype)
     padded[:, slots] = w
     w = padded
@@ -78,8 +75,7 @@ def quantize_inputs(src: Path, dst: Path) -> InputsLayout:
     conv.input[0] += "_packed"
     g.input.append(helper.make_tensor_value_info(INPUTS, onnx.TensorProto.UINT8, ["N", "H", "W", channels]))
     layout = InputsLayout(scale, int(zp), channels, tuple(slots), block)
-    save_extracted(model, dst, [INPUTS], [o.name for o in g.output], {INPUTS_KEY: layout.to_json()})
-    return layout
+    return extracted(model, [INPUTS], [o.name for o in g.output], {INPUTS_KEY: layout.to_json()})
 
 
 I16 = (-32768, 32767)
@@ -87,7 +83,7 @@ I16 = (-32768, 32767)
 
 def code_bounds(scale: float, zero_point: int, kinds: np.ndarray | None = None) -> np.ndarray:
     """The largest u8 code each of current and history's channels (``kinds``, from
-    ``runtime.reformat.preprocess``; current and history's by default) can take in
+    ``artifacts.layouts.preprocess``; current and history's by default) can take in
     ``inputs``: radiance through Eq. 1's tonemap up to HDR_MAX, the other layers (albedo,
     roughness, normals mapped to [0, 1], the guide albedo) up to 1; the inputs are clamped to
     these ranges on reading."""

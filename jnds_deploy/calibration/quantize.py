@@ -17,6 +17,11 @@ Each run writes ``<graph>.int8.<method>.onnx`` and its pruned variants
 zero point of every quantized tensor, as data) and registers them in ``manifest.json``;
 the last method calibrated is the pipeline's int8 default. It ends with a validation of
 the int8 graphs against PyTorch fp32 on recorded calibration inputs.
+
+A graph is written three times: by ONNX Runtime's quantizer; after ``rewrite.fast_int8``,
+before it is pruned (``export.prune`` reads the file); and, for the network graph and each
+of its variants with u8 edges, after ``u8_edges``' four surgeries, done on the model in
+memory.
 """
 from __future__ import annotations
 
@@ -31,7 +36,7 @@ import numpy as np
 import onnx
 from onnx import numpy_helper
 
-from ..artifacts import MANIFEST, Int8Graph, Manifest, file_hash, write_json
+from ..artifacts import ACTIVATION_TYPES, MANIFEST, Block, Edge, Int8Graph, Manifest, file_hash, write_json
 from ..errors import CalibrationError
 from ..export.prune import INT8_VARIANT_TOL, validate_variant, write_variants
 from ..options import option
@@ -39,17 +44,17 @@ from .block import cut_blocks
 from .head import HEAD_NODE, RADIANCE, STOPS, channel_ranges, code_levels, quantize_head, raw_ranges
 from .inputs import quantize_inputs
 from .reader import FeedReader, collect_feeds
-from .rewrite import pools_as_convolutions, resizes_into_concat_scale
+from .rewrite import fast_int8, write_model
 
 METHODS = ("qat", "minmax", "percentile", "entropy")
-ACTIVATION_TYPES = ("u8", "s8")
 # operators quantized: the convolutions and everything between them, so int8 tensors flow
 # from one convolution to the next without a float round trip (ReLU folds into the
 # quantized convolution output): the fastest in benchmarks/results/calibration.md
 DEFAULT_OP_TYPES = ("Conv", "Relu", "MaxPool", "AveragePool", "Resize", "Concat")
-# the 1x1 kernel heads at native and target resolution stay float: their outputs go out
+# the 1x1 kernel heads at native and target resolution stay float (with u8 edges, the
+# network graph's head is quantized after all, by calibration.head): their outputs go out
 # of the graph as float anyway, and int8 there costs a transpose and a dequantization of
-# every per-pixel kernel (slower, docs/design-notes.md); they are a few percent of the MACs
+# every per-pixel kernel; they are a few percent of the MACs
 FLOAT_NODES = ("/network/output_block/head/Conv", "/head/Conv")
 # int8 vs PyTorch fp32 tolerances on real calibration inputs: kernels lie in [-1, 1],
 # blend weights in [0, 1]; a mean error above this means a broken range, not rounding
@@ -153,9 +158,8 @@ def follow_shared_ranges(fp32_path: Path, ranges: dict[str, dict], op_types) -> 
     return out
 
 
-def quantized_tensors(path: Path) -> dict[str, dict]:
+def quantized_tensors(model: onnx.ModelProto) -> dict[str, dict]:
     """{tensor: {scale, zero_point, dtype, rmin, rmax}} of every activation QuantizeLinear."""
-    model = onnx.load(str(path))
     inits = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
     out = {}
     for node in model.graph.node:
@@ -233,29 +237,27 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
         # preprocessing's, the level heads' outputs) see the exposures the output block's head
         # is calibrated over (head.STOPS): ranged at exposure 1 alone, the preprocessing clipped
         # on brighter frames. With u8 edges the preprocessing is the runtime's, in the learned
-        # range, and the same stops changed nothing but a little resolution
-        # (benchmarks/results/int8_exposure.md)
+        # range, and the same stops changed nothing but a little resolution (measured at
+        # commit 0c8ead5; int8 against fp32 over exposures: benchmarks/results/exposure_sweep.md)
         stops = STOPS if cfg.method == "qat" and name == "network" and not cfg.u8_edges else (0,)
         quantize_graph(root / g.file, root / file, feeds[name], cfg.method, cfg.activation_type,
                        cfg.op_types, qat_overrides(learned), cfg.percentile, cfg.float_nodes, stops)
-        pools_as_convolutions(root / file)
-        resizes_into_concat_scale(root / file)
-        ranges[name] = quantized_tensors(root / file)
+        model = onnx.load(str(root / file))
+        if fast_int8(model):
+            write_model(model, root / file)
+        ranges[name] = quantized_tensors(model)
         if cfg.method == "qat":
             _check_overrides(file, learned, ranges[name])
         head = None
         if cfg.u8_edges and name == "network" and cfg.activation_type == "u8":
-            raw = raw_ranges(root / file, feeds[name])
+            raw = raw_ranges(model, feeds[name])
             head = channel_ranges(raw)
             head_ranges = {n: {"min": [float(v) for v in r[:, 0]], "max": [float(v) for v in r[:, 1]], **head[n]}
                            for n, r in raw.items()}
         variants = write_variants(root, file, file[:-len(".onnx")])
         if head:  # after pruning: the variants slice the float head, then each is quantized
             for f in [file] + [v.file for v in variants.values()]:
-                quantize_head(root / f, root / f, head)
-                quantize_inputs(root / f, root / f)
-                code_levels(root / f, root / f)
-                cut_blocks(root / f, root / f, manifest.pad_multiple)
+                write_model(u8_edges(onnx.load(str(root / f)), head, manifest.pad_multiple, f), root / f)
         for v in variants.values():
             vrows += validate_variant(root / file, root / v.file, feeds[name][0], *INT8_VARIANT_TOL)
             v.sha256 = file_hash(root / v.file)
@@ -264,10 +266,8 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
             weights="int8 per output channel, symmetric", op_types=list(cfg.op_types),
             float_nodes=[n for n in cfg.float_nodes if not (head and n == HEAD_NODE)],
             ranges=f"calibration.{cfg.method}.json", variants=variants,
-            head="u8, channels last, a range per channel (calibration.head)" if head else "float",
-            inputs="u8, channels last, preprocessed (calibration.inputs)" if head else "float",
-            block="between the graph's runs, u8 (calibration.block)" if head else "in the graph",
-            levels="u8 planes, the heads' own codes (calibration.head.code_levels)" if head else "float")
+            head=Edge.U8 if head else Edge.FLOAT, inputs=Edge.U8 if head else Edge.FLOAT,
+            block=Block.CUT if head else Block.GRAPH, levels=Edge.U8 if head else Edge.FLOAT)
     write_json(root / f"calibration.{cfg.method}.json",
                {"method": cfg.method, "activation_type": cfg.activation_type,
                 "data": [str(d) for d in cfg.data], "frames_per_sequence": cfg.frames,
@@ -279,6 +279,20 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
     manifest.save(root)
     report_validation(rows, log)
     return manifest
+
+
+def u8_edges(model: onnx.ModelProto, head: dict[str, dict[str, list[float]]], multiple: int,
+             label: str = "the graph") -> onnx.ModelProto:
+    """The int8 network graph (or pruned variant) ``model`` with u8 edges, its layouts in its
+    metadata (``artifacts.layouts``): its head quantized at the ranges ``head``
+    (``calibration.head``), the input block's preprocessing cut off (``calibration.inputs``),
+    the level heads ending in their codes (``head.code_levels``), and the graph cut at its
+    upsamplings and concatenations (``calibration.block``; ``multiple``: the network's
+    ``pad_multiple``). In this order: each surgery finds what the one before left."""
+    model = quantize_head(model, head, label)
+    model = quantize_inputs(model, label)
+    model = code_levels(model, label)
+    return cut_blocks(model, multiple, label)
 
 
 def _check_overrides(file: str, learned: dict, got: dict) -> None:

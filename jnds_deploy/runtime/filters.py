@@ -6,8 +6,8 @@ float16 (``dtype`` of the inputs is kept); kernels (9, H, W) in row-major 3x3 or
 borders replicate the edge pixel.
 
 Notes: the warp is a numba loop with exact coordinates (cv2.remap quantizes them to 1/32
-pixel and took twice as long); both it and torch.grid_sample use the bicubic kernel with
-a = -0.75. ``cv2.resize(INTER_LINEAR)`` has the pixel-centre convention of
+pixel, and was slower: commit e833640); both it and torch.grid_sample use the bicubic
+kernel with a = -0.75 (``jnds_deploy.bicubic``). ``cv2.resize(INTER_LINEAR)`` has the pixel-centre convention of
 ``align_corners=False``.
 
 float32 takes the fast path: the per-pixel kernel application and everything fused
@@ -15,9 +15,9 @@ around it (the lerp of the spatiotemporal filter and of the up levels, the ReLU,
 pooling) are single-pass loops compiled by numba and run over rows on all threads; the
 same sums in the same order as the numpy code (bit-equal, a test holds it). numpy
 makes ~36 passes over memory for one spatiotemporal filter where the fused loop makes
-one (docs/design-notes.md has the speed-ups). numba has no float16 arithmetic on the
-CPU, so float16 runs the numpy code, which rounds every operation to float16 as a GPU's half
-arithmetic would (and is slow: numpy emulates half precision).
+one (the speed-ups: docs/design-notes.md at commit 5431ce1). numba has no float16
+arithmetic on the CPU, so float16 runs the numpy code, which rounds every operation to
+float16 as a GPU's half arithmetic would (and is slow: numpy emulates half precision).
 """
 from __future__ import annotations
 
@@ -25,9 +25,10 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
+from ..bicubic import cubic_weights
 from ..layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_ALBEDO, REJECT_COS, ROOT_FLOOR,
                       SCATTERED_CHANGES, SCATTERED_SHARE, channels)
-from .head import Coded, _decode_row
+from .head import Coded, decode_row
 
 # channel indices of the stacked inputs (layout.CURRENT; the history shares its first 12):
 # numba compiles them as constants
@@ -61,7 +62,7 @@ def _taps(src, k, c, ya, yb, yc, y, xa, xb, xc, x):
 # The row loops below filter a row's first and last pixels (whose clamped neighbours are
 # the border) apart from its interior, where the neighbours are i - 1 and i + 1: with
 # clamped indices in the loop LLVM kept it scalar on AVX2 (same sums, bit-equal;
-# docs/design-notes.md).
+# measured at commit 9404749).
 
 
 @njit(inline="always")
@@ -138,9 +139,9 @@ def _lerp_coded(a, b, q, ca, cb, ct, kinds, scale, offset, table, out, relu):
         kb = np.empty((9, 1, W), np.float32)
         t = np.empty((1, 1, W), np.float32)
         if not plain:
-            _decode_row(q, y, ca, 9, kinds, scale, offset, table, ka, 0)
-        _decode_row(q, y, cb, 9, kinds, scale, offset, table, kb, 0)
-        _decode_row(q, y, ct, 1, kinds, scale, offset, table, t, 0)
+            decode_row(q, y, ca, 9, kinds, scale, offset, table, ka, 0)
+        decode_row(q, y, cb, 9, kinds, scale, offset, table, kb, 0)
+        decode_row(q, y, ct, 1, kinds, scale, offset, table, t, 0)
         _lerp_row(a, ka, b, kb, t, 0, out, relu, plain, y, max(y - 1, 0), min(y + 1, H - 1))
 
 
@@ -181,7 +182,7 @@ def _pass_tiles(src: np.ndarray, out: np.ndarray, skip, tile: int) -> np.ndarray
     """Empty tiles (``skip``, float32 only) take the source's values. The filter loops
     run over every pixel and the tiles are put back afterwards: loops that skipped the
     tiles themselves lost their vectorization and ran slower per pixel
-    (docs/design-notes.md)."""
+    (docs/design-notes.md at commit 5431ce1)."""
     if skip is not None:
         _restore_tiles(src, out, skip, tile)
     return out
@@ -251,7 +252,7 @@ def _pool_coded(x, q, c0, kinds, scale, offset, table, out):
     _pool(x, pooled)
     for y in prange(H):
         k = np.empty((9, 1, W), np.float32)
-        _decode_row(q, y, c0, 9, kinds, scale, offset, table, k, 0)
+        decode_row(q, y, c0, 9, kinds, scale, offset, table, k, 0)
         ya, yc = max(y - 1, 0), min(y + 1, H - 1)
         for c in range(C):
             _apply_row(pooled, k, 0, out, True, c, ya, y, yc)
@@ -281,20 +282,6 @@ def apply_kernel(x: np.ndarray, kernel: np.ndarray, relu: bool = False, skip=Non
         np.multiply(p[:, dy:dy + h, dx:dx + w], kernel[i], out=tmp)
         out += tmp
     return np.maximum(out, 0, out=out) if relu else out
-
-
-# bicubic convolution weights (a = -0.75: opencv's INTER_CUBIC and torch's grid_sample)
-_A = np.float32(-0.75)
-
-
-@njit(inline="always", fastmath={"contract"})
-def _cubic(t):
-    """The 4 weights of taps -1, 0, 1, 2 at fraction t in [0, 1)."""
-    u, v = t + np.float32(1), np.float32(1) - t
-    w0 = ((_A * u - np.float32(5) * _A) * u + np.float32(8) * _A) * u - np.float32(4) * _A
-    w1 = ((_A + np.float32(2)) * t - (_A + np.float32(3))) * t * t + np.float32(1)
-    w2 = ((_A + np.float32(2)) * v - (_A + np.float32(3))) * v * v + np.float32(1)
-    return w0, w1, w2, np.float32(1) - w0 - w1 - w2
 
 
 @njit(inline="always", fastmath={"contract"})
@@ -329,7 +316,7 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, tol, rej):
         off = np.empty(W, np.bool_)
         # the row's tap positions and weights first, in a loop of their own: independent per
         # pixel, it vectorizes. Computed inside the sampling loop, they left the channel sums
-        # scalar too, and the warp took 1.5-1.8x the time (docs/performance.md, stop 74)
+        # scalar too, and the warp took longer (measured at commit ef27908)
         for x in range(W):
             px, py = np.float32(x) + motion[0, y, x], np.float32(y) + motion[1, y, x]
             # jnds_deploy.filters.offscreen
@@ -339,9 +326,9 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, tol, rej):
             sy = min(max(py, np.float32(-3)), np.float32(H + 2))
             fx, fy = np.floor(sx), np.floor(sy)
             taps[0, x], taps[1, x] = np.int64(fx), np.int64(fy)
-            w0, w1, w2, w3 = _cubic(sx - fx)
+            w0, w1, w2, w3 = cubic_weights(sx - fx)
             weights[0, x], weights[1, x], weights[2, x], weights[3, x] = w0, w1, w2, w3
-            w0, w1, w2, w3 = _cubic(sy - fy)
+            w0, w1, w2, w3 = cubic_weights(sy - fy)
             weights[4, x], weights[5, x], weights[6, x], weights[7, x] = w0, w1, w2, w3
         for x in range(W):
             ix, iy = taps[0, x], taps[1, x]
@@ -364,7 +351,7 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, tol, rej):
                 out[c, y, x] = min(max(row[x, c], lo[c]), hi[c])
         if reject:
             # on the clamped row just written (cache-resident); a select in the loop above
-            # kept LLVM from vectorizing it (docs/design-notes.md)
+            # kept LLVM from vectorizing it (measured at commit 0211b63)
             _mark_row(current, out, y, cos, background, tol, off, rej)
 
 
@@ -389,7 +376,7 @@ def _interleave(a, b, d, e, out, flush, nonfinite):
         if ca == 3 and cb == 3 and cd == 3 and ce == 3:
             # the history's four layers: with the channel count a constant, the 12 values of
             # a pixel are one unrolled run of loads and stores, faster than the loop below
-            # (docs/performance.md, "Speed", stop 51)
+            # (measured at commit 22e394c)
             o = out[y]
             for x in range(W):
                 for c in range(3):
@@ -448,8 +435,8 @@ def tile_sums(x, c0, tile):
     out = np.zeros((th, tw))
     for ty in prange(th):
         # each column summed down the tile row first: sums independent along the row, which
-        # vectorize. One running sum per tile was a chain of dependent float64 adds, 3.9x
-        # the time (docs/performance.md, stop 74)
+        # vectorize. One running sum per tile was a chain of dependent float64 adds, and
+        # slower (measured at commit c419e9e)
         col = np.zeros(W)
         for y in range(ty * tile, min((ty + 1) * tile, H)):
             a, b, d = x[c0, y], x[c0 + 1, y], x[c0 + 2, y]
@@ -468,7 +455,8 @@ def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None, curr
     (2, H, W): out(x, y) = x_prev(x + mx, y + my), pixel centres at integers, taps beyond
     the border replicate it (``jnds_deploy.filters.warp``, exact coordinates: no 1/32-pixel
     quantization as in cv2.remap). Returns (12, H, W) float32, channel c clamped to
-    [lo[c], hi[c]] if given. Faster than one cv2.remap per channel (docs/design-notes.md).
+    [lo[c], hi[c]] if given. Faster than one cv2.remap per channel (docs/design-notes.md at
+    commit 5431ce1).
 
     With ``current`` (the frame's (13, H, W) inputs), the history rejection
     (``reject_disoccluded`` with this motion's ``offscreen``) runs in the same pass and the
@@ -649,7 +637,7 @@ def _max3(row, out, skip_centre):
 def _clamp_rows(current, lum, k, counts):
     # the 3x3 maximum as maxima of three along each row (border columns apart: clamped
     # indices in the loop kept it scalar) taken over the three rows; maxima are exact, so
-    # the bounds are the 3x3 loop's bit for bit (docs/design-notes.md)
+    # the bounds are the 3x3 loop's bit for bit, and faster (measured at commit 386b9bf)
     h, w = current.shape[1], current.shape[2]
     for y in prange(h):
         ya, yc = max(y - 1, 0), min(y + 1, h - 1)
@@ -1007,7 +995,7 @@ def _apply_phases(x, k, out, s):
     Each target row's taps are first interleaved into a row buffer (cache-resident), so the
     tap loop stays contiguous and vectorizes; reading the phases in place was slower, and
     making a target-layout kernel with ONNX Runtime's DepthToSpace slower still
-    (docs/design-notes.md)."""
+    (docs/design-notes.md at commit 5431ce1)."""
     C, H, W = x.shape
     w = W // s
     for y in prange(H):
@@ -1114,7 +1102,7 @@ def _upsample2_fixed_hwc(r, k, squarings, out):
                               + k[3] * m[x] + k[4] * m[x + 1] + k[5] * m[x + 2]
                               + k[6] * z[x] + k[7] * z[x + 1] + k[8] * z[x + 2])
             # stored interleaved with selects, not a branch, and counted as a sum: the
-            # branch kept this loop scalar, half the pass (docs/performance.md, stop 75)
+            # branch kept this loop scalar (measured at commit 67e04b5)
             if C == 3:
                 a0, a1, a2, o = acc[0], acc[1], acc[2], out[y].reshape(3 * Wo)  # flat: a stride LLVM knows
                 n = 0

@@ -10,108 +10,42 @@ filter loops decode row by row (``runtime.filters``), reading a quarter of the b
 float outputs took; ``Coded.decode`` gives the float planes where a caller wants them.
 Planes because each filter path reads a few channels of every pixel: channels last, each
 path pulled the whole head through memory again and read its bytes one at a time; planes
-are read once, contiguously, and their decoding vectorizes (docs/performance.md, stop 54).
-The graph's metadata (``LAYOUT_KEY``) says which channels are which output and how each
-dequantizes: channel c of output ``name`` holds ``raw = (q - zero_point) * scale[c] +
-centre[c]``, the head's float output, to which ``layout.head_kind(name)`` applies as in
-``model.OutputBlock``.
+are read once, contiguously, and their decoding vectorizes (measured at commit 5edddad).
+The graph's metadata says which channels are which output and how each dequantizes
+(``artifacts.layouts.HeadLayout``).
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
 
+from ..artifacts.layouts import HeadLayout
 from ..errors import ArtifactError
 from ..layout import HEAD_KINDS, head_kind
 from .simd import transpose8x8
 
-HEAD = "head"  # the graph output
-LAYOUT_KEY = "jnds.head"  # its layout, JSON in the ONNX model's metadata_props
-# the feature extractor's level heads end in u8 too (``calibration.head.code_levels``): one
-# output per head, ``<path>.level<k>``, (1, C, h, w) planes as the head's QLinearConv wrote
-# them, one scale for its channels. Their layouts: JSON {output: layout} under this key
-LEVELS_KEY = "jnds.levels"
-# a channel's kind as _decode_row reads it: kernel 0 and relu 3 are computed in the loop (an
+# a channel's kind as decode_row reads it: kernel 0 and relu 3 are computed in the loop (an
 # affine map and a clamp vectorize), blend 1 (sigmoid) and normalized 2 (exp) looked up
 _KIND_CODE = {k: i for i, k in enumerate(HEAD_KINDS)}
 
 
-@dataclass(frozen=True)
-class HeadLayout:
-    """Where each output lies in the u8 head and how it dequantizes."""
-
-    parts: tuple[tuple[str, int], ...]  # (network output, channels), in channel order
-    scale: tuple[float, ...]  # per channel (padding excluded): raw = (q - zero_point) * scale + centre
-    centre: tuple[float, ...]
-    zero_point: int
-    channels: int  # of the tensor, padding included
-
-    def __post_init__(self):
-        used = sum(n for _, n in self.parts)
-        if (used != len(self.scale) or used != len(self.centre) or used > self.channels
-                or not 0 <= self.zero_point <= 255):
-            raise ArtifactError(f"head layout: {used} channels in parts, {len(self.scale)} scales, "
-                                f"{len(self.centre)} centres, {self.channels} in the tensor, "
-                                f"zero point {self.zero_point}")
-        bad = [n for n, c in self.parts if head_kind(n) == "normalized" and c != 9]
-        if bad:  # _decode_row normalizes 3x3 kernels
-            raise ArtifactError(f"head layout: normalized kernel(s) {', '.join(bad)} without 9 taps")
-
-    def to_json(self) -> str:
-        return json.dumps({"parts": [list(p) for p in self.parts], "scale": list(self.scale),
-                           "centre": list(self.centre), "zero_point": self.zero_point, "channels": self.channels})
-
-    @classmethod
-    def from_json(cls, text: str) -> HeadLayout:
-        try:
-            return cls.from_dict(json.loads(text))
-        except ValueError as exc:
-            raise ArtifactError(f"head layout metadata {LAYOUT_KEY!r} malformed ({exc!r})") from exc
-
-    @classmethod
-    def from_dict(cls, d: dict) -> HeadLayout:
-        """The layout from its JSON object (``to_json``'s, parsed)."""
-        try:
-            return cls(tuple((str(n), int(c)) for n, c in d["parts"]), tuple(float(s) for s in d["scale"]),
-                       tuple(float(s) for s in d["centre"]), int(d["zero_point"]), int(d["channels"]))
-        except (ValueError, KeyError, TypeError) as exc:
-            raise ArtifactError(f"head layout metadata {LAYOUT_KEY!r} malformed ({exc!r})") from exc
-
-    @classmethod
-    def of_session(cls, sess) -> HeadLayout | None:
-        """The layout of an ONNX Runtime session whose graph ends in a u8 head, else None."""
-        text = sess.get_modelmeta().custom_metadata_map.get(LAYOUT_KEY)
-        return None if text is None else cls.from_json(text)
-
-    @staticmethod
-    def levels_of_session(sess) -> dict[str, HeadLayout]:
-        """{graph output: layout} of a session's u8 level heads (none if it has none)."""
-        text = sess.get_modelmeta().custom_metadata_map.get(LEVELS_KEY)
-        if text is None:
-            return {}
-        try:
-            return {str(k): HeadLayout.from_dict(v) for k, v in json.loads(text).items()}
-        except (ValueError, AttributeError, ArtifactError) as exc:
-            raise ArtifactError(f"level head metadata {LEVELS_KEY!r} malformed ({exc!r})") from exc
-
-    def tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Per channel: kind code, scale and offset (raw = q * scale + offset, float32), and
-        a (channels, 256) table of the kind's function of every code (sigmoid; exp for the
-        normalized kernels)."""
-        kinds = np.array([_KIND_CODE[head_kind(n)] for n, c in self.parts for _ in range(c)], np.int64)
-        scale = np.array(self.scale, np.float32)
-        offset = (np.array(self.centre, np.float64) - self.zero_point * scale.astype(np.float64)).astype(np.float32)
-        raw = np.arange(256, dtype=np.float32)[None] * scale[:, None] + offset[:, None]
-        table = np.where((kinds == _KIND_CODE["blend"])[:, None], 1 / (1 + np.exp(-raw.astype(np.float64))),
-                         np.exp(raw.astype(np.float64)))
-        return kinds, scale, offset, table.astype(np.float32)
+def tables(layout: HeadLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per channel of ``layout``: kind code, scale and offset (raw = q * scale + offset,
+    float32), and a (channels, 256) table of the kind's function of every code (sigmoid;
+    exp for the normalized kernels)."""
+    kinds = np.array([_KIND_CODE[head_kind(n)] for n, c in layout.parts for _ in range(c)], np.int64)
+    scale = np.array(layout.scale, np.float32)
+    offset = (np.array(layout.centre, np.float64) - layout.zero_point * scale.astype(np.float64)).astype(np.float32)
+    raw = np.arange(256, dtype=np.float32)[None] * scale[:, None] + offset[:, None]
+    table = np.where((kinds == _KIND_CODE["blend"])[:, None], 1 / (1 + np.exp(-raw.astype(np.float64))),
+                     np.exp(raw.astype(np.float64)))
+    return kinds, scale, offset, table.astype(np.float32)
 
 
 @njit(inline="always")
-def _decode_row(q, y, c0, n, kinds, scale, offset, table, out, r):
+def decode_row(q, y, c0, n, kinds, scale, offset, table, out, r):
     """out[t, r, :] = plane c0 + t of the planar head q (C', H, W), row y, decoded (t < n):
     kernel taps clamped, features ReLU'd, blend weights through the sigmoid table,
     normalized kernels through the exp table and divided by their taps' sum."""
@@ -144,7 +78,7 @@ def _decode_row(q, y, c0, n, kinds, scale, offset, table, out, r):
 @njit(parallel=True, cache=True)
 def _decode(q, c0, kinds, scale, offset, table, out):
     for y in prange(q.shape[1]):
-        _decode_row(q, y, c0, out.shape[0], kinds, scale, offset, table, out, y)
+        decode_row(q, y, c0, out.shape[0], kinds, scale, offset, table, out, y)
 
 
 @njit(parallel=True, cache=True)
@@ -152,7 +86,7 @@ def _planes(q, out):
     """out[c, y, x] = q[y, x, c] for the first out.shape[0] channels (a multiple of 8; q's
     channels too). Eight channels of eight pixels at a time: the eight 64-bit words (one a
     pixel) transposed as an 8x8 byte matrix (``transpose8x8``), stored as one word a channel;
-    bytes one at a time cost twice as much (docs/performance.md, stop 54)."""
+    stored a byte at a time, the planes took longer (measured at commit 5edddad)."""
     H, W, C = q.shape
     n = out.shape[0] // 8
     G = np.uint64(C // 8)
@@ -183,7 +117,7 @@ class Head:
 
     def __init__(self, layout: HeadLayout):
         self.layout = layout
-        self.kinds, self.scale, self.offset, self.table = layout.tables()
+        self.kinds, self.scale, self.offset, self.table = tables(layout)
         self.slices, c0 = {}, 0
         for name, c in layout.parts:
             self.slices[name] = (c0, c)

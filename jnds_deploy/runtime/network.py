@@ -7,17 +7,20 @@ output block's u8 head (``calibration.head``: output ``head``), and the feature 
 level heads in u8 planes (outputs ``<path>.level<k>``). ``run_network`` takes the
 float ``current`` and ``history`` every graph's users have (the pipeline, calibration,
 validation) and returns the outputs by the float graph's names, so that each caller runs
-any graph the same way. A graph cut at its upsamplings and concatenations
+any graph the same way. The layouts of those u8 edges are in each graph's metadata
+(``artifacts.layouts``). A graph cut at its upsamplings and concatenations
 (``calibration.block``) runs in segments of its one session, one run each: each cut's
 upsampling and concatenation in numba (``reformat.block_input``) between the run that made
 its two u8 tensors and the run it feeds.
 """
 from __future__ import annotations
 
+from ..artifacts.layouts import (BLOCK_KEY, HEAD, HEAD_KEY, INPUTS, INPUTS_KEY, LEVELS_KEY, BlockLayout, HeadLayout,
+                                 InputsLayout, levels_of_session)
 from ..errors import ArtifactError
 from ..layout import head_kind
-from .head import HEAD, LAYOUT_KEY, LEVELS_KEY, Head, HeadLayout
-from .reformat import BLOCK_KEY, INPUTS, INPUTS_KEY, BlockLayout, InputsLayout, block_input, pack_inputs
+from .head import Head
+from .reformat import block_input, pack_inputs
 
 
 class Edges:
@@ -36,9 +39,9 @@ class Edges:
         if HEAD in outputs:
             layout = HeadLayout.of_session(sess)
             if layout is None:
-                raise ArtifactError(f"network graph has a {HEAD!r} output but no {LAYOUT_KEY!r} metadata")
+                raise ArtifactError(f"network graph has a {HEAD!r} output but no {HEAD_KEY!r} metadata")
             self.head = Head(layout)
-        self.levels = {n: Head(lay) for n, lay in HeadLayout.levels_of_session(sess).items()}
+        self.levels = {n: Head(lay) for n, lay in levels_of_session(sess).items()}
         if set(self.levels) - set(outputs):
             raise ArtifactError(f"network graph's {LEVELS_KEY!r} metadata names outputs it lacks: "
                                 f"{sorted(set(self.levels) - set(outputs))}")

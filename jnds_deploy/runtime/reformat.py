@@ -9,20 +9,19 @@ graph (``calibration.inputs``) its input: the input block's preprocessing of cur
 and history, quantized, channels last.
 
 numpy's ``concatenate(...).transpose(2, 0, 1)`` + copy is a strided gather on one
-thread; these numba loops write each element once, rows in parallel
-(docs/design-notes.md).
+thread; these numba loops write each element once, rows in parallel (measured at commit
+fe226b2). The layout of ``pack_inputs``' output is ``artifacts.layouts.InputsLayout``.
 """
 from __future__ import annotations
 
 import functools
-import json
-from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
 
+from ..artifacts.layouts import Cut, InputsLayout, preprocess
 from ..errors import ArtifactError
-from ..layout import CURRENT, GUIDE, HDR_MAX, HISTORY, LAYERS, N_GUIDE, RADIANCE, TONEMAP_FLOOR
+from ..layout import GUIDE, HDR_MAX, LAYERS, TONEMAP_FLOOR
 from .simd import N, binned_codes16, lerp_codes16, requantize16, transpose8x8
 
 # layer -> (low, high, renormalize), from the one table of input layers (layout.LAYERS) and
@@ -41,11 +40,10 @@ def _clean(v, lo, hi):
 @njit(parallel=True, cache=True, error_model="numpy")
 def _hwc_into_chw(src, out, c0, h, w, lo, hi, renormalize, nonfinite):
     # the row cleaned and counted in its own order first (pixels interleaved: contiguous, so
-    # it vectorizes), then dealt out to the channels' rows; cleaning while dealing out kept
-    # the checks scalar: 1.4-3x the time on a frame in the cache, a few % in the pipeline,
-    # where the frame comes from memory (docs/performance.md, stop 74). A 3-channel layer's
-    # pixel is renormalized as it is dealt out (a second pass over the row cost the normals
-    # 1.7 ms at 720p); the padding columns and rows replicate the last ones
+    # it vectorizes), then dealt out to the channels' rows: cleaning while dealing out kept
+    # the checks scalar (measured at commit b346e1b). A 3-channel layer's pixel is
+    # renormalized as it is dealt out, not in a second pass over the row (commit e4e5f6e);
+    # the padding columns and rows replicate the last ones
     lo32, hi32, zero = np.float32(lo), np.float32(hi), np.float32(0)
     C = src.shape[2]
     W = out.shape[2]
@@ -128,87 +126,6 @@ def to_hwc(x: np.ndarray, h: int, w: int) -> np.ndarray:
     return out
 
 
-INPUTS = "inputs"  # an int8 network graph's input (calibration.inputs)
-INPUTS_KEY = "jnds.inputs"  # its quantization, JSON in the ONNX model's metadata_props
-# what model.tonemap_inputs does to each channel of current then history: 1 Eq. 1's tonemap
-# (radiance), 2 n * 0.5 + 0.5 (normals), 0 nothing; a network with the guide albedo input
-# reads its channels after them, as they are (``preprocess``)
-_PREPROCESS = np.array([1 if n in RADIANCE else 2 if n == "normal" else 0
-                        for layout in (CURRENT, HISTORY) for n, c in layout for _ in range(c)], np.int64)
-_GUIDED = np.append(_PREPROCESS, np.zeros(N_GUIDE, np.int64))
-
-
-def preprocess(channels: int) -> np.ndarray:
-    """``_PREPROCESS`` for a projection of ``channels`` inputs: current and history's, and
-    the guide albedo's after them where it reads one; or each of those four times, the 2x2
-    pixels of a space-to-depth input block (``model.InputBlock``), channel c's as 4c..4c+3."""
-    for kinds in (_PREPROCESS, _GUIDED):
-        for block in (1, 2):
-            if channels == len(kinds) * block * block:
-                return np.repeat(kinds, block * block)
-    raise ArtifactError(f"an input projection reads {len(_PREPROCESS)} channels (current, history) or "
-                        f"{len(_GUIDED)} (and the guide albedo), or 4x either (in 2x2 blocks), not {channels}")
-
-
-@dataclass(frozen=True)
-class InputsLayout:
-    """The u8 ``inputs`` of an int8 network graph: value = (q - zero_point) * scale."""
-
-    scale: float
-    zero_point: int
-    channels: int  # current and history's (and the guide albedo's), then padding
-    # the channel of ``inputs`` each of current and history's (and the guide albedo's) channels
-    # goes to; the others are padding. Empty: current and history's in order, the padding last
-    # (graphs calibrated before stop 59).
-    # calibration.inputs chooses it so that no two neighbours can overflow the 16-bit sums of
-    # AVX2's u8 x s8 multiply (benchmarks/results/int8_exposure.md)
-    slots: tuple[int, ...] = ()
-    # 2: a space-to-depth input block's (model.InputBlock): each 2x2 block of pixels is one
-    # pixel of ``inputs`` (1, H/2, W/2, channels), channel c's four pixels (row-major) the
-    # inputs 4c..4c+3 that ``slots`` places
-    block: int = 1
-
-    def __post_init__(self):
-        object.__setattr__(self, "slots", tuple(int(c) for c in self.slots))
-
-    @property
-    def order(self) -> np.ndarray:
-        """``slots``, or the identity where empty."""
-        return np.array(self.slots or range(len(_PREPROCESS) * self.block ** 2), np.int64)
-
-    @property
-    def guided(self) -> bool:
-        """The graph reads the guide albedo (after current and history)."""
-        return len(self.order) == len(_GUIDED) * self.block ** 2
-
-    def to_json(self) -> str:
-        return json.dumps({"scale": self.scale, "zero_point": self.zero_point, "channels": self.channels,
-                           "slots": list(self.slots), "block": self.block})
-
-    @classmethod
-    def from_json(cls, text: str) -> "InputsLayout":
-        try:
-            d = json.loads(text)
-            layout = cls(float(d["scale"]), int(d["zero_point"]), int(d["channels"]), tuple(d.get("slots", ())),
-                         int(d.get("block", 1)))
-        except (ValueError, KeyError, TypeError) as exc:
-            raise ArtifactError(f"inputs metadata {INPUTS_KEY!r} malformed ({exc!r})") from exc
-        order = layout.order
-        if (layout.channels < len(order) or not layout.scale > 0 or not 0 <= layout.zero_point <= 255
-                or layout.block not in (1, 2)
-                or len(order) not in (len(_PREPROCESS) * layout.block ** 2, len(_GUIDED) * layout.block ** 2)
-                or len(set(order.tolist())) != len(order)
-                or not (0 <= order.min() and order.max() < layout.channels)):
-            raise ArtifactError(f"inputs metadata {INPUTS_KEY!r}: {layout}")
-        return layout
-
-    @classmethod
-    def of_session(cls, sess) -> "InputsLayout | None":
-        """The layout of an ONNX Runtime session whose graph takes ``inputs``, else None."""
-        text = sess.get_modelmeta().custom_metadata_map.get(INPUTS_KEY)
-        return None if text is None else cls.from_json(text)
-
-
 def _tonemap_codes(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
     """Tables giving Eq. 1's tonemap of x >= 0, quantized, without evaluating it per
     value, per bin of floats that share their top 17 bits (sign, exponent and 8 mantissa
@@ -250,15 +167,14 @@ def _input_row(current, history, guide, c, y):
 def _pack(current, history, guide, kinds, scale, zero_point, first, step, slots, pads, out):
     # each channel of a row into a contiguous byte row first, then the row's pixels
     # written out whole: storing straight into the channels-last output was one byte store
-    # per value at a stride of C bytes (docs/design-notes.md, "Input packing")
+    # per value at a stride of C bytes (measured at commit ea78861)
     w, C = out.shape[2], out.shape[3]
     for y in prange(out.shape[1]):
         codes = np.empty((C, w), np.uint8)
         for c in range(kinds.shape[0]):
             src = _input_row(current, history, guide, c, y)
             # the channel's slot row taken once: indexing codes[slots[c], i] in the loops
-            # reloaded slots[c] at every value and kept them scalar (2.4x the time at 720p,
-            # benchmarks/results/pack_inputs.md)
+            # reloaded slots[c] at every value and kept them scalar (measured at commit 53a7759)
             _quantize_row(src, kinds[c], scale, zero_point, first, step, codes[slots[c]])
         _store_pixels(codes, pads, zero_point, out[0, y])
 
@@ -276,7 +192,7 @@ def _quantize_row(src, k, scale, zero_point, first, step, row):
             v = min(max(src[i], lo), top)  # keeps -0.0: the sign bit is masked off
             b = np.int64((np.float32(v).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 15)
             # no branch: on 1-spp noise a branch here is mispredicted often
-            # (docs/performance.md, stop 40)
+            # (measured at commit bc35550)
             row[i] = np.uint8(first[b] + np.int32(v >= step[b]))
     else:
         half, zp = np.float32(0.5), np.float32(zero_point)
@@ -339,8 +255,8 @@ def _pack_blocks(current, history, guide, kinds, scale, zero_point, first, step,
                 yy = 2 * y + py
                 src = _input_row(current, history, guide, c, yy)
                 # the input row quantized in order, as ``_pack`` does, then dealt out to the
-                # two pixels' slots: read at a stride of 2, the affine loops stayed scalar and
-                # the packing took half as long again (docs/performance.md, stop 73)
+                # two pixels' slots: read at a stride of 2, the affine loops stayed scalar
+                # (measured at commit 3ab8dfe)
                 _quantize_row(src, kinds[4 * c], scale, zero_point, first, step, line)
                 even, odd = codes[slots[4 * c + 2 * py]], codes[slots[4 * c + 2 * py + 1]]
                 for i in range(w):
@@ -386,90 +302,19 @@ def _tables(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
     return _tonemap_codes(layout)
 
 
-BLOCK_KEY = "jnds.block"  # the cuts and the segments, JSON in the ONNX model's metadata_props
-
-
-@dataclass(frozen=True)
-class Cut:
-    """One concatenation of a 2x upsampling with a skip connection cut out of the graph:
-    its outputs ``up`` (the features to upsample) and ``skip`` (u8, channels last) become
-    its input ``entry``, concat(bilinear 2x upsampling of up, skip), requantized. Each
-    (scale, zero point): value = (q - zero_point) * scale."""
-
-    entry: str
-    up: str
-    skip: str
-    up_q: tuple[float, int]
-    skip_q: tuple[float, int]
-    entry_q: tuple[float, int]
-    stage: str = ""  # the paper's stage it belongs to (runtime.profile.STAGES)
-    # 2: ``skip`` holds the native features as 2x2 phases at half resolution, (1, H/2, W/2,
-    # 4 Cs), channel c's pixel (2y + py, 2x + px) at (2py + px) Cs + c, phase first (a
-    # space-to-depth input block's, model.InputBlock, ordered so by calibration.block): the
-    # depth-to-space is done in ``block_input``'s pass
-    skip_phases: int = 1
-
-
-@dataclass(frozen=True)
-class BlockLayout:
-    """An int8 network graph cut at upsamplings and concatenations (``calibration.block``,
-    its ``CUT_AT``): ``segments`` in the order they run, each (the input it is fed, the graph
-    outputs it computes), and the ``cuts``."""
-
-    cuts: tuple[Cut, ...]
-    segments: tuple[tuple[str, tuple[str, ...]], ...]
-
-    def to_json(self) -> str:
-        return json.dumps({"cuts": [{"entry": c.entry, "up": c.up, "skip": c.skip, "up_q": list(c.up_q),
-                                     "skip_q": list(c.skip_q), "entry_q": list(c.entry_q), "stage": c.stage,
-                                     "skip_phases": c.skip_phases}
-                                    for c in self.cuts],
-                           "segments": [[e, list(o)] for e, o in self.segments]})
-
-    @classmethod
-    def from_json(cls, text: str) -> "BlockLayout":
-        try:
-            d = json.loads(text)
-            cuts = tuple(Cut(str(c["entry"]), str(c["up"]), str(c["skip"]),
-                             *((float(c[k][0]), int(c[k][1])) for k in ("up_q", "skip_q", "entry_q")),
-                             str(c.get("stage", "")), int(c.get("skip_phases", 1))) for c in d["cuts"])
-            layout = cls(cuts, tuple((str(e), tuple(str(n) for n in o)) for e, o in d["segments"]))
-        except (ValueError, KeyError, TypeError, IndexError) as exc:
-            raise ArtifactError(f"block metadata {BLOCK_KEY!r} malformed ({exc!r})") from exc
-        entries = [e for e, _ in layout.segments]
-        made = {n for _, o in layout.segments for n in o}
-        if (entries[:1] != [INPUTS] or sorted(entries[1:]) != sorted(c.entry for c in layout.cuts)
-                or not all({c.up, c.skip} <= made and c.skip_phases in (1, 2) for c in layout.cuts)
-                or not all(s > 0 and 0 <= z <= 255 for c in layout.cuts for s, z in (c.up_q, c.skip_q, c.entry_q))):
-            raise ArtifactError(f"block metadata {BLOCK_KEY!r}: {layout}")
-        return layout
-
-    @classmethod
-    def of_session(cls, sess) -> "BlockLayout | None":
-        """The layout of an ONNX Runtime session whose graph is cut, else None."""
-        text = sess.get_modelmeta().custom_metadata_map.get(BLOCK_KEY)
-        return None if text is None else cls.from_json(text)
-
-    @property
-    def internal(self) -> set[str]:
-        """The outputs the cuts are made from (not the network's)."""
-        return {n for c in self.cuts for n in (c.up, c.skip)}
-
-
 @njit(parallel=True, cache=True)
 def _upsample_concat(dec, nat, sd, zd, sn, zn, sb, zb, phases, out):
     # ONNX Resize's linear mode with half-pixel centres at 2x, taps clamped to the edge,
     # computed from the u8 codes and rounded straight to the block's scale (ties to even,
     # saturated, as QuantizeLinear): the float graph's DequantizeLinear, Resize,
     # QuantizeLinear and concatenation in one pass (bit-equal to them on the shipped graph,
-    # experiments/output_block_split.py). At 2x every output's four weights are products of
+    # checked at commit dd494b5). At 2x every output's four weights are products of
     # 1/4 and 3/4, so the codes are combined first down the rows (weights 1 and 3, at half the
     # width), then along them: every intermediate is an integer below 2^12, exact in float32,
     # and the one rounding, the scaling, is done by a power of two less (kd / 16), which
-    # rounds the same way. Bit-equal to taking the four taps at each output in float, 1.8x
-    # faster on a Zen 3 (tests/runtime/test_reformat.py; docs/performance.md, stop 58).
-    # A pixel's channels 16 at a time by ``simd``'s primitives, the rest one at a time
-    # (docs/performance.md, stop 75)
+    # rounds the same way. Bit-equal to taking the four taps at each output in float
+    # (tests/runtime/test_reformat.py), and faster (measured at commit 53b8086). A pixel's
+    # channels 16 at a time by ``simd``'s primitives, the rest one at a time (commit 9ef4435)
     h, w, cd = dec.shape
     H, W, cn = 2 * h, 2 * w, nat.shape[2] // (phases * phases)
     C = cd + cn

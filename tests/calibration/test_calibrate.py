@@ -19,8 +19,8 @@ from jnds_deploy.export.convert import report_validation
 from jnds_deploy.io import open_sequence
 from jnds_deploy.layout import head_kind
 from jnds_deploy.metrics import psnr
-from jnds_deploy.runtime.head import HEAD, LAYOUT_KEY, HeadLayout
-from jnds_deploy.runtime.reformat import BLOCK_KEY, INPUTS, INPUTS_KEY, BlockLayout, InputsLayout
+from jnds_deploy.artifacts import (BLOCK_KEY, HEAD, HEAD_KEY, INPUTS, INPUTS_KEY, Block, BlockLayout, Edge, HeadLayout,
+                                   InputsLayout)
 from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
 
 from ..conftest import SAMPLE
@@ -72,12 +72,12 @@ def test_every_convolution_is_quantized(calibrated):
         assert len(heads) == (name == "upsample")
         assert all(h.input[1] not in prod for h in heads)  # float weights
         if name == "network":
-            assert HEAD_NODE not in float_nodes and g.int8["qat"].head.startswith("u8")
+            assert HEAD_NODE not in float_nodes and g.int8["qat"].head == Edge.U8
             out = {o.name: o for o in model.graph.output}
             assert out[HEAD].type.tensor_type.elem_type == onnx.TensorProto.UINT8
             assert "diffuse.spatial" not in out and prod[HEAD].op_type == "Transpose"
             props = {p.key: p.value for p in model.metadata_props}
-            assert HeadLayout.from_json(props[LAYOUT_KEY]).channels % 16 == 0
+            assert HeadLayout.from_json(props[HEAD_KEY]).channels % 16 == 0
             # its input: the u8 packed preprocessing, channels last, a multiple of 8
             # and an entry per cut at an upsampling + concatenation (calibration.block), with
             # u8 defaults: each decoder block's, then the output block's
@@ -89,7 +89,7 @@ def test_every_convolution_is_quantized(calibrated):
             defaults = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer if i.name in entries}
             assert {k: v.dtype for k, v in defaults.items()} == {e: np.uint8 for e in entries}
             assert layout.internal <= set(out) and HEAD in dict(layout.segments)[entries[-1]]
-            assert g.int8["qat"].block.startswith("between the graph's runs")
+            assert g.int8["qat"].block == Block.CUT
             assert not ops["Resize"] and not ops["Concat"]
             assert InputsLayout.from_json(props[INPUTS_KEY]).channels % 8 == 0
             project = next(n for n in model.graph.node if n.name == PROJECT)
@@ -122,10 +122,12 @@ def test_a_quantized_pool_rewritten_as_a_depthwise_convolution_pools_the_same(tm
     graph = helper.make_graph(nodes, "g", [helper.make_tensor_value_info("x", TensorProto.UINT8, [1, 16, None, None])],
                               [helper.make_tensor_value_info("y", TensorProto.UINT8, None)], [scale, zp])
     path = tmp_path / "pool.onnx"
-    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)]), path)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    onnx.save(model, path)
     x = np.random.default_rng(0).integers(0, 256, (1, 16, 36, 64), dtype=np.uint8)
     before = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"x": x})[0]
-    assert pools_as_convolutions(path) == 1
+    assert pools_as_convolutions(model) == 1
+    onnx.save(model, path)
     opts = ort.SessionOptions()
     opts.optimized_model_filepath = str(tmp_path / "optimized.onnx")
     after = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"]).run(None, {"x": x})[0]
@@ -296,7 +298,7 @@ def test_the_cut_graph_computes_what_the_whole_graph_did(calibrated, tmp_path, m
     d, manifest, _ = calibrated
     whole = tmp_path / "whole"
     shutil.copytree(d, whole)
-    monkeypatch.setattr(quantize, "cut_blocks", lambda src, dst, multiple: None)
+    monkeypatch.setattr(quantize, "cut_blocks", lambda model, multiple, label: model)
     calibrate(CalibrateConfig(artifacts=str(whole), data=(str(SAMPLE),), method="qat", frames=3), log=lambda s: None)
     file = manifest.graphs["network"].int8["qat"].file
     _check_concats(onnx.load(whole / file))  # the cut graph has none left
@@ -314,7 +316,7 @@ def test_the_cut_graph_computes_what_the_whole_graph_did(calibrated, tmp_path, m
             else:
                 np.testing.assert_array_equal(got[name], want[name], err_msg=name)
     with pytest.raises(CalibrationError, match="Resize"):
-        cut_blocks(d / file, tmp_path / "again.onnx", manifest.pad_multiple)
+        cut_blocks(onnx.load(d / file), manifest.pad_multiple)
 
 
 def test_coded_level_heads_give_the_outputs_their_nodes_gave(calibrated, tmp_path, monkeypatch):
@@ -326,15 +328,15 @@ def test_coded_level_heads_give_the_outputs_their_nodes_gave(calibrated, tmp_pat
     import onnxruntime as ort
 
     import jnds_deploy.calibration.quantize as quantize
-    from jnds_deploy.runtime.head import LEVELS_KEY
+    from jnds_deploy.artifacts import LEVELS_KEY
     from jnds_deploy.runtime.network import Edges, quiet, run_network
 
     d, manifest, _ = calibrated
     entry = manifest.graphs["network"].int8["qat"]
-    assert entry.levels.startswith("u8")
+    assert entry.levels == Edge.U8
     plain = tmp_path / "plain"
     shutil.copytree(d, plain)
-    monkeypatch.setattr(quantize, "code_levels", lambda src, dst: {})
+    monkeypatch.setattr(quantize, "code_levels", lambda model, label: model)
     calibrate(CalibrateConfig(artifacts=str(plain), data=(str(SAMPLE),), method="qat", frames=3), log=lambda s: None)
     feeds = collect_feeds(d, [SAMPLE], frames=2)["network"]
     for file in [entry.file] + [v.file for v in entry.variants.values()]:
@@ -466,7 +468,7 @@ def _calibrated_copy(src, sequence, tmp_path):
 
 def test_a_network_with_the_guide_albedo_calibrates_and_packs_it(tiny_artifacts_guided, guided_sample, tmp_path):
     """int8 graphs of a network that reads the guide albedo: its u8 input holds the guide's
-    channels too (runtime.reformat.InputsLayout.guided), they pass validation against PyTorch,
+    channels too (artifacts.InputsLayout.guided), they pass validation against PyTorch,
     and the int8 pipeline stays close to fp32 on a sequence with the layer, where the guide
     moves the output."""
     d, props = _calibrated_copy(tiny_artifacts_guided[0], guided_sample, tmp_path)

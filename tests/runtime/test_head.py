@@ -9,8 +9,9 @@ import torch.nn.functional as TF
 from jnds_deploy import model as M
 from jnds_deploy.errors import ArtifactError
 from jnds_deploy.runtime import filters as F
-from jnds_deploy.runtime.head import Coded, Head, HeadLayout
-from jnds_deploy.runtime.reformat import InputsLayout, pack_inputs
+from jnds_deploy.artifacts import HeadLayout, InputsLayout
+from jnds_deploy.runtime.head import Coded, Head
+from jnds_deploy.runtime.reformat import pack_inputs
 
 PARTS = (("diffuse.spatial", 9), ("diffuse.temporal", 9), ("diffuse.blend", 1), ("diffuse.up", 9),
          ("diffuse.up_blend", 1), ("aux.spatial", 9), ("aux.temporal", 9), ("aux.blend", 1), ("features", 3))

@@ -2,13 +2,14 @@
 import numpy as np
 import pytest
 
+from jnds_deploy.artifacts import Cut
 from jnds_deploy.runtime import reformat
 
 
 def _taps_in_float(dec, nat, sd, zd, sn, zn, sb, zb):
     """The bilinear 2x upsampling (half-pixel centres, edge taps clamped) with each output's
     four taps weighted in float32, then requantized, and the skip requantized: the pass as it
-    was before stop 58."""
+    was before commit 53b8086."""
     f = np.float32
     h, w, cd = dec.shape
     H, W = 2 * h, 2 * w
@@ -55,8 +56,8 @@ def test_block_input_does_the_depth_to_space_of_a_skip_in_phases():
     # (1, 9, 13, 64): pixel (2y + py, 2x + px)'s channel c at (2py + px) 16 + c
     phased = np.ascontiguousarray(nat.reshape(1, 9, 2, 13, 2, 16).transpose(0, 1, 3, 2, 4, 5).reshape(1, 9, 13, 64))
     q = dict(up_q=(0.0371, 3), skip_q=(0.0213, 5), entry_q=(0.0297, 7))
-    plain = reformat.Cut("block.1", "u", "s", stage="output_block", **q)
-    cut = reformat.Cut("block.1", "u", "s", stage="output_block", skip_phases=2, **q)
+    plain = Cut("block.1", "u", "s", stage="output_block", **q)
+    cut = Cut("block.1", "u", "s", stage="output_block", skip_phases=2, **q)
     np.testing.assert_array_equal(reformat.block_input(dec, phased, cut), reformat.block_input(dec, nat, plain))
     with pytest.raises(reformat.ArtifactError, match="do not fit"):
         reformat.block_input(dec, nat, cut)

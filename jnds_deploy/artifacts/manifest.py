@@ -1,10 +1,11 @@
-"""The artifact directory's ``manifest.json``: the one owner of its format.
+"""The artifact directory's ``manifest.json``: ``Manifest`` reads, validates and writes it.
 
 ``jnds export`` writes a directory of ONNX graphs and a manifest that says everything a
 runtime needs; ``jnds calibrate`` adds int8 graphs to it; the runtime, ``jnds run`` and
 the benchmarks read it. All of them go through ``Manifest``: ``Manifest.load`` validates
-a directory's manifest, ``save`` writes it atomically, ``graph`` says which file serves a
-graph at a precision, with which pruned variants.
+a directory's manifest, ``save`` writes it atomically, ``choose`` says which file serves
+a graph at a precision, with which pruned variants. docs/artifact-format.md describes
+every field.
 
 Graphs (``export/__init__`` describes their inputs and outputs):
 - ``network``: input block + feature extractor + output block at native resolution;
@@ -12,9 +13,10 @@ Graphs (``export/__init__`` describes their inputs and outputs):
 Each has fp32 ``file``, pruned ``variants`` (``export.prune``: without a filter path's
 kernels or the upsample features) and per calibration method an ``int8`` entry with its
 own variants. ``int8_method`` is the calibration the runtime's int8 uses by default (the
-last calibrated). An int8 entry's ``inputs`` and ``head`` say whether its network graph
-takes and gives float NCHW tensors, as the fp32 graphs do, or u8 channels-last ones whose
-layout is in the graph's metadata (``runtime.network`` runs either from float feeds).
+last calibrated). An int8 entry's ``inputs``, ``head``, ``levels`` (``Edge``) and
+``block`` (``Block``) say whether its network graph takes and gives float NCHW tensors,
+as the fp32 graphs do, or u8 ones whose layouts are in the graph's metadata
+(``artifacts.layouts``; ``runtime.network`` runs either from float feeds).
 """
 from __future__ import annotations
 
@@ -22,13 +24,44 @@ import hashlib
 import json
 import os
 from dataclasses import asdict, dataclass, field
+from enum import Enum
 from pathlib import Path
 
-from .errors import ArtifactError
-from .layout import UPSAMPLE_ROOTS
+from ..errors import ArtifactError
+from ..layout import UPSAMPLE_ROOTS
 
-FORMAT = "jnds-artifacts/2"  # 2: the upsample kernel in phase layout at native resolution
+# 2: the upsample kernel in phase layout at native resolution; 3: an int8 entry's
+# ``inputs``, ``head``, ``levels`` and ``block`` as the values of ``Edge`` and ``Block``
+# (2 wrote a sentence; ``_from_v2`` reads them)
+FORMAT = "jnds-artifacts/3"
+READABLE = (FORMAT, "jnds-artifacts/2")
 MANIFEST = "manifest.json"
+ACTIVATION_TYPES = ("u8", "s8")
+
+
+class Edge(str, Enum):
+    """How an int8 network graph gives one of its edges: as the fp32 graph does (float
+    tensors), or as u8 tensors whose layout is in the graph's metadata
+    (``artifacts.layouts``)."""
+
+    FLOAT = "float"
+    U8 = "u8"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+class Block(str, Enum):
+    """Where an int8 network graph's upsamplings and concatenations (the decoder blocks',
+    the output block's) run: in the graph, or between runs of its segments, where the
+    runtime makes each cut's entry (``artifacts.layouts.BlockLayout``)."""
+
+    GRAPH = "graph"
+    CUT = "cut"
+
+    def __str__(self) -> str:
+        return self.value
+
 
 # what the runtime must do around the graphs, written for a reader of the manifest
 DESCRIPTION = {
@@ -77,20 +110,44 @@ class Variant:
 class Int8Graph:
     file: str
     sha256: str
-    activation_type: str
-    weights: str
+    activation_type: str  # ACTIVATION_TYPES
+    weights: str  # how the weights are quantized, for a reader
     op_types: list[str]
     float_nodes: list[str]
     ranges: str  # calibration.<method>.json: scale and zero point of every quantized tensor
     variants: dict[str, Variant] = field(default_factory=dict)
-    head: str = "float"  # the output block's head: float outputs, or one u8 tensor (runtime.head)
-    # current and history (and the guide albedo) float, or one u8 tensor preprocessed (runtime.reformat)
-    inputs: str = "float"
-    # the upsamplings and concatenations (decoder blocks, output block): in the graph, or
-    # between runs of it (calibration.block, runtime.reformat.block_input)
-    block: str = "in the graph"
-    # the feature extractor's level heads: float outputs, or one u8 tensor each (calibration.head.code_levels)
-    levels: str = "float"
+    # the output block's head: float outputs, or one u8 tensor ``head`` (HEAD_KEY, calibration.head)
+    head: Edge = Edge.FLOAT
+    # current and history (and the guide albedo): float, or one u8 tensor ``inputs``
+    # preprocessed (INPUTS_KEY, calibration.inputs)
+    inputs: Edge = Edge.FLOAT
+    # the upsamplings and concatenations: in the graph, or cut (BLOCK_KEY, calibration.block)
+    block: Block = Block.GRAPH
+    # the feature extractor's level heads: float outputs, or one u8 tensor each (LEVELS_KEY,
+    # calibration.head.code_levels)
+    levels: Edge = Edge.FLOAT
+
+    @classmethod
+    def from_dict(cls, d: dict, where: str) -> Int8Graph:
+        """The entry from its JSON object; ``where`` names it in an error."""
+        d = dict(d)
+        for key, kind in (("head", Edge), ("inputs", Edge), ("levels", Edge), ("block", Block)):
+            if key in d:
+                d[key] = _member(kind, d[key], f"{where}.{key}")
+        if d.get("activation_type") not in ACTIVATION_TYPES:
+            raise ArtifactError(f"{where}.activation_type is {d.get('activation_type')!r}, expected one of "
+                                f"{', '.join(map(repr, ACTIVATION_TYPES))}")
+        variants = {k: Variant(**v) for k, v in d.pop("variants", {}).items()}
+        return cls(**d, variants=variants)
+
+
+def _member(kind: type[Enum], value, where: str):
+    """``kind(value)``, or ArtifactError naming the field, the value and the expected ones."""
+    try:
+        return kind(value)
+    except ValueError:
+        raise ArtifactError(f"{where} is {value!r}, expected one of "
+                            f"{', '.join(repr(m.value) for m in kind)}") from None
 
 
 @dataclass
@@ -178,14 +235,16 @@ class Manifest:
             data = json.loads(path.read_text())
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise ArtifactError(f"{path}: unreadable ({exc})") from exc
-        if not isinstance(data, dict) or data.get("format") != FORMAT:
+        if not isinstance(data, dict) or data.get("format") not in READABLE:
             got = data.get("format") if isinstance(data, dict) else None
             raise ArtifactError(f"{path}: format {got!r}, expected {FORMAT!r}; "
                                 "re-run `jnds export` (and `jnds calibrate`) with this version")
         try:
             manifest = cls.from_dict(data)
-        except (KeyError, TypeError) as exc:
+        except (KeyError, TypeError, AttributeError) as exc:
             raise ArtifactError(f"{path}: malformed manifest ({exc!r})") from exc
+        except ArtifactError as exc:
+            raise ArtifactError(f"{path}: {exc}") from exc
         if manifest.upsample_root not in UPSAMPLE_ROOTS:
             raise ArtifactError(f"{path}: model_config.upsample_root is {manifest.upsample_root!r}, "
                                 f"expected one of {', '.join(map(str, UPSAMPLE_ROOTS))}")
@@ -205,21 +264,30 @@ class Manifest:
 
     @classmethod
     def from_dict(cls, data: dict) -> Manifest:
+        """The manifest from its JSON object, in any ``READABLE`` format (read as
+        ``FORMAT``: ``save`` writes it so); ArtifactError names a field of the wrong type."""
+        if data["format"] not in READABLE:
+            raise ArtifactError(f"format {data['format']!r}, expected {FORMAT!r}")
+        if data["format"] != FORMAT:
+            data = _from_v2(data)
+
         def variants(d):
             return {k: Variant(**v) for k, v in d.get("variants", {}).items()}
 
         graphs = {}
         for name, g in data["graphs"].items():
-            int8 = {m: Int8Graph(**{**e, "variants": variants(e)}) for m, e in g.get("int8", {}).items()}
+            int8 = {m: Int8Graph.from_dict(e, f"graphs.{name}.int8.{m}") for m, e in g.get("int8", {}).items()}
             graphs[name] = Graph(file=g["file"], inputs=g.get("inputs", {}), outputs=g.get("outputs", {}),
                                  precision=g.get("precision", "fp32"), resolution=g.get("resolution", "native"),
                                  sha256=g.get("sha256", ""), variants=variants(g), int8=int8)
+        method = data.get("int8_method")
+        if method is not None and not any(method in g.int8 for g in graphs.values()):
+            raise ArtifactError(f"int8_method is {method!r}, and no graph has an int8 entry of that name")
         return cls(checkpoint=data["checkpoint"], model_config=data["model_config"],
                    pad_multiple=int(data["pad_multiple"]), graphs=graphs,
                    validation=data.get("validation", []), qat_ranges=data.get("qat_ranges", "qat_ranges.json"),
-                   int8_method=data.get("int8_method"), int8_validation=data.get("int8_validation", {}),
-                   format=data["format"], package_version=data.get("package_version", ""),
-                   upsample_kernel=data.get("upsample_kernel"))
+                   int8_method=method, int8_validation=data.get("int8_validation", {}),
+                   package_version=data.get("package_version", ""), upsample_kernel=data.get("upsample_kernel"))
 
     def to_dict(self) -> dict:
         return {"format": self.format, "package_version": self.package_version, "checkpoint": self.checkpoint,
@@ -253,6 +321,34 @@ class Manifest:
             if (root / v.file).is_file():
                 found[frozenset(v.drops)] = root / v.file
         return GraphChoice(root / file, precision, found)
+
+
+def _from_v2(data: dict) -> dict:
+    """A ``jnds-artifacts/2`` manifest as ``FORMAT``'s: its int8 entries' ``inputs``,
+    ``head``, ``levels`` and ``block`` were sentences, "float" or "u8, ..." and "in the
+    graph" or "between ...", and are ``Edge`` and ``Block`` values now."""
+
+    def edge(v):
+        return Edge.U8.value if isinstance(v, str) and v.startswith("u8") else v
+
+    def block(v):
+        if v == "in the graph":
+            return Block.GRAPH.value
+        return Block.CUT.value if isinstance(v, str) and v.startswith("between") else v
+
+    graphs = {}
+    for name, g in data["graphs"].items():
+        int8 = {}
+        for m, e in g.get("int8", {}).items():
+            e = dict(e)
+            for key in ("inputs", "head", "levels"):
+                if key in e:
+                    e[key] = edge(e[key])
+            if "block" in e:
+                e["block"] = block(e["block"])
+            int8[m] = e
+        graphs[name] = {**g, "int8": int8}
+    return {**data, "graphs": graphs, "format": FORMAT}
 
 
 def write_json(path: Path, data) -> None:
