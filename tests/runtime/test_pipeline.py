@@ -129,7 +129,7 @@ def test_jnds_run_writes_frames_and_report(artifacts, tmp_path):
                            "--input", str(SAMPLE), "--output", str(out), "--precision", "fp32", "--quiet"],
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
-    assert "against the reference: PSNR" in proc.stdout
+    assert "JNDS: PSNR" in proc.stdout and "changed pixels" in proc.stdout
     assert "| network |" in proc.stdout and "| **total** |" in proc.stdout
     report = json.loads((out / "run.json").read_text())
     assert report["frames"] == 8 and len(report["frame_ms"]) == 8 and report["output_size"] == [320, 180]

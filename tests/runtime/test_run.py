@@ -17,15 +17,22 @@ def test_run_writes_a_contact_sheet_of_first_middle_last_frames(tiny_artifacts, 
     report = run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), SAMPLE, tmp_path,
                           progress=False)
     sheet = cv2.imread(report["contact_sheet"])
-    columns = 4 if importlib.util.find_spec("pyoidn") else 3  # input, (OIDN,) JNDS, reference
+    # input, (OIDN,) JNDS, reference, changed pixels
+    columns = 5 if importlib.util.find_spec("pyoidn") else 4
     w, h = 320, 180
     assert sheet.shape == (3 * (h + contact_sheet.LABEL_H), columns * (w + contact_sheet.GAP) - contact_sheet.GAP, 3)
     # the JNDS column of the last row is frame 7's output through the display mapping
     out = read_exr(tmp_path / "0007.exr")
     rgb = np.stack([out[f"color.{c}"] for c in "RGB"], -1)
-    x0 = (columns - 2) * (w + contact_sheet.GAP)
+    x0 = (columns - 3) * (w + contact_sheet.GAP)
     tile = sheet[-h:, x0:x0 + w, ::-1]
     np.testing.assert_allclose(tile, to_ldr(rgb) * 255, atol=1.0)
+    # the scores against the reference: the output's, OIDN's where installed, and both
+    # over the changed pixels (none on frame 0, some on the orbit's later frames)
+    m = report["metrics"]
+    assert 0 < m["changed_fraction"] < 0.5 and np.isfinite(m["changed_psnr"])
+    if importlib.util.find_spec("pyoidn"):
+        assert report["baseline"]["changed_fraction"] == m["changed_fraction"]
 
 
 def test_sheet_frames():
