@@ -3,9 +3,9 @@
 # `device` tool), where nothing can be downloaded: Mitsuba, Dr.Jit, OpenEXR and
 # flip-evaluator travel in .gpu/ (git-ignored; how to make it: docs/gpu-training.md).
 #
-#   bash scripts/gpu_train.sh start OUT SECONDS   render data, start the runs in the
+#   bash tools/gpu_train.sh start OUT SECONDS   render data, start the runs in the
 #                                                  background, copy results to OUT after SECONDS
-#   bash scripts/gpu_train.sh wait OUT SECONDS    same machine, later call: wait, copy again
+#   bash tools/gpu_train.sh wait OUT SECONDS    same machine, later call: wait, copy again
 #
 # The runs go on between two calls while the machine is held; each call copies every
 # run's checkpoint.pt and log.jsonl to OUT/<run>/ so nothing is lost if it goes back.

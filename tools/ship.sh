@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
-# Ship a scored run: the mechanical half of what shipping `gen21` took (commit af15bbe), in the
+# Ship a scored run: the mechanical half of shipping a model (as in commit af15bbe), in the
 # order later steps need. The checkpoint and its model card first, then the graphs `make demo`
 # makes, then every committed report that depends on the model. Each step leaves a stamp in
 # RUN/ship/ and is skipped once stamped, so the script goes on where a session ended:
-#   bash scripts/ship.sh runs/gen39 gen39 zen5      # TAG names the timing and memory reports
+#   bash tools/ship.sh runs/NAME NAME zen5      # TAG names the timing and memory reports
 # What it does not do: the model card's narrative (why this run, its rule and verdict), the
 # README's headline figures and docs/model-gap.md; write those from the reports. Stop any
 # training first: the timing and memory reports want the cores to themselves.
@@ -19,7 +19,7 @@ step() { [ -f "$S/$1.done" ] && return 0; "${@:2}"; touch "$S/$1.done"; }
 step previous cp jnds_deploy/checkpoints/jnds.pt jnds_deploy/checkpoints/MODEL_CARD.md "$S/"
 # a fine-tune carries the outgoing card's runs as its lineage; a run from scratch has none
 INIT=$($PY -c 'import json, sys; print(json.load(open(sys.argv[1]))["train"]["init"] or "")' "$RUN/config.json")
-step card $PY experiments/model_card.py --run "$RUN" --model "$NAME" --eval "$RUN/eval.json" \
+step card $PY -m tools.model_card --run "$RUN" --model "$NAME" --eval "$RUN/eval.json" \
     ${INIT:+--lineage "$S/MODEL_CARD.md"} --gap docs/model-gap.md
 step export $J export --out out/artifacts
 step calibrate $J calibrate --artifacts out/artifacts --data samples/orbit-160x90 --method qat
@@ -28,14 +28,10 @@ step model_eval $J evaluate --checkpoint jnds_deploy/checkpoints/jnds.pt "$S/pre
     --out $R/model_eval.json --sheet $R/model_eval.jpg
 step model_eval_holdout2 $J evaluate --checkpoint jnds_deploy/checkpoints/jnds.pt "$S/previous.pt" \
     --data data/holdout2 --baselines bicubic oidn-balanced --threads 2 \
-    --out $R/model_eval_holdout2.json --sheet $R/model_eval_holdout2.jpg
-step int8_gap $PY benchmarks/exposure_sweep.py --artifacts out/artifacts --input data/val data/test \
-    --stops 0 --out $R/int8_gap
-step int8_gap_holdout $PY benchmarks/exposure_sweep.py --artifacts out/artifacts --input data/holdout \
-    --stops 0 --out $R/int8_gap_holdout
-step exposure_sweep $PY benchmarks/exposure_sweep.py --artifacts out/artifacts \
+    --out $R/model_eval_holdout2.json
+step exposure_sweep $PY -m benchmarks.exposure_sweep --artifacts out/artifacts \
     --input data/val/cycles-darkroom-dolly-6001 data/val/procedural-orbit-2002 --out $R/exposure_sweep
-step calibration $PY benchmarks/calibration.py --data data/val
-step tradeoff $PY benchmarks/tradeoff.py --artifacts out/artifacts --data data/val
-step timing $PY benchmarks/timing.py --artifacts out/artifacts --out $R/timing-$TAG
-step memory $PY benchmarks/memory.py --out $R/memory-$TAG --runs 5
+step calibration $PY -m benchmarks.calibration --data data/val
+step tradeoff $PY -m benchmarks.tradeoff --artifacts out/artifacts --data data/val
+step timing $PY -m benchmarks.timing --artifacts out/artifacts --out $R/timing-$TAG
+step memory $PY -m benchmarks.memory --out $R/memory-$TAG --runs 5

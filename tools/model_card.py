@@ -1,17 +1,17 @@
 """Write the shipped checkpoint and its model card from a finished (or stopped) run.
 
-    python experiments/model_card.py --run runs/small --eval benchmarks/results/model_eval.json
-    python experiments/model_card.py --run runs/ft-feature-long --base-run runs/small runs/ft-feature \
+    python -m tools.model_card --run runs/small --eval benchmarks/results/model_eval.json
+    python -m tools.model_card --run runs/ft-feature-long --base-run runs/small runs/ft-feature \
         --model ft-feature-long --compare runs/ft-l1 runs/ft-feature --eval benchmarks/results/model_eval.json
-    python experiments/model_card.py --run runs/gpu-mixed-from-l1 --base-run runs/small \
+    python -m tools.model_card --run runs/gpu-mixed-from-l1 --base-run runs/small \
         --compare runs/gpu-feature runs/gpu-mixed runs/gpu-mixed-from-l1 --limitations L.md --gap G.md
-    python experiments/model_card.py --run runs/gen3 --lineage HEAD:jnds_deploy/checkpoints/MODEL_CARD.md \
-        --eval benchmarks/results/model_eval.json --model gen3 --gap docs/model-gap.md
+    python -m tools.model_card --run runs/NAME --lineage HEAD:jnds_deploy/checkpoints/MODEL_CARD.md \
+        --eval benchmarks/results/model_eval.json --model NAME --gap docs/model-gap.md
 
 The run directories (``runs/``, not tracked in git) are the ones training wrote
 (``jnds train --run DIR``): ``checkpoint.pt`` and ``log.jsonl`` in each.
 
-A run trained with ``--device cuda`` (``scripts/gpu_train.sh``) is described as trained
+A run trained with ``--device cuda`` (``tools/gpu_train.sh``) is described as trained
 on ``--gpu`` with the data that script renders.
 
 A run started with ``jnds train --init`` (fine-tuning) is described with the runs it
@@ -35,12 +35,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import ROOT, arguments, cpu_model, write_text  # noqa: E402
-from jnds_deploy.checkpoint import read_checkpoint, ship_checkpoint  # noqa: E402
-from jnds_deploy.model import ModelConfig, count_macs  # noqa: E402
-from jnds_deploy.training.evaluate import markdown_sets, markdown_table  # noqa: E402
+from benchmarks.common import ROOT, arguments, cpu_model, write_text
+from jnds_deploy.checkpoint import read_checkpoint, ship_checkpoint
+from jnds_deploy.model import ModelConfig, count_macs
+from jnds_deploy.training.evaluate import markdown_sets, markdown_table
 
 PKG = ROOT / "jnds_deploy" / "checkpoints"
 
@@ -56,7 +54,7 @@ def main() -> None:
     ap.add_argument("--compare", nargs="*", default=[], help="runs to tabulate with the training settings they differ in")
     ap.add_argument("--cpu", default=cpu_model(), help="processor the run trained on (default: this one)")
     ap.add_argument("--gpu", default="one NVIDIA H100 80GB HBM3 of a lent machine, shared by the 3 runs of "
-                    "scripts/gpu_train.sh", help="the GPU a --device cuda run trained on")
+                    "tools/gpu_train.sh", help="the GPU a --device cuda run trained on")
     ap.add_argument("--limitations", default=None, help="a markdown file of known limitations to include")
     ap.add_argument("--gap", default=None, help="a markdown file: where it falls short of OIDN and why")
     ap.add_argument("--lineage", default=None,
@@ -156,7 +154,7 @@ runs before 2026-11-23 had no geometric history rejection):
 
 {history}
 
-This card: `python experiments/model_card.py {" ".join(shlex.quote(a) for a in sys.argv[1:])}`.
+This card: `python -m tools.model_card {" ".join(shlex.quote(a) for a in sys.argv[1:])}`.
 """
     write_text(out_dir / "MODEL_CARD.md", text)
     print(f"wrote {out} ({out.stat().st_size / 1e3:.0f} kB) and {out_dir / 'MODEL_CARD.md'}")
@@ -218,7 +216,7 @@ def _training_lines(run: Path, ckpt: dict, log: list[dict], cpu: str, gpu: str, 
     if on_gpu:
         cmd += f" --device {tcfg['device']}"
     where = f"one GPU ({gpu})" if on_gpu else f"2 CPU cores ({cpu})"
-    data_line = ("\n- Data: rendered on that machine by `scripts/gpu_train.sh` (`jnds dataset --train-sequences "
+    data_line = ("\n- Data: rendered on that machine by `tools/gpu_train.sh` (`jnds dataset --train-sequences "
                  "40 --variant cuda_ad_rgb`): the 24 training sequences and 16 more seeds (1024-1039), "
                  "same sizes and spp; validation inside the run on its own render of data/val."
                  if on_gpu else _data_line(ckpt.get("train_sequences"), data_command))

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Make .gpu/: what scripts/gpu_train.sh needs on a lent GPU machine that cannot download
+# Make .gpu/: what tools/gpu_train.sh needs on a lent GPU machine that cannot download
 # anything (Python 3.12 there): Mitsuba + Dr.Jit cut down to the cuda_ad_rgb variant and
 # the plugins our scenes load (the whole wheel is over the 64 MiB the device tool
 # carries), and the OpenEXR and flip-evaluator wheels. Run here, where pip reaches PyPI.
