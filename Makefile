@@ -10,8 +10,8 @@ STAMP  := $(VENV)/.installed-$(subst $(comma),-,$(EXTRAS))
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml scripts/setup.sh
-	EXTRAS=$(EXTRAS) bash scripts/setup.sh
+$(STAMP): pyproject.toml tools/setup.sh
+	EXTRAS=$(EXTRAS) bash tools/setup.sh
 	touch $@
 
 # validate the bundled sample, export the shipped checkpoint, calibrate int8 graphs with

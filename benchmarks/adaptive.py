@@ -1,6 +1,6 @@
 """Adaptive execution: run time with and without it in one run, and the error it changes.
 
-    .venv/bin/python benchmarks/adaptive.py [--artifacts out/artifacts] [--frames 5] [--out benchmarks/results]
+    python -m benchmarks.adaptive [--artifacts out/artifacts] [--frames 5] [--out benchmarks/results]
 
 Renders (once, resumable) a scene for each skip into data/adaptive/: a sunlit diffuse-only
 scene (no specular signal), a metal-only scene (no diffuse signal), a static camera, a
@@ -10,8 +10,8 @@ its own history: ``full`` (adaptive off), ``exact`` (the default: the skips that
 the output unchanged: pruned network variants + skipped filter paths, history used
 without resampling on a static camera) and ``adaptive`` (exact + empty-tile skipping,
 which passes background tiles through; ``PipelineConfig.tile_skip``, off by default). At each sequence's own size: FLIP and
-PSNR against the reference, max |output - full output|. At 1280x720 -> 2560x1440 (the
-same frames resized): ms per frame. Also at 1280x720: denoise only (``--native``, no
+PSNR against the reference, max |output - full output|. At --size (1280x720 -> 2560x1440; the
+same frames resized): ms per frame. Also at --size: denoise only (``--native``, no
 upsample block) against the full 2x pipeline. The process is tuned as `jnds run` tunes
 its own (``common.tune_process``). Writes benchmarks/results/adaptive.md/json.
 """
@@ -23,15 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import (RESULTS, ROOT, CpuSteal, arguments, cpu_line, machine_info, machine_line, pipeline,  # noqa: E402
-                               resized_frames, run_frames, tune_process, write_report)
-from jnds_deploy.artifacts import Manifest  # noqa: E402
-from jnds_deploy.errors import ArtifactError  # noqa: E402
-from jnds_deploy.io import open_sequence  # noqa: E402
-from jnds_deploy.metrics import flip, psnr  # noqa: E402
-from jnds_deploy.runtime import Pipeline  # noqa: E402
+from benchmarks.common import (RESULTS, ROOT, CpuSteal, arguments, command_line, cpu_line, machine_info, machine_line,
+                               parse, parse_size, pipeline, resized_frames, run_frames, tune_process, write_report)
+from jnds_deploy.artifacts import Manifest
+from jnds_deploy.errors import ArtifactError
+from jnds_deploy.io import open_sequence
+from jnds_deploy.metrics import flip, psnr
+from jnds_deploy.runtime import Pipeline
 
 SCENES = (  # scene, camera, seed, what it allows
     ("sunlit", "orbit", 3004, "diffuse only (no specular signal)"),
@@ -92,7 +90,7 @@ def interleaved_ms(pipes: dict[str, Pipeline], data: list[tuple[dict, bool]]) ->
     return {k: [result.ms for result, _ in done] for k, done in run_frames(pipes, data).items()}
 
 
-def timing_run(artifacts: str, path: Path, frames: int, size=(1280, 720)) -> dict:
+def timing_run(artifacts: str, path: Path, frames: int, size: tuple[int, int]) -> dict:
     """ms per frame at ``size`` for the three pipelines, interleaved frame by frame."""
     data = resized_frames(open_sequence(path), size)[:frames]
     stages = interleaved_ms(pipelines(artifacts), data)
@@ -105,7 +103,7 @@ def timing_run(artifacts: str, path: Path, frames: int, size=(1280, 720)) -> dic
                                 for k, v in stages.items()}}
 
 
-def native_run(artifacts: str, path: Path, frames: int, size=(1280, 720)) -> dict:
+def native_run(artifacts: str, path: Path, frames: int, size: tuple[int, int]) -> dict:
     data = resized_frames(open_sequence(path), size)[:frames]
     pipes = {"2x": pipeline(artifacts, precision="int8"),
              "native": pipeline(artifacts, precision="int8", native_output=True)}
@@ -122,38 +120,45 @@ def ensure_artifacts(artifacts: Path) -> None:
             return
     except ArtifactError:
         pass
-    jnds = str(ROOT / ".venv" / "bin" / "jnds")
-    subprocess.run([jnds, "export", "--out", str(artifacts)], check=True, stdout=subprocess.DEVNULL)
-    subprocess.run([jnds, "calibrate", "--artifacts", str(artifacts), "--data", str(ROOT / "samples" / "orbit-160x90"),
+    jnds = [sys.executable, "-m", "jnds_deploy"]
+    subprocess.run([*jnds, "export", "--out", str(artifacts)], check=True, stdout=subprocess.DEVNULL)
+    subprocess.run([*jnds, "calibrate", "--artifacts", str(artifacts), "--data", str(ROOT / "samples" / "orbit-160x90"),
                     "--method", "qat"], check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
 def main() -> int:
-    ap = arguments(__doc__, RESULTS, "directory of adaptive.md and adaptive.json")
+    ap = arguments(__doc__, RESULTS, "directory of adaptive.md and adaptive.json",
+                   smoke={"frames": 2, "size": "160x96"})
     ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
-    ap.add_argument("--data", default=str(ROOT / "data"))
-    ap.add_argument("--frames", type=int, default=5, help="frames per sequence timed at 1280x720")
-    args = ap.parse_args()
+    ap.add_argument("--data", default=str(ROOT / "data"), help="renders the scenes into DATA/adaptive; DATA/val")
+    ap.add_argument("--frames", type=int, default=5, help="frames per sequence timed at --size")
+    ap.add_argument("--size", default="1280x720", help="native size the timed frames are resized to")
+    args = parse(ap)
+    size = parse_size(args.size)
     tune_process()
     ensure_artifacts(Path(args.artifacts))
-    scenes = ensure_scenes(Path(args.data) / "adaptive")
-    val = sorted(p for p in (Path(args.data) / "val").iterdir() if (p / "sequence.json").is_file())
+    if args.smoke:  # the bundled sample alone, nothing rendered
+        scenes, val = [(ROOT / "samples" / "orbit-160x90", "the bundled sample")], []
+    else:
+        scenes = ensure_scenes(Path(args.data) / "adaptive")
+        val = sorted(p for p in (Path(args.data) / "val").iterdir() if (p / "sequence.json").is_file())
     seqs = scenes + [(p, "validation") for p in val]
 
     steal = CpuSteal()
     manifest = Manifest.load(args.artifacts)
     upsample = ("one fixed upsample kernel, no upsample graph" if "upsample" not in manifest.graphs
                 else "fp32 upsample graph")
-    report = {"machine": machine_line(), "machine_info": machine_info(), "upsample": upsample,
-              "artifacts": args.artifacts, "precision": "int8", "sequences": {}}
+    report = {"command": command_line(), "machine": machine_line(), "machine_info": machine_info(),
+              "upsample": upsample,
+              "artifacts": args.artifacts, "precision": "int8", "size": list(size), "sequences": {}}
     for path, what in seqs:
         print(f"{path.name}: error at own size", flush=True)
         entry = {"what": what, "error": error_run(args.artifacts, path)}
-        print(f"{path.name}: timing at 1280x720", flush=True)
-        entry["timing_720p"] = timing_run(args.artifacts, path, args.frames)
+        print(f"{path.name}: timing at {args.size}", flush=True)
+        entry["timing_720p"] = timing_run(args.artifacts, path, args.frames, size)
         report["sequences"][path.name] = entry
-    print("native output at 1280x720", flush=True)
-    report["native_720p"] = native_run(args.artifacts, scenes[0][0], args.frames)
+    print(f"native output at {args.size}", flush=True)
+    report["native_720p"] = native_run(args.artifacts, scenes[0][0], args.frames, size)
     report["cpu_steal_share"] = steal.share()
 
     write_report(Path(args.out) / "adaptive", report, markdown(report))
@@ -162,8 +167,9 @@ def main() -> int:
 
 
 def markdown(r: dict) -> str:
+    w, h = r["size"]
     lines = ["# Adaptive execution: time and error, with and without", "",
-             "Made by `.venv/bin/python benchmarks/adaptive.py` on this machine "
+             "Made by `python -m benchmarks.adaptive` on this machine "
              f"({cpu_line(r['machine_info'])}, {r['machine']}; int8 network graph, "
              f"{r.get('upsample', 'fp32 upsample graph')}, float32 filter stage). "
              "Three pipelines run the same frames interleaved frame by frame, each with its own history: "
@@ -173,7 +179,7 @@ def markdown(r: dict) -> str:
              "empty background tiles passed through the filter stage and, with an upsample graph, left out of it: "
              "`PipelineConfig(tile_skip=True)`, off by default). "
              f"CPU time stolen by the VM host during the run: {100 * r['cpu_steal_share']:.0f} %.", "",
-             "## Run time at 1280x720 -> 2560x1440 (the sequences' frames resized)", "",
+             f"## Run time at {w}x{h} -> {2 * w}x{2 * h} (the sequences' frames resized)", "",
              "| sequence | allows | full ms | exact ms | adaptive ms | speed-up exact | speed-up adaptive (p10-p90) | what was skipped |",
              "| --- | --- | ---: | ---: | ---: | ---: | ---: | --- |"]
     for name, e in r["sequences"].items():
@@ -184,7 +190,7 @@ def markdown(r: dict) -> str:
                      f"{s['exact']:.3f} | {s['adaptive']:.3f} ({pr['adaptive'][0]:.2f}-{pr['adaptive'][1]:.2f}) | {skipped} |")
     lines += ["", "Speed-up: per frame full ms / variant ms, median over the frames "
               f"({next(iter(r['sequences'].values()))['timing_720p']['frames']} per sequence after a warm-up frame).", "",
-              "## Error at the sequences' own size (192x108 -> 384x216, every frame)", "",
+              "## Error at the sequences' own size (every frame)", "",
               "| sequence | FLIP full | FLIP exact | FLIP adaptive | ΔFLIP adaptive | PSNR full | PSNR adaptive | max abs diff exact vs full | max abs diff adaptive vs full |",
               "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     val = []
@@ -201,7 +207,7 @@ def markdown(r: dict) -> str:
                       f"{mf['adaptive']:.5f} (change {mf['adaptive'] - mf['full']:+.5f})."]
     n = r["native_720p"]
     lines += ["", "## Denoise only (`jnds run --native`): no upsample block", "",
-              f"At 1280x720, {n['frames']} frames: 2x output {n['median_ms']['2x']:.0f} ms/frame, native output "
+              f"At {w}x{h}, {n['frames']} frames: 2x output {n['median_ms']['2x']:.0f} ms/frame, native output "
               f"{n['median_ms']['native']:.0f} ms/frame (network variant without the upsample features, no upsample "
               f"graph, no upsample filter): speed-up {n['speedup_median']:.2f}x.", ""]
     return "\n".join(lines)
@@ -216,7 +222,7 @@ def _skipped(decisions: list[dict]) -> str:
             parts.append(f"{label} {k}/{n} frames")
     tiles = [d.get("empty_tiles", 0) for d in decisions]
     if any(tiles):
-        parts.append(f"empty tiles {np.mean(tiles):.0f}/frame (at 192x108)")
+        parts.append(f"empty tiles {np.mean(tiles):.0f}/frame")
     return ", ".join(parts) or "nothing"
 
 

@@ -1,8 +1,8 @@
 """Throughput of `jnds batch` on Ray: one worker, two workers, and two Ray nodes started on
 this machine (`ray start --head`, `ray start --address`), with what limits scaling.
 
-    .venv/bin/python benchmarks/batch_throughput.py [--artifacts out/artifacts] [--sequences 6]
-        [--frames 8] [--size 640x360] [--runs 3] [--out benchmarks/results/batch_throughput]
+    python -m benchmarks.batch_throughput [--artifacts out/artifacts] [--sequences 6]
+        [--frames 8] [--size 640x360] [--runs 3] [--configs NAME ...] [--out benchmarks/results/batch_throughput]
 
 The input: --sequences copies of the bundled sample resized to --size (motion scaled),
 --frames frames each, no reference (so no metrics or contact sheet: the pipeline's work
@@ -24,13 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info,  # noqa: E402
+from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse,
                                parse_size, resized_frames, tune_process, write_report)
-from jnds_deploy.io import FrameInfo, SequenceWriter, open_sequence  # noqa: E402
+from jnds_deploy.io import FrameInfo, SequenceWriter, open_sequence
 
 RAY = str(Path(sys.executable).with_name("ray"))
+# (workers, threads)
+CONFIGS = {"1 worker x 1 thread": (1, 1), "1 worker x 2 threads": (1, 2), "2 workers x 1 thread": (2, 1)}
+TWO_NODES = "2 nodes x 1 worker x 1 thread"
 
 
 def make_input(root: Path, n: int, frames: int, size: tuple[int, int]) -> None:
@@ -83,32 +84,36 @@ def two_nodes() -> str:
 
 
 def main() -> None:
-    ap = arguments(__doc__, RESULTS / "batch_throughput")
+    ap = arguments(__doc__, RESULTS / "batch_throughput",
+                   smoke={"sequences": 2, "frames": 2, "size": "64x32", "runs": 1, "configs": ["1 worker x 1 thread"]})
     ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
     ap.add_argument("--sequences", type=int, default=6)
     ap.add_argument("--frames", type=int, default=8)
     ap.add_argument("--size", default="640x360")
     ap.add_argument("--runs", type=int, default=3)
-    args = ap.parse_args()
+    ap.add_argument("--configs", nargs="+", choices=(*CONFIGS, TWO_NODES), default=[*CONFIGS, TWO_NODES])
+    args = parse(ap)
     tune_process()
     size = parse_size(args.size, 8)
     root = Path(tempfile.mkdtemp(prefix="batch-in-"))
     make_input(root, args.sequences, args.frames, size)
-    configs = {"1 worker x 1 thread": (1, 1, None), "1 worker x 2 threads": (1, 2, None),
-               "2 workers x 1 thread": (2, 1, None)}
     results = {}
     try:
-        for name, (workers, threads, address) in configs.items():
-            runs = [run_batch(args.artifacts, root, workers, threads, address) for _ in range(args.runs)]
+        for name in args.configs:
+            if name == TWO_NODES:
+                continue
+            workers, threads = CONFIGS[name]
+            runs = [run_batch(args.artifacts, root, workers, threads, None) for _ in range(args.runs)]
             results[name] = runs
             print(name, [f"{r['frames_per_s']:.2f}" for r in runs], flush=True)
-        address = two_nodes()
-        try:
-            runs = [run_batch(args.artifacts, root, 2, 1, address) for _ in range(args.runs)]
-            results["2 nodes x 1 worker x 1 thread"] = runs
-            print("2 nodes", [f"{r['frames_per_s']:.2f}" for r in runs], flush=True)
-        finally:
-            subprocess.run([RAY, "stop", "--force"], capture_output=True)
+        if TWO_NODES in args.configs:
+            address = two_nodes()
+            try:
+                runs = [run_batch(args.artifacts, root, 2, 1, address) for _ in range(args.runs)]
+                results[TWO_NODES] = runs
+                print("2 nodes", [f"{r['frames_per_s']:.2f}" for r in runs], flush=True)
+            finally:
+                subprocess.run([RAY, "stop", "--force"], capture_output=True)
     finally:
         shutil.rmtree(root, ignore_errors=True)
 
@@ -123,13 +128,14 @@ def main() -> None:
                       "workers": runs[0]["workers"], "cluster_cpus": runs[0]["cluster_cpus"],
                       # the Ray nodes that ran sequences, per run
                       "nodes_used": [len({s["node_id"] for s in r["sequences"].values()}) for r in runs]}
-    base = rows["1 worker x 1 thread"]["frames_per_s"]
+    base = next(iter(rows.values()))["frames_per_s"]
     md = ["# `jnds batch` throughput on Ray\n",
           f"`{command_line()}`\n",
           f"Machine: {cpu_line(info)}, {info['usable_cores']} usable cores. {args.sequences} sequences of "
           f"{args.frames} frames at {size[0]}x{size[1]} -> {2 * size[0]}x{2 * size[1]}, int8, no reference; "
           f"medians of {args.runs} runs.\n",
-          "| configuration | frames/s | x 1 worker | frames/s with Ray and worker start | median ms per frame in a worker "
+          f"| configuration | frames/s | x {next(iter(rows))} | frames/s with Ray and worker start "
+          "| median ms per frame in a worker "
           "| Ray nodes used |",
           "| --- | ---: | ---: | ---: | ---: | ---: |"]
     for name, r in rows.items():

@@ -1,12 +1,10 @@
-"""What the benchmark scripts (and the studies in experiments/) share: the machine a
-report was made on, the process tuned as `jnds run` tunes its own, timed repeats and
-their summaries, frames at a benchmark's size, and writing a report.
+"""What the benchmark scripts share: the machine a report was made on, the process tuned as
+`jnds run` tunes its own, timed repeats and their summaries, frames at a benchmark's size,
+their command line (``--out``, ``--smoke``) and writing a report.
 
-A script imports it by putting the repository root on ``sys.path`` first (which also
-makes ``jnds_deploy`` importable from a checkout that is not installed)::
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from benchmarks.common import ...  # noqa: E402
+The benchmarks are a package: run one from the repository root as a module, e.g.
+``python -m benchmarks.timing``; each takes ``--smoke`` (a run of seconds on a tiny input,
+its report into the ``--out`` given; ``tests/test_benchmarks.py`` runs them all).
 
 Heavy modules (onnxruntime, numba, cv2, the runtime) are imported by the functions that
 need them, so a script that renders or reads checkpoints pays nothing for them.
@@ -352,20 +350,48 @@ def network_feeds(seq_path: Path, size: tuple[int, int], guide: bool = False) ->
 
 # --- reports -------------------------------------------------------------------------------
 
+SMOKE_HELP = ("a run of seconds on a tiny input, to check that the benchmark runs (CI: "
+              "tests/test_benchmarks.py), with these settings in place of the defaults (flags given still "
+              "win): {settings}; its report goes to --out, which must be given, outside benchmarks/results")
+
+
 def arguments(doc: str, out: Path | None = None,
-              out_help: str = "the report's path without suffix: .json and .md are written") -> argparse.ArgumentParser:
-    """A script's argument parser: its docstring as the help and, with ``out``, ``--out``
-    (default ``out``, e.g. ``RESULTS / "timing"``); smoke runs point it elsewhere."""
+              out_help: str = "the report's path without suffix: .json and .md are written",
+              smoke: dict[str, Any] | None = None) -> argparse.ArgumentParser:
+    """A script's argument parser: its docstring as the help, ``--out`` (default ``out``,
+    e.g. ``RESULTS / "timing"``) and, for a benchmark, ``--smoke``, whose settings ``smoke``
+    holds ({dest: value}: what ``parse`` puts in place of the defaults)."""
     ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     if out is not None:
         ap.add_argument("--out", default=str(out), help=out_help)
+    if smoke is not None:
+        settings = ", ".join(f"{k}={v}" for k, v in smoke.items()) or "the defaults"
+        ap.add_argument("--smoke", action="store_true", help=SMOKE_HELP.format(settings=settings))
+        ap.set_defaults(_smoke=dict(smoke))
     return ap
 
 
+def parse(ap: argparse.ArgumentParser) -> argparse.Namespace:
+    """``ap``'s arguments. With ``--smoke``, the smoke settings ``arguments`` was given
+    replace the defaults (flags given on the command line still win), and ``--out`` must
+    lie outside benchmarks/results: a smoke run never overwrites a committed report."""
+    args = ap.parse_args()
+    if getattr(args, "smoke", False):
+        ap.set_defaults(**args._smoke)
+        args = ap.parse_args()
+        out = Path(args.out).resolve()
+        if out == RESULTS or out.is_relative_to(RESULTS):
+            ap.error("--smoke writes a throwaway report: give --out outside benchmarks/results")
+    vars(args).pop("_smoke", None)
+    return args
+
+
 def command_line() -> str:
-    """This run's command as the reports quote it: ``python <script, relative to the
-    repository> <arguments>``."""
+    """This run's command as the reports quote it: ``python -m benchmarks.<name> <arguments>``
+    for a benchmark (else ``python <script, relative to the repository> <arguments>``)."""
     script = Path(sys.argv[0]).resolve()
+    if script.parent == ROOT / "benchmarks":
+        return " ".join(["python", "-m", f"benchmarks.{script.stem}", *sys.argv[1:]])
     if script.is_relative_to(ROOT):
         script = script.relative_to(ROOT)
     return " ".join(["python", str(script), *sys.argv[1:]])

@@ -1,29 +1,28 @@
 """Dataset report: sequences, frames, bytes, and the motion-vector warp error of every
 sequence (reference albedo of frame t-1 warped into frame t, outside disocclusions).
 
-    python benchmarks/dataset_report.py --data data --out benchmarks/results/dataset.md
+    python -m benchmarks.dataset_report --data data --out benchmarks/results/dataset.md
 """
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import RESULTS, arguments, write_report  # noqa: E402
-from jnds_deploy.io import open_sequence  # noqa: E402
-from jnds_deploy.metrics import motion_warp_error  # noqa: E402
+from benchmarks.common import RESULTS, ROOT, arguments, command_line, parse, write_report
+from jnds_deploy.io import open_sequence
+from jnds_deploy.metrics import motion_warp_error
 
 
 def main() -> None:
-    ap = arguments(__doc__, RESULTS / "dataset.md", "the markdown report (the JSON goes beside it)")
+    ap = arguments(__doc__, RESULTS / "dataset.md", "the markdown report (the JSON goes beside it)",
+                   smoke={"data": str(ROOT), "splits": ["samples"]})
     ap.add_argument("--data", default="data")
-    args = ap.parse_args()
+    ap.add_argument("--splits", nargs="+", default=["train", "val"], help="directories of --data holding sequences")
+    args = parse(ap)
 
     rows, totals = [], {}
-    for split in ("train", "val"):
+    for split in args.splits:
         seqs = sorted(p.parent for p in (Path(args.data) / split).glob("*/sequence.json"))
         n_frames = n_bytes = 0
         for p in seqs:
@@ -38,7 +37,7 @@ def main() -> None:
             rows.append((split, p.name, len(seq), size, w, u, v))
         totals[split] = (len(seqs), n_frames, n_bytes)
 
-    lines = ["# Dataset", "", "Made by `python benchmarks/dataset_report.py --data data`.", "",
+    lines = ["# Dataset", "", f"Made by `{command_line()}`.", "",
              "| split | sequences | frames | size (GB) |", "| --- | --- | --- | --- |"]
     for split, (s, f, b) in totals.items():
         lines.append(f"| {split} | {s} | {f} | {b / 1e9:.3f} |")
@@ -51,7 +50,7 @@ def main() -> None:
         lines.append(f"| {split} | {name} | {f} | {b / 1e6:.1f} | {w:.5f} | {u:.5f} | "
                      f"{w / max(u, 1e-9):.3f} | {v:.1%} |")
     moving = [r for r in rows if r[5] > 1e-6]
-    summary = {"warped_mean": float(np.mean([r[4] for r in moving])),
+    summary = {"command": command_line(), "warped_mean": float(np.mean([r[4] for r in moving])),
                "unwarped_mean": float(np.mean([r[5] for r in moving])),
                "totals": {k: {"sequences": s, "frames": f, "bytes": b} for k, (s, f, b) in totals.items()}}
     lines += ["", f"Over moving-camera sequences: warped {summary['warped_mean']:.5f}, unwarped "

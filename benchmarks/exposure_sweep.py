@@ -1,7 +1,7 @@
 """int8 against fp32 across exposure and across sequences: radiance scaled by 2^k, the
 deployed pipeline (ONNX Runtime) at both precisions.
 
-    .venv/bin/python benchmarks/exposure_sweep.py --artifacts out/artifacts --input data/val/SEQ [SEQ|DIR ...]
+    python -m benchmarks.exposure_sweep [--artifacts out/artifacts] --input data/val/SEQ [SEQ|DIR ...]
         [--stops -4 -2 0 2 4 6 8] [--out benchmarks/results/exposure_sweep]
 
 Every sequence given (or found in a directory given) at every exposure 2^k (``--stops 0``
@@ -15,18 +15,15 @@ and .json.
 """
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import (RESULTS, arguments, command_line, cpu_line, machine_info, pipeline,  # noqa: E402
+from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse, pipeline,
                                tune_process, write_report)
-from jnds_deploy.io import expand_sequences, open_sequence  # noqa: E402
-from jnds_deploy.layout import RADIANCE  # noqa: E402
-from jnds_deploy.metrics import flip, psnr  # noqa: E402
+from jnds_deploy.io import expand_sequences, open_sequence
+from jnds_deploy.layout import RADIANCE
+from jnds_deploy.metrics import flip, psnr
 
 
 def run(pipe, frames, gain: float, refs) -> dict:
@@ -40,11 +37,14 @@ def run(pipe, frames, gain: float, refs) -> dict:
 
 
 def main() -> None:
-    ap = arguments(__doc__, RESULTS / "exposure_sweep")
-    ap.add_argument("--artifacts", required=True)
-    ap.add_argument("--input", required=True, nargs="+", help="sequences with references, or directories of them")
+    ap = arguments(__doc__, RESULTS / "exposure_sweep",
+                   smoke={"input": [str(ROOT / "samples" / "orbit-160x90")], "stops": [0, 8]})
+    ap.add_argument("--artifacts", default="out/artifacts")
+    ap.add_argument("--input", nargs="+", help="sequences with references, or directories of them (required)")
     ap.add_argument("--stops", type=float, nargs="+", default=[-4, -2, 0, 2, 4, 6, 8])
-    args = ap.parse_args()
+    args = parse(ap)
+    if not args.input:
+        ap.error("--input is required")
     tune_process()
     pipes = {p: pipeline(args.artifacts, precision=p) for p in ("fp32", "int8")}
     rows = []

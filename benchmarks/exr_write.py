@@ -1,36 +1,33 @@
 """Writing one output frame: time and size per EXR storage (`jnds run --output-format`).
 
-    .venv/bin/python benchmarks/exr_write.py [--artifacts out/artifacts] [--size 1280x720] [--runs 7]
+    python -m benchmarks.exr_write [--artifacts out/artifacts] [--size 1280x720] [--runs 7]
         [--threads 2] [--out benchmarks/results/exr_write]
 
 The frame is a real output: the bundled sample's frames resized to --size (native) run
 through the int8 pipeline, the last one kept (2x the size). Each storage writes it --runs
 times, interleaved, with OpenEXR's --threads threads (as `jnds run` sets them): medians.
-`float ZIP` is what `jnds run` wrote until stop 30; `float` and `half` are its
+`float ZIP` is what `jnds run` wrote before commit 3830aa3; `float` and `half` are its
 ``io.OUTPUT_FORMATS`` since. Writes benchmarks/results/exr_write.md and .json.
 """
 from __future__ import annotations
 
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, interleaved,  # noqa: E402
-                               machine_info, parse_size, pipeline, resized_frames, tune_process, write_report)
-from jnds_deploy import io  # noqa: E402
+from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, interleaved, machine_info, parse,
+                               parse_size, pipeline, resized_frames, tune_process, write_report)
+from jnds_deploy import io
 
 
 def main() -> None:
-    ap = arguments(__doc__, RESULTS / "exr_write")
+    ap = arguments(__doc__, RESULTS / "exr_write", smoke={"size": "160x96", "runs": 1})
     ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
     ap.add_argument("--size", default="1280x720")
     ap.add_argument("--runs", type=int, default=7)
     ap.add_argument("--threads", type=int, default=2)
-    args = ap.parse_args()
+    args = parse(ap)
     tune_process()
     size = parse_size(args.size)
     pipe = pipeline(args.artifacts, precision="int8", threads=args.threads)
@@ -39,7 +36,7 @@ def main() -> None:
     io.exr_threads(args.threads)
     import OpenEXR
 
-    storages = {"float ZIP (until stop 30)": (frozenset(), OpenEXR.ZIP_COMPRESSION),
+    storages = {"float ZIP (before 3830aa3)": (frozenset(), OpenEXR.ZIP_COMPRESSION),
                 **{f"{k} (--output-format {k})": v for k, v in io.OUTPUT_FORMATS.items()}}
     with tempfile.TemporaryDirectory() as tmp:
         paths = {name: Path(tmp) / f"{i}.exr" for i, name in enumerate(storages)}
@@ -52,7 +49,7 @@ def main() -> None:
                                        frame.astype(np.float16 if "color" in storages[name][0] else np.float32)))
              for name in storages}
     med = {name: float(np.median(v)) for name, v in ms.items()}
-    base = "float ZIP (until stop 30)"
+    base = "float ZIP (before 3830aa3)"
     h, w = frame.shape[:2]
     md = ["# Writing an output frame\n", f"`{command_line()}`\n",
           f"Machine: {cpu_line(machine_info())}; OpenEXR with {args.threads} threads. One {w}x{h} RGB output "

@@ -1,7 +1,7 @@
 """The firefly clamp's factor against error: the deployed int8 pipeline at each factor
 (``PipelineConfig.firefly_clamp``; 0: off), beside OIDN `balanced` + bicubic.
 
-    .venv/bin/python benchmarks/firefly_clamp.py --artifacts out/artifacts --input data/val
+    python -m benchmarks.firefly_clamp [--artifacts out/artifacts] --input data/val
         [--factors 0 2 4 8 16] [--baselines oidn-balanced] [--sheet PNG] [--out benchmarks/results/firefly_clamp]
 
 Every sequence given (or found in a directory given), every frame, history carried;
@@ -13,17 +13,14 @@ reference).
 """
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import (RESULTS, arguments, command_line, cpu_line, machine_info, pipeline,  # noqa: E402
+from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse, pipeline,
                                tune_process, write_report)
-from jnds_deploy.io import expand_sequences, open_sequence  # noqa: E402
-from jnds_deploy.training.evaluate import baseline_outputs, evaluate_methods  # noqa: E402
+from jnds_deploy.io import expand_sequences, open_sequence
+from jnds_deploy.training.evaluate import baseline_outputs, evaluate_methods
 
 
 def runner(artifacts: str, factor: float):
@@ -37,13 +34,17 @@ def runner(artifacts: str, factor: float):
 
 
 def main() -> None:
-    ap = arguments(__doc__, RESULTS / "firefly_clamp")
-    ap.add_argument("--artifacts", required=True)
-    ap.add_argument("--input", required=True, nargs="+", help="sequences with references, or directories of them")
+    ap = arguments(__doc__, RESULTS / "firefly_clamp",
+                   smoke={"input": [str(ROOT / "samples" / "orbit-160x90")], "factors": [0, 16],
+                          "baselines": ["bicubic"]})
+    ap.add_argument("--artifacts", default="out/artifacts")
+    ap.add_argument("--input", nargs="+", help="sequences with references, or directories of them (required)")
     ap.add_argument("--factors", type=float, nargs="+", default=[0, 2, 4, 8, 16])
     ap.add_argument("--baselines", nargs="*", default=["oidn-balanced"])
     ap.add_argument("--sheet", help="contact sheet PNG (middle frames)")
-    args = ap.parse_args()
+    args = parse(ap)
+    if not args.input:
+        ap.error("--input is required")
     tune_process()
     paths = expand_sequences(args.input)
     methods = {f"int8 k={f:g}": runner(args.artifacts, f) for f in args.factors}

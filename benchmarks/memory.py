@@ -1,7 +1,7 @@
 """Peak memory and cold start of `jnds run`: fresh processes on 3-frame sequences at
 several sizes, beside OIDN `balanced`'s per-frame time at the largest size.
 
-    .venv/bin/python benchmarks/memory.py [--artifacts out/artifacts] [--sizes 320x180 640x360 1280x720]
+    python -m benchmarks.memory [--artifacts out/artifacts] [--sizes 320x180 640x360 1280x720]
         [--frames 3] [--runs 3] [--out benchmarks/results/memory]
 
 For each size: the bundled sample's first frames resized to it (motion scaled) are
@@ -26,11 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info,  # noqa: E402
+from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse,
                                parse_size, resized_frames, timed, write_report)
-from jnds_deploy.io import FrameInfo, SequenceWriter, open_sequence  # noqa: E402
+from jnds_deploy.io import FrameInfo, SequenceWriter, open_sequence
 
 JNDS = str(Path(sys.executable).with_name("jnds"))
 
@@ -59,12 +57,12 @@ def cold_run(artifacts: str, seq: Path, out: Path) -> dict:
 
 
 def main() -> None:
-    ap = arguments(__doc__, RESULTS / "memory")
+    ap = arguments(__doc__, RESULTS / "memory", smoke={"sizes": ["64x32", "128x64"], "frames": 2, "runs": 1})
     ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
     ap.add_argument("--sizes", nargs="+", default=["320x180", "640x360", "1280x720"])
     ap.add_argument("--frames", type=int, default=3)
     ap.add_argument("--runs", type=int, default=3)
-    args = ap.parse_args()
+    args = parse(ap)
     from jnds_deploy import baselines
 
     sizes = [parse_size(s) for s in args.sizes]

@@ -1,7 +1,7 @@
 """Fuzzing the HTTP surface of `jnds serve`: hostile and careless requests, the server
 alive and bounded, another stream's output unchanged.
 
-    .venv/bin/python benchmarks/serve_fuzz.py [--artifacts out/artifacts] [--cases 10000] [--seed 0]
+    python -m benchmarks.serve_fuzz [--artifacts out/artifacts] [--cases 10000] [--seed 0]
         [--out benchmarks/results/serve_fuzz]
 
 Starts `jnds serve` as a subprocess on a free loopback port and opens a reference stream
@@ -26,9 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, write_report  # noqa: E402
+from benchmarks.common import RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse, write_report
 
 INPUT_CHANNELS = ["diffuse.R", "diffuse.G", "diffuse.B", "specular.R", "specular.G", "specular.B", "albedo.R",
                   "albedo.G", "albedo.B", "normal.X", "normal.Y", "normal.Z", "roughness", "motion.X", "motion.Y"]
@@ -186,18 +184,24 @@ def slow_clients(url: str, frames, count: int = 200, rounds: int = 15) -> dict:
 
 
 def main() -> None:
-    ap = arguments(__doc__, RESULTS / "serve_fuzz")
+    ap = arguments(__doc__, RESULTS / "serve_fuzz",
+                   smoke={"cases": 40, "every": 20, "slow": 4, "rounds": 2, "request_timeout": 1.0})
     ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
     ap.add_argument("--cases", type=int, default=10000)
     ap.add_argument("--seed", type=int, default=0)
-    args = ap.parse_args()
+    ap.add_argument("--every", type=int, default=100, help="cases between two runs of the reference stream")
+    ap.add_argument("--slow", type=int, default=200, help="slow clients (half a request line each)")
+    ap.add_argument("--rounds", type=int, default=15, help="frames of the normal stream, alone and beside them")
+    ap.add_argument("--request-timeout", type=float, default=5.0, help="the server's --request-timeout (s)")
+    args = parse(ap)
 
     from jnds_deploy.io import open_sequence
     from jnds_deploy.serve import Client
     from jnds_deploy.serve.server import rss_bytes
 
     proc = subprocess.Popen([sys.executable, "-m", "jnds_deploy", "serve", "--artifacts", args.artifacts,
-                             "--port", "0", "--request-timeout", "5"], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+                             "--port", "0", "--request-timeout", str(args.request_timeout)], stdout=subprocess.PIPE,
+                            text=True, cwd=ROOT)
     try:
         url = proc.stdout.readline().strip().rsplit(" ", 1)[-1]
         seq = open_sequence(ROOT / "samples" / "orbit-160x90")
@@ -214,9 +218,9 @@ def main() -> None:
             rss.append((len(rss), rss_bytes(proc.pid)))
 
         t0 = time.perf_counter()
-        counts = fuzz(url, args.cases, args.seed, reference)
+        counts = fuzz(url, args.cases, args.seed, reference, args.every)
         wall = time.perf_counter() - t0
-        slow = slow_clients(url, frames)
+        slow = slow_clients(url, frames, args.slow, args.rounds)
         alive = Client(url).health()["status"] == "ok" and proc.poll() is None
     finally:
         proc.terminate()
@@ -229,13 +233,14 @@ def main() -> None:
     md = ["# `jnds serve` under fuzzing", "", f"Command: `{report['command']}`  ",
           f"Machine: {cpu_line(report['machine'])}, {report['machine']['cpu_count']} cores.", "",
           f"{args.cases} hostile requests (seed {args.seed}), one connection each, in {wall:.0f} s; a reference "
-          f"stream ran the sample's first 3 frames every 100 cases ({len(mismatches)} times).", "",
+          f"stream ran the sample's first 3 frames every {args.every} cases ({len(mismatches)} times).", "",
           "| answer | requests |", "| --- | ---: |"] + [f"| {k} | {v} |" for k, v in counts.items()] + [
           "", f"- server alive at the end: {alive} (crashes: {0 if alive else 1})",
           f"- reference frames different from the first run's: {int(sum(mismatches))}",
           f"- server RSS: {mib[0]:.0f} MiB at the start, max {max(mib):.0f}, last {mib[-1]:.0f} MiB", "",
           f"Slow clients: {slow['slow_connections']} connections send half a request line and stop (the "
-          f"server's --request-timeout 5 s). A normal stream's 160x90 frame, {len(slow['frame_ms_alone'])} each: "
+          f"server's --request-timeout {args.request_timeout:g} s). A normal stream's 160x90 frame, "
+          f"{len(slow['frame_ms_alone'])} each: "
           f"median {slow['median_ms_alone']:.1f} ms alone, {slow['median_ms_beside_slow']:.1f} ms beside them; "
           f"all {slow['slow_connections']} closed by the server {slow['all_closed_after_s']:.1f} s after they "
           "were opened.", ""]

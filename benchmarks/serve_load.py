@@ -1,7 +1,7 @@
 """Load test of `jnds serve` on loopback: N concurrent streams, throughput, latency,
 server memory over time, and a long run for memory growth.
 
-    .venv/bin/python benchmarks/serve_load.py [--artifacts out/artifacts] [--frames 48] [--counts 1 2 4 8]
+    python -m benchmarks.serve_load [--artifacts out/artifacts] [--frames 48] [--counts 1 2 4 8]
         [--long-s 120] [--out benchmarks/results/serve_load]
 
 Starts `jnds serve` as a subprocess on a free loopback port, then for each stream count
@@ -23,12 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import cpu_line, RESULTS, ROOT, arguments, command_line, machine_info, timed, write_report  # noqa: E402
-from jnds_deploy.io import open_sequence  # noqa: E402
-from jnds_deploy.serve import Client  # noqa: E402
-from jnds_deploy.serve.server import rss_bytes  # noqa: E402
+from benchmarks.common import RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse, timed, write_report
+from jnds_deploy.io import open_sequence
+from jnds_deploy.serve import Client
+from jnds_deploy.serve.server import rss_bytes
 
 
 class Sampler(threading.Thread):
@@ -76,7 +74,7 @@ def drive(url: str, frames: list, streams: int, per_stream: int | None, deadline
 
 
 def main() -> int:
-    ap = arguments(__doc__, RESULTS / "serve_load")
+    ap = arguments(__doc__, RESULTS / "serve_load", smoke={"counts": [1, 2], "frames": 4, "long_s": 1.0})
     ap.add_argument("--artifacts", default="out/artifacts")
     ap.add_argument("--input", default=str(ROOT / "samples" / "orbit-160x90"))
     ap.add_argument("--precision", default="int8")
@@ -84,7 +82,7 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=48, help="frames per stream count (split over the streams)")
     ap.add_argument("--counts", type=int, nargs="+", default=[1, 2, 4, 8])
     ap.add_argument("--long-s", type=float, default=120.0)
-    args = ap.parse_args()
+    args = parse(ap)
 
     seq = open_sequence(args.input)
     frames = [(seq.inputs(i), seq.frames[i].camera_cut) for i in range(len(seq))]

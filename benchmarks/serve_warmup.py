@@ -1,6 +1,6 @@
 """A stream's first frames in `jnds serve`, with and without `--warmup` at their size.
 
-    .venv/bin/python benchmarks/serve_warmup.py [--artifacts out/artifacts] [--size 1280x720] [--frames 4]
+    python -m benchmarks.serve_warmup [--artifacts out/artifacts] [--size 1280x720] [--frames 4]
         [--runs 3] [--out benchmarks/results/serve_warmup]
 
 Each run is a fresh process that builds the server (``FrameServer``: its pipeline and the
@@ -20,9 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info,  # noqa: E402
+from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse,
                                parse_size, write_report)
 
 
@@ -50,13 +48,13 @@ def one_process(artifacts: str, size: tuple[int, int], frames: int, warmup: bool
 
 
 def main() -> None:
-    ap = arguments(__doc__, RESULTS / "serve_warmup")
+    ap = arguments(__doc__, RESULTS / "serve_warmup", smoke={"size": "160x96", "frames": 2, "runs": 1})
     ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
     ap.add_argument("--size", default="1280x720")
     ap.add_argument("--frames", type=int, default=4)
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--child", choices=("warmup", "none"), help=argparse_hidden())
-    args = ap.parse_args()
+    args = parse(ap)
     size = parse_size(args.size)
     if args.child:
         print(json.dumps(one_process(args.artifacts, size, args.frames, args.child == "warmup")))
@@ -64,9 +62,9 @@ def main() -> None:
     runs = {"none": [], "warmup": []}
     for _ in range(args.runs):
         for kind in runs:
-            out = subprocess.run([sys.executable, __file__, "--artifacts", args.artifacts, "--size", args.size,
-                                  "--frames", str(args.frames), "--child", kind],
-                                 capture_output=True, text=True, check=True)
+            out = subprocess.run([sys.executable, "-m", "benchmarks.serve_warmup", "--artifacts", args.artifacts,
+                                  "--size", args.size, "--frames", str(args.frames), "--child", kind],
+                                 capture_output=True, text=True, check=True, cwd=ROOT)
             runs[kind].append(json.loads(out.stdout.strip().splitlines()[-1]))
     med = {k: {"build_ms": float(np.median([r["build_ms"] for r in v])),
                "frame_ms": np.median([r["frame_ms"] for r in v], axis=0).tolist()} for k, v in runs.items()}

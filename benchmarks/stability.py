@@ -1,7 +1,7 @@
 """Numerical stability of the pipeline: long runs, int8 outside the calibration range,
 NaN floods, fp16 limits, and fuzzing with a larger budget than the tests.
 
-    .venv/bin/python benchmarks/stability.py [--artifacts out/artifacts] [--data data/val]
+    python -m benchmarks.stability [--artifacts out/artifacts] [--data data/val]
         [--long-frames 1008] [--fuzz 2000] [--out benchmarks/results/stability]
 
 Cases (each states what it checks; the figures go to benchmarks/results/stability.md,
@@ -32,17 +32,18 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import (cpu_line, RESULTS, arguments, command_line, machine_info, pipeline, tune_process,  # noqa: E402
-                               write_report)
-from jnds_deploy.errors import ExrReadError  # noqa: E402
-from jnds_deploy.io import INPUT_LAYERS, exr_bytes, find_sequences, open_sequence, read_exr_bytes  # noqa: E402
-from jnds_deploy.layout import INPUT_CHANNELS  # noqa: E402
-from jnds_deploy.runtime import Pipeline  # noqa: E402
+from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse, pipeline,
+                               tune_process, write_report)
+from jnds_deploy.errors import ExrReadError
+from jnds_deploy.io import INPUT_LAYERS, exr_bytes, find_sequences, open_sequence, read_exr_bytes
+from jnds_deploy.layout import INPUT_CHANNELS
+from jnds_deploy.runtime import Pipeline
 
 
 STEADY_LOOPS = 10
+SCALES = (1, 4, 16, 64, 256, 1024, 4096)  # radiance x k beyond the calibration range, int8 against fp32
+FRACTIONS = (0.001, 0.01, 0.1, 1.0)  # of the diffuse radiance's pixels made NaN
+PEAKS = (1e3, 3e4, 6e4, 65535.0, 1e6)  # the specular radiance's peak, float16 filter stage against float32
 
 
 def tonemapped_psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -129,12 +130,13 @@ def fuzz_exr(n: int, rng: np.random.Generator) -> dict:
 
 
 def main() -> int:
-    ap = arguments(__doc__, RESULTS / "stability")
+    ap = arguments(__doc__, RESULTS / "stability",
+                   smoke={"data": str(ROOT / "samples"), "long_frames": 96, "fuzz": 20})
     ap.add_argument("--artifacts", default="out/artifacts")
     ap.add_argument("--data", default="data/val")
     ap.add_argument("--long-frames", type=int, default=1008)
     ap.add_argument("--fuzz", type=int, default=2000)
-    args = ap.parse_args()
+    args = parse(ap)
     tune_process()
     t_start = time.time()
     seqs = [open_sequence(p) for p in find_sequences(args.data)]
@@ -149,9 +151,11 @@ def main() -> int:
         print(f"long {r['sequence']}: drift {r['drift_per_1000']:+.4f}/1000 frames, "
               f"loop ratio {r['first_loop_ratio']:.4f} -> {r['last_loop_ratio']:.4f}", flush=True)
 
-    clips = [[s.inputs(i) for i in range(min(6, len(s)))] for s in seqs]
+    clips = [[s.inputs(i) for i in range(min(3 if args.smoke else 6, len(s)))] for s in seqs]
+    # a smoke run takes the ends of each range
+    scales, fractions, peaks = ((1, 4096), (0.01, 1.0), (6e4, 1e6)) if args.smoke else (SCALES, FRACTIONS, PEAKS)
     growth = []
-    for k in (1, 4, 16, 64, 256, 1024, 4096):
+    for k in scales:
         rel, ps = [], []
         for clip in clips:
             a, b = run_frames(int8, scaled(clip, k)), run_frames(fp32, scaled(clip, k))
@@ -163,7 +167,7 @@ def main() -> int:
 
     rng = np.random.default_rng(0)
     floods = []
-    for frac in (0.001, 0.01, 0.1, 1.0):
+    for frac in fractions:
         ps, finite = [], True
         for clip in clips:
             clean = run_frames(int8, clip)
@@ -180,7 +184,7 @@ def main() -> int:
     report["nan_floods"] = floods
 
     fp16 = []
-    for peak in (1e3, 3e4, 6e4, 65535.0, 1e6):
+    for peak in peaks:
         rel, finite = [], True
         for clip in clips[:3]:
             bright = [{**f, "specular": f["specular"] * np.float32(peak / max(float(f["specular"].max()), 1e-6))}

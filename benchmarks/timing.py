@@ -1,6 +1,6 @@
 """Per-stage timing of the pipeline, in the form of the paper's Table 4.
 
-    .venv/bin/python benchmarks/timing.py [--artifacts out/artifacts] [--input samples/orbit-160x90]
+    python -m benchmarks.timing [--artifacts out/artifacts] [--input samples/orbit-160x90]
         [--size 1280x720] [--repeats 3] [--no-oidn] [--out benchmarks/results/timing]
 
 Runs the frame-recurrent pipeline (fp32 and int8 network graphs, float32 filter stage)
@@ -18,17 +18,16 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import (cpu_line, cpu_peaks, gemm_throughput, RESULTS, ROOT, CpuSteal, arguments, command_line, machine_info, parse_size,  # noqa: E402
-                               pipeline, resized_frames, run_frames, spread, timed, tune_process, write_report)
-from jnds_deploy.artifacts import Manifest  # noqa: E402
-from jnds_deploy.io import open_sequence  # noqa: E402
-from jnds_deploy.model import ModelConfig, count_macs  # noqa: E402
-from jnds_deploy.runtime import Pipeline  # noqa: E402
-from jnds_deploy.runtime.network import Edges  # noqa: E402
-from jnds_deploy.runtime.reformat import block_input  # noqa: E402
-from jnds_deploy.runtime.profile import STAGES, profile_stages  # noqa: E402
+from benchmarks.common import (RESULTS, ROOT, CpuSteal, arguments, command_line, cpu_line, cpu_peaks, gemm_throughput,
+                               machine_info, parse, parse_size, pipeline, resized_frames, run_frames, spread, timed,
+                               tune_process, write_report)
+from jnds_deploy.artifacts import Manifest
+from jnds_deploy.io import open_sequence
+from jnds_deploy.model import ModelConfig, count_macs
+from jnds_deploy.runtime import Pipeline
+from jnds_deploy.runtime.network import Edges
+from jnds_deploy.runtime.reformat import block_input
+from jnds_deploy.runtime.profile import STAGES, profile_stages
 
 ROWS = ("reformat", "diffuse_fill", "warp", "firefly_clamp", "input_block", "feature_extractor", "output_block", "filter_diffuse",
         "filter_specular", "filter_auxiliary", "composite", "albedo_at_holes", "upsample_kernel", "upsample_filter")
@@ -223,7 +222,7 @@ def head_to_head(pipe: Pipeline, frames, passes: int) -> dict:
 
 
 def main() -> int:
-    ap = arguments(__doc__, RESULTS / "timing")
+    ap = arguments(__doc__, RESULTS / "timing", smoke={"size": "160x96", "repeats": 1})
     ap.add_argument("--artifacts", default="out/artifacts", help="exported and calibrated (`make demo` does both)")
     ap.add_argument("--input", default=str(ROOT / "samples" / "orbit-160x90"))
     ap.add_argument("--size", default="1280x720", help="native size the frames are also resized to")
@@ -232,7 +231,7 @@ def main() -> int:
     ap.add_argument("--precisions", nargs="+", default=["int8", "fp32"])
     ap.add_argument("--no-oidn", action="store_true",
                     help="leave out the head to head with OIDN (where pyoidn cannot be installed)")
-    args = ap.parse_args()
+    args = parse(ap)
     tune_process()
     seq = open_sequence(args.input)
     manifest = Manifest.load(args.artifacts)
@@ -243,9 +242,9 @@ def main() -> int:
               "input": str(seq.path), "threads": args.threads, "int8_method": manifest.int8_method,
               "results": {}}
     steal = CpuSteal()
-    probe = CopyProbe(args.threads)
+    probe = CopyProbe(args.threads, 8 if args.smoke else 256)
     cpu = report["cpu_peaks"] = cpu_peaks()
-    gemm = report["gemm_throughput"] = gemm_throughput(args.threads)
+    gemm = report["gemm_throughput"] = gemm_throughput(args.threads, *((256, 2) if args.smoke else ()))
     int8 = manifest.graphs["network"].int8.get(manifest.int8_method or "")
     u8_head = bool(int8 and int8.head.startswith("u8"))  # the int8 pipeline's kernels come as bytes
     for label, size in ((big_label, big), (f"{seq.native_size[0]}x{seq.native_size[1]}", None)):
@@ -279,7 +278,8 @@ def main() -> int:
             print(f"{label} {precision}: {rows['total']['median_ms']:.1f} ms/frame", flush=True)
         if size == big and not args.no_oidn:
             report[f"head_to_head_{label}"] = head_to_head(pipeline(args.artifacts, precision="int8",
-                                                                    threads=args.threads), frames, args.repeats + 2)
+                                                                    threads=args.threads), frames,
+                                                                    1 if args.smoke else args.repeats + 2)
     # the share of CPU time the VM host stole during this run goes into the report
     report["cpu_steal_share"] = steal.share()
     out = Path(args.out)
@@ -320,7 +320,7 @@ def main() -> int:
                f"`traffic_bytes` says what is counted) ÷ the copy bandwidth measured between the frames of this "
                f"run: median {bw['median']:.1f} GB/s (p10–p90 {bw['p10']:.1f}–{bw['p90']:.1f}, "
                f"{bw['samples']} samples; read + written, a numba row loop on {args.threads} threads copying "
-               "256 MB; `CopyProbe`).", "",
+               f"{probe.src.nbytes >> 20} MB; `CopyProbe`).", "",
                traffic_table(r["stages"], traffic_bytes(cfg, *r["native"], u8_head), bw["median"] * 1e9)[0], "",
                "The bound is a model, not a floor: the probe writes as many bytes as it reads, and a write costs "
                "more than a read (the cache line is read for ownership first), so a step that mostly reads can "

@@ -1,6 +1,6 @@
 """Run time against error on the validation set: the pipeline's variants and the baselines.
 
-    .venv/bin/python benchmarks/tradeoff.py --artifacts out/artifacts --data data/val [--only NAME ...]
+    python -m benchmarks.tradeoff --artifacts out/artifacts --data data/val [--only NAME ...]
         [--out benchmarks/results/tradeoff]
 
 Every method turns each validation sequence into 2x frames, frame after frame; all are
@@ -25,14 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import (RESULTS, arguments, command_line, cpu_line, machine_info, pipeline,  # noqa: E402
+from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse, pipeline,
                                run_frames, spread, tune_process, write_report)
-from jnds_deploy import baselines  # noqa: E402
-from jnds_deploy.artifacts import Manifest  # noqa: E402
-from jnds_deploy.io import expand_sequences, open_sequence  # noqa: E402
-from jnds_deploy.training.evaluate import ground_truth, mean_over_sequences, score_frames  # noqa: E402
+from jnds_deploy import baselines
+from jnds_deploy.artifacts import Manifest
+from jnds_deploy.io import expand_sequences, open_sequence
+from jnds_deploy.training.evaluate import ground_truth, mean_over_sequences, score_frames
 
 
 class TorchPipeline:
@@ -146,22 +144,24 @@ def plot(report: dict, path: Path) -> None:
 
 
 def main() -> int:
-    ap = arguments(__doc__, RESULTS / "tradeoff")
+    ap = arguments(__doc__, RESULTS / "tradeoff", smoke={"data": [str(ROOT / "samples" / "orbit-160x90")], "frames": 3})
     ap.add_argument("--artifacts", default="out/artifacts")
     ap.add_argument("--data", nargs="+", default=["data/val"])
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--frames", type=int, default=None, help="the first frames of each sequence (default: all)")
     ap.add_argument("--only", nargs="*", default=None, help="substrings of method names to run")
     ap.add_argument("--plot-only", action="store_true", help="redraw the PNG from the JSON")
-    args = ap.parse_args()
+    args = parse(ap)
     if args.plot_only:
         out = Path(args.out)
         plot(json.loads(out.with_suffix(".json").read_text()), out.with_suffix(".png"))
         return 0
     tune_process()
     seqs = expand_sequences(args.data)
-    truth = {p: ground_truth(p) for p in seqs}
+    first = slice(None, args.frames)
+    truth = {p: tuple(t[first] for t in ground_truth(p)) for p in seqs}
     opened = {p: open_sequence(p) for p in seqs}
-    inputs = {p: [(s.inputs(i), f.camera_cut) for i, f in enumerate(s.frames)] for p, s in opened.items()}
+    inputs = {p: [(s.inputs(i), f.camera_cut) for i, f in enumerate(s.frames)][first] for p, s in opened.items()}
     report = {"command": command_line(), "threads": args.threads,
               "size": "x".join(map(str, opened[seqs[0]].native_size)) + " native",
               "sequences": [p.name for p in seqs], "methods": {}}

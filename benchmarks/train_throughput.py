@@ -1,7 +1,8 @@
 """Where a training step's time goes on this CPU, and patches per second.
 
-    .venv/bin/python benchmarks/train_throughput.py [--data data/spp8] [--sequences 12] [--steps 8]
+    python -m benchmarks.train_throughput [--data data/spp8] [--split train] [--sequences 12] [--steps 8]
         [--threads 2] [--feature-net runs/feature-spp8/feature_net.pt] [--clean-references oidn]
+        [--patch N] [--unroll N] [--batch N]
         [--out benchmarks/results/train_throughput]
 
 The step of `jnds train` (training.train) with the recipe the shipped checkpoint was trained
@@ -12,14 +13,13 @@ split; the time per sequence is reported), PatchSampler batches, the loss, AdamW
 gradient clipping. Each step is timed by phase (sampling the batch, the unrolled forward,
 the loss, backward, clipping and the optimizer) for two variants on the same batches, one
 after the other: `grid_sample`, the history warps' input gradient by autograd through
-PyTorch's bicubic `grid_sample` (jnds train until stop 67); `own`, by `filters.warp`'s own
-adjoint (`filters._WarpCPU`, since stop 67). Medians over --steps steps after 2 warm-up
-steps. A patch is one native patch of one frame, so a step trains batch x unroll patches.
+PyTorch's bicubic `grid_sample` (jnds train before commit 6e76537); `own`, by `filters.warp`'s own
+adjoint (`filters._WarpCPU`, since). Medians over --steps steps after 2 warm-up
+steps (none with --smoke). A patch is one native patch of one frame, so a step trains batch x unroll patches.
 Writes benchmarks/results/train_throughput.md and .json.
 """
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
@@ -27,18 +27,15 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
-
-from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info,  # noqa: E402
-                               write_report)
-from jnds_deploy import filters  # noqa: E402
-from jnds_deploy.checkpoint import default_checkpoint, read_checkpoint  # noqa: E402
-from jnds_deploy.io import find_sequences  # noqa: E402
-from jnds_deploy.model import JNDS, ModelConfig  # noqa: E402
-from jnds_deploy.training.config import TrainConfig  # noqa: E402
-from jnds_deploy.training.data import Augment, PatchSampler, load_sequence  # noqa: E402
-from jnds_deploy.training.losses import Loss  # noqa: E402
-from jnds_deploy.training.train import run_unroll  # noqa: E402
+from benchmarks.common import RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse, write_report
+from jnds_deploy import filters
+from jnds_deploy.checkpoint import default_checkpoint, read_checkpoint
+from jnds_deploy.io import find_sequences
+from jnds_deploy.model import JNDS, ModelConfig
+from jnds_deploy.training.config import TrainConfig
+from jnds_deploy.training.data import Augment, PatchSampler, load_sequence
+from jnds_deploy.training.losses import Loss
+from jnds_deploy.training.train import run_unroll
 
 PHASES = ("batch", "forward", "loss", "backward", "optimizer")
 VARIANTS = ("grid_sample", "own")
@@ -46,26 +43,45 @@ OWN_WARP = filters.warp
 
 
 def _grid_sample_warp(x: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
-    """``filters.warp`` as it was until stop 67: autograd through ``grid_sample``."""
+    """``filters.warp`` as it was before commit 6e76537: autograd through ``grid_sample``."""
     n, _, h, w = x.shape
     ys, xs = torch.meshgrid(torch.arange(h, dtype=x.dtype), torch.arange(w, dtype=x.dtype), indexing="ij")
     grid = torch.stack([2 * (xs + 0.5 + motion[:, 0]) / w - 1, 2 * (ys + 0.5 + motion[:, 1]) / h - 1], dim=-1)
     return F.grid_sample(x, grid, mode="bicubic", padding_mode="border", align_corners=False)
 
 
+def random_feature_net(path: Path) -> str:
+    """A randomly initialized feature-loss network at ``path``: a smoke run times the loss
+    without the trained one."""
+    from jnds_deploy.training.feature_loss import FeatureNet
+
+    widths = (16, 32, 64)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save({"widths": widths, "model": FeatureNet(widths).state_dict()}, path)
+    return str(path)
+
+
 def main() -> None:
-    ap = arguments(__doc__, RESULTS / "train_throughput")
+    ap = arguments(__doc__, RESULTS / "train_throughput",
+                   smoke={"data": str(ROOT), "split": "samples", "sequences": 1, "steps": 1, "feature_net": None,
+                          "patch": 16, "unroll": 2, "batch": 1})
     ap.add_argument("--data", default=str(ROOT / "data" / "spp8"))
+    ap.add_argument("--split", default="train", help="the directory of --data whose sequences train")
     ap.add_argument("--sequences", type=int, default=12)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--steps", type=int, default=8)
-    ap.add_argument("--feature-net", default=str(ROOT / "runs" / "feature-spp8" / "feature_net.pt"))
+    ap.add_argument("--feature-net", default=str(ROOT / "runs" / "feature-spp8" / "feature_net.pt"),
+                    help="the feature-loss network (with --smoke: randomly initialized, beside --out)")
     ap.add_argument("--clean-references", choices=("oidn",), default=None)
-    args = ap.parse_args()
+    ap.add_argument("--patch", type=int, default=None, help="native patch size (default: the recipe's)")
+    ap.add_argument("--unroll", type=int, default=None, help="frames unrolled (default: the recipe's)")
+    ap.add_argument("--batch", type=int, default=None, help="sequences of patches a step (default: the recipe's)")
+    args = parse(ap)
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
+    feature_net = args.feature_net or random_feature_net(Path(f"{args.out}-feature_net.pt"))
 
-    every = find_sequences(Path(args.data) / "train")
+    every = find_sequences(Path(args.data) / args.split)
     paths = every[:: max(1, len(every) // args.sequences)][:args.sequences]
     t0 = time.perf_counter()
     seqs = [load_sequence(p, args.clean_references) for p in paths]
@@ -74,7 +90,8 @@ def main() -> None:
     ckpt = read_checkpoint(default_checkpoint())
     known = set(TrainConfig.__dataclass_fields__)
     recipe = {k: v for k, v in ckpt["train_config"].items() if k in known}
-    cfg = TrainConfig(**{**recipe, "feature_net": args.feature_net, "init": None, "threads": args.threads})
+    given = {k: v for k in ("patch", "unroll", "batch") if (v := getattr(args, k)) is not None}
+    cfg = TrainConfig(**{**recipe, **given, "feature_net": feature_net, "init": None, "threads": args.threads})
     model = JNDS(ModelConfig(**ckpt["model_config"]))
     model.load_state_dict(ckpt["model"])
     loss_fn = Loss(cfg, model.cfg.scale)
@@ -88,7 +105,8 @@ def main() -> None:
                            Augment(cfg.exposure, cfg.rotate_normals, cfg.flips, cfg.colours),
                            cross_cuts=cfg.cross_cuts, balance_renderers=cfg.balance_renderers)
     rows = {name: [] for name in VARIANTS}
-    for step in range(args.steps + 2):
+    warmup = 0 if args.smoke else 2
+    for step in range(args.steps + warmup):
         t_batch = time.perf_counter()
         batch = sampler.batch(cfg.batch)
         t_batch = time.perf_counter() - t_batch
@@ -106,7 +124,7 @@ def main() -> None:
             torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
             opt.step()
             t.append(time.perf_counter())
-            if step >= 2:
+            if step >= warmup:
                 rows[name].append({"batch": t_batch, **{p: t[i + 1] - t[i] for i, p in enumerate(PHASES[1:])}})
             print(step, name, f"{t[-1] - t[0] + t_batch:.2f} s", flush=True)
     filters.warp = OWN_WARP
@@ -122,7 +140,7 @@ def main() -> None:
           f"`{args.data}` (references {args.clean_references or 'as rendered'}); medians of {args.steps} steps. "
           "Two variants train on the same batches from the same weights, one after the other in each step: "
           "`grid_sample`, the warps' input gradient by autograd through PyTorch's bicubic `grid_sample` (jnds "
-          "train until stop 67); `own`, by `filters.warp`'s own adjoint (since stop 67).\n",
+          "train before commit 6e76537); `own`, by `filters.warp`'s own adjoint (since).\n",
           "| phase | " + " | ".join(f"{n} s per step | share" for n in VARIANTS) + " |",
           "| --- |" + " ---: | ---: |" * len(VARIANTS)]
     for p in PHASES:

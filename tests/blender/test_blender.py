@@ -1,6 +1,6 @@
 """Blender in: a real Blender (bpy in its own environment) sets up and renders a scene, and
 ``jnds import cycles`` turns it into a sequence the pipeline runs. Skipped only where the
-Blender environment is absent (``scripts/setup.sh`` makes it; CI has it)."""
+Blender environment is absent (``tools/setup.sh`` makes it; CI has it)."""
 import json
 import os
 import subprocess
