@@ -2,7 +2,7 @@
 # make test: set up, then run the test suite.
 VENV   := .venv
 JNDS   := $(VENV)/bin/jnds
-EXTRAS ?= render,dev,bench,cluster
+EXTRAS ?= render,dev,bench,cluster,video
 comma  := ,
 STAMP  := $(VENV)/.installed-$(subst $(comma),-,$(EXTRAS))
 

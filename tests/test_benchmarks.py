@@ -40,6 +40,8 @@ SMOKES = {
     "exposure_sweep": Smoke(_keys("command", "rows", "worst_int8_minus_fp32_db"), needs=("flip_evaluator",)),
     "exr_write": Smoke(_keys("command", "median_ms", "bytes", "exact")),
     "firefly_clamp": Smoke(_keys("command", "factors", "report"), needs=("flip_evaluator", "skimage")),
+    "ghosting": Smoke(_keys("command", "mean", "sequences", "sheet", "video"),
+                      needs=("pyoidn", "flip_evaluator", "skimage", "imageio_ffmpeg")),
     "memory": Smoke(_keys("command", "sizes", "peak_mib_per_megapixel", "oidn_balanced_ms"), needs=("pyoidn",)),
     "render_timing": Smoke(_keys("command", "size", "spp2", "variant"), out="render_timing.json",
                            json="render_timing.json", markdown=False, artifacts=False, needs=("mitsuba",)),
