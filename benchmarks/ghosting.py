@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from benchmarks.common import RESULTS, ROOT, arguments, command_line, machine_info, machine_line, parse, write_report
+from benchmarks.common import RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse, write_report
 from jnds_deploy import baselines, contact_sheet, video
 from jnds_deploy.io import OUTPUT_LAYERS, expand_sequences, open_sequence, read_layers
 from jnds_deploy.runtime import Pipeline, PipelineConfig
@@ -49,7 +49,7 @@ def markdown(report: dict) -> str:
     methods = list(report["mean"])
     int8 = next(m for m in methods if m.startswith("JNDS"))
     lines = ["# Ghost trails: changed-pixel PSNR against a single-frame denoiser", "",
-             f"`{report['command']}`", "", machine_line(), "",
+             f"`{report['command']}`", "", f"{cpu_line(report['machine'])}, {report['machine']['usable_cores']} cores", "",
              "Changed pixels: where the previous frame showed another surface (`metrics.changed_mask`, "
              "docs/ghosting.md); their PSNR is pooled over every frame after the first. "
              "Display values (Reinhard, gamma 1/2.2) as every metric of the project.", "",

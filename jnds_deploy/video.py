@@ -32,6 +32,11 @@ def side_by_side(title: str, columns: dict[str, np.ndarray]) -> np.ndarray:
     return np.ascontiguousarray(render([(title, columns)])[..., ::-1])
 
 
+# imageio-ffmpeg's quality (0-10, 10 best): 5 keeps noise and trails visible at a few hundred
+# kB for a contact sheet's worth of frames
+QUALITY = 5
+
+
 def write_mp4(path: str | Path, frames, fps: int = FPS) -> Path:
     """Encode ``frames`` (an iterable of HWC uint8 RGB images of one size) to an H.264 MP4
     at ``path``, atomically. Odd sizes are padded by one edge row or column (yuv420p needs
@@ -50,7 +55,7 @@ def write_mp4(path: str | Path, frames, fps: int = FPS) -> Path:
             f = np.pad(f, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
             if writer is None:
                 size = f.shape[1], f.shape[0]
-                writer = imageio_ffmpeg.write_frames(str(tmp), size, fps=fps, codec="libx264", quality=8,
+                writer = imageio_ffmpeg.write_frames(str(tmp), size, fps=fps, codec="libx264", quality=QUALITY,
                                                      pix_fmt_out="yuv420p", macro_block_size=1,
                                                      output_params=["-movflags", "+faststart"])
                 writer.send(None)

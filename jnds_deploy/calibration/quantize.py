@@ -76,6 +76,7 @@ class CalibrateConfig:
     percentile: float = 99.999
     checkpoint: str | None = option(None, "PyTorch reference for validation (default: the manifest's)")
     threads: int = option(2, "ONNX Runtime threads")
+    verbose: bool = option(False, "print every validated output's difference (default: one summary line)")
     # the int8 network graph's edges in u8 (u8 activations only): its input the packed,
     # quantized preprocessing of the input block (calibration.inputs), its output the
     # output block's head, read by the filter stage (calibration.head). False: both stay
@@ -277,7 +278,7 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
     rows = validate_int8(root, manifest, cfg.method, feeds, cfg.checkpoint) + vrows
     manifest.int8_validation[cfg.method] = rows
     manifest.save(root)
-    report_validation(rows, log)
+    report_validation(rows, log, cfg.verbose)
     return manifest
 
 

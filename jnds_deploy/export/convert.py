@@ -29,6 +29,7 @@ class ExportConfig:
     validate_size: tuple[int, int] = (96, 64)  # native W, H of the validation inputs
     atol: float = 1e-4  # max |ONNX Runtime - PyTorch| allowed per output (fp32)
     seed: int = 0
+    verbose: bool = option(False, "print every validated output's difference (default: one summary line)")
 
 
 class _NetworkGraph(torch.nn.Module):
@@ -161,7 +162,7 @@ def export(cfg: ExportConfig, log=print) -> Manifest:
                         package_version=__version__, upsample_kernel=fixed)
     write_json(out / manifest.qat_ranges, qat_ranges(model, graphs, out, block_feeds))
     manifest.save(out)
-    report_validation(rows, log)
+    report_validation(rows, log, cfg.verbose)
     return manifest
 
 
@@ -216,13 +217,21 @@ def qat_ranges(model: JNDS, graphs: dict[str, Graph], out: Path, feeds: dict[str
     return result
 
 
-def report_validation(rows: list[dict], log=print) -> None:
-    """A check-mark line per output; one ValidationError listing every failure."""
-    for r in rows:
-        mark = "✓" if r["ok"] else "✗"
+def report_validation(rows: list[dict], log=print, verbose: bool = False) -> None:
+    """One line: how many outputs passed and the largest difference, where; with
+    ``verbose``, a check-mark line per output. One ValidationError lists every failure."""
+    def line(r):
         tol = f"atol {r['atol']:.0e}" + (f", mean tol {r['mean_tol']:.0e}" if r.get("mean_tol") else "")
-        log(f"{mark} {r['graph']}:{r['output']} max |diff| {r['max_abs']:.2e} mean {r['mean_abs']:.2e} ({tol})")
+        return f"{r['graph']}:{r['output']} max |diff| {r['max_abs']:.2e} mean {r['mean_abs']:.2e} ({tol})"
+
     failures = [r for r in rows if not r["ok"]]
+    if verbose:
+        for r in rows:
+            log(f"{'✓' if r['ok'] else '✗'} {line(r)}")
+    elif rows:
+        worst = max(rows, key=lambda r: r["max_abs"] / r["atol"])
+        log(f"{'✓' if not failures else '✗'} {len(rows) - len(failures)} of {len(rows)} outputs within tolerance; "
+            f"closest to its limit: {line(worst)}")
     if failures:
         raise ValidationError(failures)
 
