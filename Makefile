@@ -6,7 +6,7 @@ EXTRAS ?= render,dev,bench,cluster,video
 comma  := ,
 STAMP  := $(VENV)/.installed-$(subst $(comma),-,$(EXTRAS))
 
-.PHONY: setup demo test dataset clean
+.PHONY: setup demo test lint dataset clean
 
 setup: $(STAMP)
 
@@ -23,10 +23,15 @@ demo: setup
 	$(JNDS) calibrate --artifacts out/artifacts --data samples/orbit-160x90 --method qat
 	$(JNDS) run --artifacts out/artifacts --input samples/orbit-160x90 --output out/run --precision int8
 
-# pytest exit code 5 (no tests collected) is a failure, not a pass
-test: setup
+# lint and format first (ruff, configured in pyproject.toml); pytest exit code 5 (no tests
+# collected) is a failure, not a pass
+test: setup lint
 	$(VENV)/bin/python -m pytest -q; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests" >&2; exit 1; fi; exit $$rc
+
+lint: setup
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 
 dataset: setup
 	$(JNDS) dataset --out data

@@ -415,6 +415,31 @@ def count_nonfinite(layers: Layers, suffixes: Mapping[str, tuple[str, ...]]) -> 
     return out
 
 
+def check_headers(seq: Sequence, reference: bool = False) -> None:
+    """Every input frame's (with ``reference``, every reference frame's) EXR header read:
+    the file opens as OpenEXR, has the layers' channels and the sequence's size. Raises the
+    first error, naming the file; reads no pixels, so a run can check a whole sequence
+    before it writes anything (``validate`` reads every pixel)."""
+    kinds = [(seq.input_path, INPUT_LAYERS, seq.native_size)]
+    if reference and seq.has_reference:
+        kinds.append((seq.reference_path, REFERENCE_LAYERS, seq.target_size))
+    for i in range(len(seq)):
+        for path_of, required, (w, h) in kinds:
+            path = path_of(i)
+            try:
+                parts = OpenEXR.File(str(path), header_only=True).parts
+            except Exception as exc:
+                raise ExrReadError(path, f"unreadable OpenEXR header ({exc})") from exc
+            names = {c.name for part in parts for c in part.header.get("channels", [])}
+            missing = [c for layer, sfx in required.items() for c in channel_names(layer, sfx) if c not in names]
+            if missing:
+                raise ChannelError(path, f"missing channel(s) {', '.join(missing)}")
+            for part in parts:
+                lo, hi = part.header["dataWindow"]
+                if (int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)) != (w, h):
+                    raise ImageSizeError(path, f"is {hi[0] - lo[0] + 1}x{hi[1] - lo[1] + 1}, expected {w}x{h}")
+
+
 def validate(path: str | Path) -> ValidationReport:
     """Open a sequence and read every frame; raise the first structural error found."""
     seq = open_sequence(path)

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from .. import contact_sheet
-from ..io import OUTPUT_FORMATS, open_sequence, write_output
+from ..io import OUTPUT_FORMATS, check_headers, open_sequence, write_output
 from ..metrics import changed_mask
 from .pipeline import Pipeline, PipelineConfig
 
@@ -71,6 +71,7 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
     if output_format not in OUTPUT_FORMATS:
         raise ValueError(f"output format {output_format!r}: expected one of {', '.join(OUTPUT_FORMATS)}")
     seq = open_sequence(input_path)
+    check_headers(seq)  # a bad frame fails here, before anything is written
     pipe.reset()
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)

@@ -3,6 +3,7 @@ import importlib.util
 
 import cv2
 import numpy as np
+import pytest
 
 from jnds_deploy import contact_sheet
 from jnds_deploy.io import read_exr
@@ -85,3 +86,32 @@ def test_run_yields_each_frame_once_its_file_is_complete(tiny_artifacts, tmp_pat
     for i, stored in seen:
         expected = pipe(seq.inputs(i), seq.frames[i].camera_cut).output
         np.testing.assert_array_equal(np.stack([stored[f"color.{c}"] for c in "RGB"], -1), expected)
+
+
+@pytest.mark.parametrize("damage", ["not_exr", "channel", "size"])
+def test_a_bad_frame_fails_before_anything_is_written(tiny_artifacts, tmp_path, damage):
+    """A PNG renamed to .exr, a frame missing a channel, a frame of another size: frame 3
+    of 8 is reported, naming the file, and no output (not even the directory) exists."""
+    import shutil
+
+    from jnds_deploy.errors import SequenceError
+    from jnds_deploy.io import INPUT_LAYERS, read_exr, write_exr
+
+    seq = tmp_path / "seq"
+    shutil.copytree(SAMPLE, seq)
+    bad = seq / "inputs" / "0003.exr"
+    if damage == "not_exr":
+        cv2.imwrite(str(bad.with_suffix(".png")), np.zeros((4, 4, 3), np.uint8))
+        bad.with_suffix(".png").replace(bad)
+    else:
+        raw = read_exr(bad)
+        layers = {n: np.stack([raw[f"{n}.{c}" if c else n] for c in sfx], -1) for n, sfx in INPUT_LAYERS.items()}
+        if damage == "channel":
+            layers.pop("roughness")
+        else:
+            layers = {n: v[:-2] for n, v in layers.items()}
+        write_exr(bad, layers, {n: INPUT_LAYERS[n] for n in layers})
+    out = tmp_path / "out"
+    with pytest.raises(SequenceError, match="0003.exr"):
+        run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), seq, out, progress=False)
+    assert not out.exists()
