@@ -37,5 +37,8 @@ if [ "${BLENDER:-1}" != 0 ]; then
     "${PYTHON:-python3}" -m venv .venv-blender
   fi
   .venv-blender/bin/pip install -q bpy==5.0.1 2>&1 | grep -v "^WARNING: Location" || true
-  .venv-blender/bin/python -c "import bpy; print('setup: ok, Blender', bpy.app.version_string)"
+  # the package itself, editable and without its dependencies (Blender's numpy stays): what
+  # Blender's Python imports of it (jnds_deploy.blender) needs numpy and OpenEXR alone
+  .venv-blender/bin/pip install -q --no-deps -e . 2>&1 | grep -v "^WARNING: Location" || true
+  .venv-blender/bin/python -c "import bpy, jnds_deploy.blender; print('setup: ok, Blender', bpy.app.version_string)"
 fi
