@@ -138,3 +138,16 @@ def tiny_artifacts_root4(tmp_path_factory):
 def tiny_artifacts_fixed(tmp_path_factory):
     """The same with one learned upsample kernel for every pixel (no upsample graph)."""
     return _tiny_artifacts(tmp_path_factory, upsample_root=4, upsample_width=0, upsample_features=0)
+
+
+@pytest.fixture(scope="session")
+def shipped_artifacts(tmp_path_factory):
+    """The shipped checkpoint exported and calibrated (qat) on three frames of the sample,
+    as `make demo` makes out/artifacts: what the README and the benchmarks run on."""
+    from jnds_deploy.calibration import CalibrateConfig, calibrate
+    from jnds_deploy.export import ExportConfig, export
+
+    d = tmp_path_factory.mktemp("shipped-artifacts")
+    export(ExportConfig(out=str(d)), log=lambda s: None)
+    calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="qat", frames=3), log=lambda s: None)
+    return d

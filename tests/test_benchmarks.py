@@ -66,19 +66,6 @@ def _env() -> dict[str, str]:
     return {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
 
 
-@pytest.fixture(scope="module")
-def artifacts(tmp_path_factory):
-    """The shipped checkpoint exported and calibrated (qat) on three frames of the sample,
-    as `make demo` makes out/artifacts (the benchmarks' default)."""
-    from jnds_deploy.calibration import CalibrateConfig, calibrate
-    from jnds_deploy.export import ExportConfig, export
-
-    d = tmp_path_factory.mktemp("benchmark-artifacts")
-    export(ExportConfig(out=str(d)), log=lambda s: None)
-    calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="qat", frames=3), log=lambda s: None)
-    return d
-
-
 @pytest.mark.parametrize("name", [pytest.param(n, marks=[pytest.mark.slow] if s.slow else []) for n, s in SMOKES.items()])
 def test_smoke(name, tmp_path, request):
     smoke = SMOKES[name]
@@ -90,7 +77,7 @@ def test_smoke(name, tmp_path, request):
     out = tmp_path / (smoke.out or name)
     cmd = [sys.executable, "-m", f"benchmarks.{name}", "--smoke", "--out", str(out)]
     if smoke.artifacts:
-        cmd += ["--artifacts", str(request.getfixturevalue("artifacts"))]
+        cmd += ["--artifacts", str(request.getfixturevalue("shipped_artifacts"))]
     if name == "timing" and importlib.util.find_spec("pyoidn") is None:
         cmd.append("--no-oidn")
     proc = subprocess.run(cmd, cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=600)
