@@ -181,7 +181,8 @@ def cmd_run(args) -> int:
         gc.enable()
     cfg = PipelineConfig(**given(args, PipelineConfig), keep_freed_memory=True)
     exr_threads(cfg.threads)
-    report = run_sequence(cfg, args.input, args.output, progress=not args.quiet, output_format=args.output_format)
+    report = run_sequence(cfg, args.input, args.output, progress=not args.quiet, output_format=args.output_format,
+                          video=args.video, png=args.png)
     med = report["median_ms"]
     print(f"{report['frames']} frames -> {args.output}: median {med['total']:.1f} ms/frame "
           f"({report['native_size'][0]}x{report['native_size'][1]} -> "
@@ -189,8 +190,9 @@ def cmd_run(args) -> int:
     for line in score_lines(report):
         print(line)
     print(stage_table(report))
-    if "contact_sheet" in report:
-        print(f"contact sheet (input, OIDN, output, reference, changed pixels): {report['contact_sheet']}")
+    for key, what in (("contact_sheet", "contact sheet"), ("video", "video"), ("png", "PNG frames")):
+        if key in report:
+            print(f"{what}: {report[key]}")
     return 0
 
 
@@ -368,6 +370,9 @@ def _run_options(p: argparse.ArgumentParser) -> None:
     # the output formats of `jnds batch`, the same default
     p.add_argument("--output-format", default=BatchConfig.output_format, choices=tuple(OUTPUT_FORMATS),
                    help=OUTPUT_FORMAT_HELP)
+    p.add_argument("--video", action="store_true",
+                   help="also OUTPUT/output.mp4: the output frames, tonemapped (needs the video extra)")
+    p.add_argument("--png", default=None, metavar="DIR", help="also each output frame tonemapped, as DIR/NNNN.png")
     _quiet(p)
 
 

@@ -37,38 +37,63 @@ def side_by_side(title: str, columns: dict[str, np.ndarray]) -> np.ndarray:
 QUALITY = 5
 
 
+class Mp4Writer:
+    """An H.264 MP4 written frame by frame (``write``: HWC uint8 RGB, one size), renamed into
+    place on ``close`` (a run killed mid-way leaves no half file under the name). Odd sizes
+    are padded by one edge row or column (yuv420p needs even ones). Raises ConfigError when
+    imageio-ffmpeg is not installed."""
+
+    def __init__(self, path: str | Path, fps: int = FPS):
+        try:
+            import imageio_ffmpeg
+        except ImportError as e:
+            raise ConfigError("writing a video needs imageio-ffmpeg: pip install 'jnds-deploy[video]'") from e
+        self._ffmpeg = imageio_ffmpeg
+        self.path, self.fps = Path(path), fps
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = self.path.with_name(f".{self.path.name}.tmp.mp4")
+        self._gen, self.size, self.frames = None, None, 0
+
+    def write(self, frame: np.ndarray) -> None:
+        h, w = frame.shape[:2]
+        frame = np.pad(frame, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+        if self._gen is None:
+            self.size = frame.shape[1], frame.shape[0]
+            self._gen = self._ffmpeg.write_frames(str(self._tmp), self.size, fps=self.fps, codec="libx264",
+                                                  quality=QUALITY, pix_fmt_out="yuv420p", macro_block_size=1,
+                                                  output_params=["-movflags", "+faststart"])
+            self._gen.send(None)
+        elif (frame.shape[1], frame.shape[0]) != self.size:
+            raise ValueError(f"{self.path}: frame of {frame.shape[1]}x{frame.shape[0]} in a video of "
+                             f"{self.size[0]}x{self.size[1]}")
+        self._gen.send(np.ascontiguousarray(frame))
+        self.frames += 1
+
+    def close(self) -> Path:
+        if self._gen is None:
+            raise ValueError(f"{self.path}: no frames")
+        self._gen.close()
+        os.replace(self._tmp, self.path)
+        return self.path
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, value, tb):
+        if kind is None:
+            self.close()
+        elif self._gen is not None:
+            self._gen.close()
+            self._tmp.unlink(missing_ok=True)
+
+
 def write_mp4(path: str | Path, frames, fps: int = FPS) -> Path:
     """Encode ``frames`` (an iterable of HWC uint8 RGB images of one size) to an H.264 MP4
-    at ``path``, atomically. Odd sizes are padded by one edge row or column (yuv420p needs
-    even ones). Raises ConfigError when imageio-ffmpeg is not installed."""
-    try:
-        import imageio_ffmpeg
-    except ImportError as e:
-        raise ConfigError("writing a video needs imageio-ffmpeg: pip install 'jnds-deploy[video]'") from e
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.mp4")
-    writer = None
-    try:
+    at ``path`` (``Mp4Writer``)."""
+    with Mp4Writer(path, fps) as w:
         for f in frames:
-            h, w = f.shape[:2]
-            f = np.pad(f, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
-            if writer is None:
-                size = f.shape[1], f.shape[0]
-                writer = imageio_ffmpeg.write_frames(str(tmp), size, fps=fps, codec="libx264", quality=QUALITY,
-                                                     pix_fmt_out="yuv420p", macro_block_size=1,
-                                                     output_params=["-movflags", "+faststart"])
-                writer.send(None)
-            elif (f.shape[1], f.shape[0]) != size:
-                raise ValueError(f"{path}: frame of {f.shape[1]}x{f.shape[0]} in a video of {size[0]}x{size[1]}")
-            writer.send(np.ascontiguousarray(f))
-    finally:
-        if writer is not None:
-            writer.close()
-    if writer is None:
-        raise ValueError(f"{path}: no frames")
-    os.replace(tmp, path)
-    return path
+            w.write(f)
+    return w.path
 
 
 def read_mp4(path: str | Path) -> list[np.ndarray]:

@@ -16,6 +16,7 @@ import numpy as np
 from .. import contact_sheet
 from ..io import OUTPUT_FORMATS, check_headers, open_sequence, write_output
 from ..metrics import changed_mask
+from ..video import Mp4Writer, display
 from .pipeline import Pipeline, PipelineConfig
 
 
@@ -47,14 +48,15 @@ def score_lines(report: dict) -> list[str]:
 
 
 def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path,
-                 progress: bool = True, metrics: bool = True, output_format: str = "float") -> dict:
+                 progress: bool = True, metrics: bool = True, output_format: str = "float",
+                 video: bool = False, png: str | Path | None = None) -> dict:
     """The sequence through a new pipeline; returns the report ``OUT/run.json`` holds.
-    ``output_format``: one of ``io.OUTPUT_FORMATS``."""
+    ``output_format``: one of ``io.OUTPUT_FORMATS``; ``video``, ``png``: see ``iter_run``."""
     from tqdm import tqdm
 
     n = len(open_sequence(input_path))
     with tqdm(total=n, desc=f"run {Path(input_path).name}", unit="frame", disable=not progress) as bar:
-        for item in iter_run(Pipeline(cfg), input_path, output, metrics, output_format):
+        for item in iter_run(Pipeline(cfg), input_path, output, metrics, output_format, video, png):
             if isinstance(item, dict):
                 return item
             bar.update(1)
@@ -62,11 +64,13 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
 
 
 def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics: bool = True,
-             output_format: str = "float"):
+             output_format: str = "float", video: bool = False, png: str | Path | None = None):
     """``run_sequence`` on an existing pipeline (its history is reset first), one step at a
     time: yields each frame's index once the frame is written, then the report, after
     ``OUT/run.json`` (written last, atomically: a directory with it is complete). The
-    metrics score the frame as computed (float32), before it is stored."""
+    metrics score the frame as computed (float32), before it is stored. With ``video``,
+    also ``OUT/output.mp4``; with ``png``, each frame as ``png/NNNN.png``: the output through
+    the display mapping of every picture here (``video.display``)."""
     cfg = pipe.cfg
     if output_format not in OUTPUT_FORMATS:
         raise ValueError(f"output format {output_format!r}: expected one of {', '.join(OUTPUT_FORMATS)}")
@@ -77,8 +81,11 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
     out.mkdir(parents=True, exist_ok=True)
     frames, scores, baseline_scores, nonfinite, decisions, rejected = [], [], [], [], [], []
     previous = None  # the previous frame's inputs, for the changed-pixel mask
-    shown = set(contact_sheet.sheet_frames(len(seq))) if seq.has_reference else set()
+    shown = set(contact_sheet.sheet_frames(len(seq)))
     sheet = []
+    mp4 = Mp4Writer(out / "output.mp4") if video else None
+    if png is not None:
+        Path(png).mkdir(parents=True, exist_ok=True)
     # reading and writing beside the computation: OpenEXR lets go of the GIL while it reads
     # and writes, so frame i + 1 is read and frame i - 1 written while frame i runs
     # (benchmarks/results/memory.md). Leaving the block waits for the writes, also on an error.
@@ -94,7 +101,8 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
             if writing is not None:
                 writing[1].result()
                 yield writing[0]
-            writing = (i, writer.submit(write_output, out / f"{i:04d}.exr", color, output_format))
+            writing = (i, writer.submit(_write, out / f"{i:04d}.exr", color, output_format, mp4,
+                                        None if png is None else Path(png) / f"{i:04d}.png"))
             frames.append(frame.ms)
             nonfinite.append(frame.nonfinite)
             decisions.append({k: v for k, v in frame.decisions.items() if v})
@@ -113,11 +121,15 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
                 if baseline is not None:
                     baseline_scores.append(_scores(baseline, ref, mask))
             if i in shown:
+                if baseline is None:  # no reference: OIDN for the sheet alone
+                    baseline = _baseline(inputs, pipe.out_scale)
                 sheet.append((f"frame {i}", _sheet_row(inputs, color, ref, baseline, mask)))
             previous = inputs
         if writing is not None:
             writing[1].result()
             yield writing[0]
+    if mp4 is not None:
+        mp4.close()
     stages = sorted({k for f in frames for k in f})
     report = {
         "input": str(seq.path), "artifacts": str(Path(cfg.artifacts)),
@@ -142,6 +154,10 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
             report["baseline"] = dict(_summary(baseline_scores), method=BASELINE)
     if sheet:
         report["contact_sheet"] = str(contact_sheet.write(out / "contact.png", sheet))
+    if mp4 is not None:
+        report["video"] = str(mp4.path)
+    if png is not None:
+        report["png"] = str(png)
     tmp = out / ".run.json.tmp"
     tmp.write_text(json.dumps(report, indent=1))
     os.replace(tmp, out / "run.json")
@@ -189,14 +205,27 @@ def _summary(scores: list[dict]) -> dict:
 
 
 def _sheet_row(inputs: dict, output, reference, baseline, mask) -> dict:
-    """The images of one contact-sheet row: the noisy input, OIDN (if installed), output,
-    reference, and the reference with the changed pixels marked."""
+    """The images of one contact-sheet row: the noisy input, OIDN (if installed), output
+    and, where the sequence has one, the reference and the reference with the changed
+    pixels marked."""
     from .. import baselines
 
     row = {"input": baselines.noisy_composite(inputs)}
     if baseline is not None:
         row[BASELINE] = baseline
     row["JNDS"] = output
-    row["reference"] = reference
-    row["changed pixels"] = contact_sheet.mark(reference, mask)
+    if reference is not None:
+        row["reference"] = reference
+        row["changed pixels"] = contact_sheet.mark(reference, mask)
     return row
+
+
+def _write(path: Path, color: np.ndarray, output_format: str, mp4: Mp4Writer | None, png: Path | None) -> None:
+    """One output frame, on the writer thread: the EXR, the video's frame, the PNG."""
+    write_output(path, color, output_format)
+    if mp4 is not None or png is not None:
+        shown = display(color)
+        if mp4 is not None:
+            mp4.write(shown)
+        if png is not None and not cv2.imwrite(str(png), shown[..., ::-1]):
+            raise OSError(f"{png}: could not write the PNG")

@@ -115,3 +115,36 @@ def test_a_bad_frame_fails_before_anything_is_written(tiny_artifacts, tmp_path, 
     with pytest.raises(SequenceError, match="0003.exr"):
         run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), seq, out, progress=False)
     assert not out.exists()
+
+
+def test_video_and_png_frames(tiny_artifacts, tmp_path):
+    """--video: an MP4 of every output frame that decodes back to the --png frames it was
+    made from (H.264, lossy: a few levels of 255 on average), in order."""
+    pytest.importorskip("imageio_ffmpeg")
+    from jnds_deploy.video import read_mp4
+
+    report = run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), SAMPLE, tmp_path,
+                          progress=False, video=True, png=tmp_path / "png")
+    frames = read_mp4(report["video"])
+    pngs = [cv2.imread(str(tmp_path / "png" / f"{i:04d}.png"))[..., ::-1].astype(np.float32) for i in range(8)]
+    assert len(frames) == 8 and all(f.shape == (180, 320, 3) for f in frames)
+    for i, f in enumerate(frames):
+        diffs = [np.abs(f - p).mean() for p in pngs]
+        assert diffs[i] < 8 and int(np.argmin(diffs)) == i, diffs  # a random model: grainy, costly to encode
+    # the PNG is the output through the display mapping
+    out = read_exr(tmp_path / "0005.exr")
+    rgb = np.stack([out[f"color.{c}"] for c in "RGB"], -1)
+    np.testing.assert_allclose(pngs[5], to_ldr(rgb) * 255, atol=1.0)
+
+
+def test_a_sequence_without_references_gets_a_contact_sheet(tiny_artifacts, tmp_path):
+    import shutil
+
+    seq = tmp_path / "seq"
+    shutil.copytree(SAMPLE, seq, ignore=shutil.ignore_patterns("reference"))
+    report = run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), seq, tmp_path / "out",
+                          progress=False)
+    assert "metrics" not in report
+    sheet = cv2.imread(report["contact_sheet"])
+    columns = 3 if importlib.util.find_spec("pyoidn") else 2  # input, (OIDN,) JNDS
+    assert sheet.shape[1] == columns * (320 + contact_sheet.GAP) - contact_sheet.GAP
