@@ -6,7 +6,7 @@ float16 (``dtype`` of the inputs is kept); kernels (9, H, W) in row-major 3x3 or
 borders replicate the edge pixel.
 
 Notes: the warp is a numba loop with exact coordinates (cv2.remap quantizes them to 1/32
-pixel and took twice as long); both it and torch.grid_sample use the bicubic kernel with
+pixel and was slower); both it and torch.grid_sample use the bicubic kernel with
 a = -0.75. ``cv2.resize(INTER_LINEAR)`` has the pixel-centre convention of
 ``align_corners=False``.
 
@@ -15,7 +15,7 @@ around it (the lerp of the spatiotemporal filter and of the up levels, the ReLU,
 pooling) are single-pass loops compiled by numba and run over rows on all threads; the
 same sums in the same order as the numpy code (bit-equal, a test holds it). numpy
 makes ~36 passes over memory for one spatiotemporal filter where the fused loop makes
-one (docs/design-notes.md has the speed-ups). numba has no float16 arithmetic on the
+one (docs/architecture.md, "The filter stage"). numba has no float16 arithmetic on the
 CPU, so float16 runs the numpy code, which rounds every operation to float16 as a GPU's half
 arithmetic would (and is slow: numpy emulates half precision).
 """
@@ -61,7 +61,7 @@ def _taps(src, k, c, ya, yb, yc, y, xa, xb, xc, x):
 # The row loops below filter a row's first and last pixels (whose clamped neighbours are
 # the border) apart from its interior, where the neighbours are i - 1 and i + 1: with
 # clamped indices in the loop LLVM kept it scalar on AVX2 (same sums, bit-equal;
-# docs/design-notes.md).
+# docs/architecture.md, "The filter stage").
 
 
 @njit(inline="always")
@@ -181,7 +181,7 @@ def _pass_tiles(src: np.ndarray, out: np.ndarray, skip, tile: int) -> np.ndarray
     """Empty tiles (``skip``, float32 only) take the source's values. The filter loops
     run over every pixel and the tiles are put back afterwards: loops that skipped the
     tiles themselves lost their vectorization and ran slower per pixel
-    (docs/design-notes.md)."""
+    (docs/architecture.md, "The filter stage")."""
     if skip is not None:
         _restore_tiles(src, out, skip, tile)
     return out
@@ -329,7 +329,7 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, tol, rej):
         off = np.empty(W, np.bool_)
         # the row's tap positions and weights first, in a loop of their own: independent per
         # pixel, it vectorizes. Computed inside the sampling loop, they left the channel sums
-        # scalar too, and the warp took 1.5-1.8x the time (docs/performance.md, stop 74)
+        # scalar too, and the warp slower (docs/architecture.md, "The filter stage")
         for x in range(W):
             px, py = np.float32(x) + motion[0, y, x], np.float32(y) + motion[1, y, x]
             # jnds_deploy.filters.offscreen
@@ -364,7 +364,7 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, tol, rej):
                 out[c, y, x] = min(max(row[x, c], lo[c]), hi[c])
         if reject:
             # on the clamped row just written (cache-resident); a select in the loop above
-            # kept LLVM from vectorizing it (docs/design-notes.md)
+            # kept LLVM from vectorizing it (docs/architecture.md, "The filter stage")
             _mark_row(current, out, y, cos, background, tol, off, rej)
 
 
@@ -389,7 +389,7 @@ def _interleave(a, b, d, e, out, flush, nonfinite):
         if ca == 3 and cb == 3 and cd == 3 and ce == 3:
             # the history's four layers: with the channel count a constant, the 12 values of
             # a pixel are one unrolled run of loads and stores, faster than the loop below
-            # (docs/performance.md, "Speed", stop 51)
+            # (the record: docs/performance.md at commit 5431ce1)
             o = out[y]
             for x in range(W):
                 for c in range(3):
@@ -448,8 +448,8 @@ def tile_sums(x, c0, tile):
     out = np.zeros((th, tw))
     for ty in prange(th):
         # each column summed down the tile row first: sums independent along the row, which
-        # vectorize. One running sum per tile was a chain of dependent float64 adds, 3.9x
-        # the time (docs/performance.md, stop 74)
+        # vectorize. One running sum per tile was a chain of dependent float64 adds, several times
+        # the time (the record: docs/performance.md at commit 5431ce1)
         col = np.zeros(W)
         for y in range(ty * tile, min((ty + 1) * tile, H)):
             a, b, d = x[c0, y], x[c0 + 1, y], x[c0 + 2, y]
@@ -468,7 +468,7 @@ def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None, curr
     (2, H, W): out(x, y) = x_prev(x + mx, y + my), pixel centres at integers, taps beyond
     the border replicate it (``jnds_deploy.filters.warp``, exact coordinates: no 1/32-pixel
     quantization as in cv2.remap). Returns (12, H, W) float32, channel c clamped to
-    [lo[c], hi[c]] if given. Faster than one cv2.remap per channel (docs/design-notes.md).
+    [lo[c], hi[c]] if given. Faster than one cv2.remap per channel (docs/architecture.md, "The filter stage").
 
     With ``current`` (the frame's (13, H, W) inputs), the history rejection
     (``reject_disoccluded`` with this motion's ``offscreen``) runs in the same pass and the
@@ -649,7 +649,7 @@ def _max3(row, out, skip_centre):
 def _clamp_rows(current, lum, k, counts):
     # the 3x3 maximum as maxima of three along each row (border columns apart: clamped
     # indices in the loop kept it scalar) taken over the three rows; maxima are exact, so
-    # the bounds are the 3x3 loop's bit for bit (docs/design-notes.md)
+    # the bounds are the 3x3 loop's bit for bit (docs/architecture.md, "The filter stage")
     h, w = current.shape[1], current.shape[2]
     for y in prange(h):
         ya, yc = max(y - 1, 0), min(y + 1, h - 1)
@@ -1007,7 +1007,7 @@ def _apply_phases(x, k, out, s):
     Each target row's taps are first interleaved into a row buffer (cache-resident), so the
     tap loop stays contiguous and vectorizes; reading the phases in place was slower, and
     making a target-layout kernel with ONNX Runtime's DepthToSpace slower still
-    (docs/design-notes.md)."""
+    (docs/architecture.md, "The network graph")."""
     C, H, W = x.shape
     w = W // s
     for y in prange(H):
@@ -1114,7 +1114,7 @@ def _upsample2_fixed_hwc(r, k, squarings, out):
                               + k[3] * m[x] + k[4] * m[x + 1] + k[5] * m[x + 2]
                               + k[6] * z[x] + k[7] * z[x + 1] + k[8] * z[x + 2])
             # stored interleaved with selects, not a branch, and counted as a sum: the
-            # branch kept this loop scalar, half the pass (docs/performance.md, stop 75)
+            # branch kept this loop scalar, and slower (the record: docs/performance.md at commit 5431ce1)
             if C == 3:
                 a0, a1, a2, o = acc[0], acc[1], acc[2], out[y].reshape(3 * Wo)  # flat: a stride LLVM knows
                 n = 0
