@@ -35,7 +35,7 @@ FORMAT = "jnds-sequence/1"
 INPUT_LAYERS: dict[str, tuple[str, ...]] = {layer.name: layer.suffixes for layer in LAYERS}
 # ``denoising_albedo`` (layout.GUIDE): the guide albedo a single-frame denoiser takes, a
 # metal's tint and what lies behind glass included (Cycles' Denoising Albedo pass); the OIDN
-# baseline reads it (docs/dataset.md, "The OIDN baseline's albedo"), and a network trained
+# baseline reads it (docs/dataset.md, "What a sequence holds"), and a network trained
 # with it (ModelConfig.guide_albedo)
 OPTIONAL_INPUT_LAYERS: dict[str, tuple[str, ...]] = {"depth": ("",), GUIDE.name: GUIDE.suffixes}
 REFERENCE_LAYERS: dict[str, tuple[str, ...]] = {"color": ("R", "G", "B")}
@@ -46,9 +46,9 @@ OPTIONAL_REFERENCE_LAYERS: dict[str, tuple[str, ...]] = {
 }
 OUTPUT_LAYERS = REFERENCE_LAYERS
 # how `jnds run` and `jnds batch` store output frames: {name: (layers stored as half,
-# compression)}. float: 32-bit, uncompressed (ZIP took 4.6x as long as the frame write
-# without it and saved 14 % on a denoised 2560x1440 frame; docs/performance.md); half:
-# 16-bit, PIZ (lossless for half data), a quarter of float ZIP's size
+# compression)}. float: 32-bit, uncompressed (ZIP took several times as long to write and
+# saved little on a denoised frame: benchmarks/results/exr_write.md); half: 16-bit, PIZ
+# (lossless for half data), a quarter of float ZIP's size
 OUTPUT_FORMATS = {"float": (frozenset(), OpenEXR.NO_COMPRESSION), "half": (frozenset({"color"}), OpenEXR.PIZ_COMPRESSION)}
 
 _FRAME_RE = re.compile(r"^(\d{4,})\.exr$")
@@ -187,7 +187,7 @@ def write_output(path: str | Path, color: np.ndarray, fmt: str = "float") -> Non
 def exr_threads(n: int) -> None:
     """OpenEXR compresses and decompresses with ``n`` threads (process-wide; 0: in the
     calling thread, OpenEXR's default). Writing a 2x output frame takes longer than
-    computing it without (docs/design-notes.md): `jnds run`, `jnds batch`'s workers and
+    computing it without (benchmarks/results/exr_write.md): `jnds run`, `jnds batch`'s workers and
     `jnds serve` set it to their thread count."""
     OpenEXR.set_global_thread_count(max(0, int(n)))
 

@@ -131,8 +131,9 @@ class Stream:
         self.closed = False
 
 
-# peak memory of a frame in the pipeline per native pixel (int8, 2x output, buffers kept):
-# measured at 320x180 to 1280x720 (docs/design-notes.md, benchmarks/results/memory.md), rounded up
+# peak memory of a frame in the pipeline per native pixel (int8, 2x output, buffers kept), an
+# estimate on the safe side: the peak RSS per input pixel of `jnds run` between sizes
+# (benchmarks/results/memory.md and the per-CPU memory-*.md), rounded up
 FRAME_BYTES_PER_PIXEL = 1700
 
 
