@@ -282,17 +282,26 @@ def _import_options(p: argparse.ArgumentParser) -> None:
     ic.set_defaults(func=cmd_import_cycles)
 
 
+def _split(name: str) -> str:
+    """``--split``'s value, a held-out split's old name as its new one (with a note)."""
+    from .render.dataset import OLD_SPLIT_NAMES
+
+    if name in OLD_SPLIT_NAMES:
+        print(f"jnds dataset: split {name} is now called {OLD_SPLIT_NAMES[name]} and renders into a directory "
+              f"of that name; the old name will go", file=sys.stderr)
+    return OLD_SPLIT_NAMES.get(name, name)
+
+
 def _dataset_options(d: argparse.ArgumentParser) -> None:
-    from .render.dataset import EXTRA_SEEDS, TRAIN_SEQUENCES
+    from .render.dataset import EXTRA_SEEDS, SPLITS, TRAIN_SEQUENCES
     from .render.sequence import ENGINES
 
     d.add_argument("--out", default="data", help="the directory the splits go to")
-    d.add_argument("--split", default="all",
-                   choices=("train", "val", "all", "test", "holdout", "holdout2", "holdout3", "holdout4", "media"),
-                   help="all = train + val; test (seeds never trained or selected on), holdout (Cycles: kinds "
-                        "written after the test was read), holdout2 (kinds written after the holdout was read), "
-                        "holdout3 (after holdout2 was read), holdout4 (after holdout3 was) and media (Cycles: unseen "
-                        "seeds of the media training kind) only when asked for")
+    d.add_argument("--split", default="all", choices=SPLITS, type=_split,
+                   help="all = train + val; test (seeds never trained or selected on); Cycles only: the held-out "
+                        "splits of kinds no training set has, each written after the one before had been looked "
+                        "at (holdout, street-studio, grove-haze, bathroom-fur; docs/dataset.md, \"Splits\"), and "
+                        "media (unseen seeds of the media training kind)")
     d.add_argument("--limit", type=int, default=None, help="only the first N sequences")
     d.add_argument("--list", action="store_true", help="print the sequences and exit")
     d.add_argument("--train-sequences", type=int, default=TRAIN_SEQUENCES,

@@ -28,7 +28,7 @@ def blender_python() -> Path:
     """The Python interpreter of the Blender environment, or RenderError saying how to make one."""
     path = Path(os.environ.get(BLENDER_ENV) or ROOT / ".venv-blender" / "bin" / "python")
     if not path.is_file():
-        raise RenderError(f"{path}: no Blender environment; `make setup` (scripts/setup.sh) creates "
+        raise RenderError(f"{path}: no Blender environment; `make setup` (tools/setup.sh) creates "
                           f".venv-blender with bpy==5.0.1, or point {BLENDER_ENV} at a Python that has bpy")
     return path
 

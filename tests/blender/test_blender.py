@@ -1,6 +1,6 @@
 """Blender in: a real Blender (bpy in its own environment) sets up and renders a scene, and
 ``jnds import cycles`` turns it into a sequence the pipeline runs. Skipped only where the
-Blender environment is absent (``scripts/setup.sh`` makes it; CI has it)."""
+Blender environment is absent (``tools/setup.sh`` makes it; CI has it)."""
 import json
 import os
 import subprocess
@@ -161,7 +161,7 @@ def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has
             for _, cfg in dataset_specs(split, 200, engine="cycles", extra_sequences=extra)]
     kinds, seeds = {k for k, _ in seen}, {s for _, s in seen}
     assert set(CYCLES_EXTRA_KINDS) <= kinds
-    assert list(UNSEEN_KINDS) == ["test", "holdout", "holdout2", "holdout3", "holdout4"]
+    assert list(UNSEEN_KINDS) == ["test", "holdout", "street-studio", "grove-haze", "bathroom-fur"]
     for split, split_kinds in UNSEEN_KINDS.items():
         specs = [cfg for _, cfg in dataset_specs(split, engine="cycles")]
         got = {cfg.scene for cfg in specs}
@@ -170,6 +170,21 @@ def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has
         kinds |= got
         seeds |= {cfg.seed for cfg in specs}
     assert kinds == set(CYCLES_SCENE_KINDS)  # every kind is in some split
+
+
+def test_the_held_out_splits_old_names_are_their_new_ones_with_a_warning(capsys):
+    """``holdout2``, ``holdout3`` and ``holdout4`` are what ``street-studio``, ``grove-haze`` and
+    ``bathroom-fur`` were called: the same sequences under the new name, and a warning."""
+    from jnds_deploy.render.dataset import OLD_SPLIT_NAMES, dataset_specs
+    assert OLD_SPLIT_NAMES == {"holdout2": "street-studio", "holdout3": "grove-haze", "holdout4": "bathroom-fur"}
+    for old, new in OLD_SPLIT_NAMES.items():
+        with pytest.warns(FutureWarning, match=f"{old}.*now called.*{new}"):
+            assert dataset_specs(old, engine="cycles") == dataset_specs(new, engine="cycles")
+        assert main(["dataset", "--engine", "cycles", "--split", old, "--list"]) == 0
+        out, err = capsys.readouterr()
+        assert f"split {old} is now called {new}" in err
+        assert [line.split()[0] for line in out.splitlines()] == [rel for rel, _ in dataset_specs(new, engine="cycles")]
+        assert all(line.startswith(f"{new}/") for line in out.splitlines())
 
 
 def test_the_media_split_is_unseen_seeds_of_the_media_training_kind():
