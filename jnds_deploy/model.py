@@ -139,7 +139,7 @@ class ModelConfig:
             "medium": dict(encoder_widths=(32, 48), bottleneck_width=64, output_width=24),
             # the U-Net wider again (about 53 GMAC at 720p; the output block as in "medium"):
             # what the time allowed beside OIDN left room for on a 2-core CPU (docs/training.md,
-            # gen8); widened from "medium" the same way
+            # "The lineage"); widened from "medium" the same way
             "large": dict(encoder_widths=(48, 64), bottleneck_width=96, output_width=24),
             # "large" one U-Net level deeper, filtering down to native / 16 (4 levels, as the
             # paper): the reach "large" lacked on unseen scenes (docs/model-gap.md); deepened

@@ -8,7 +8,7 @@ from jnds_deploy.runtime import reformat
 def _taps_in_float(dec, nat, sd, zd, sn, zn, sb, zb):
     """The bilinear 2x upsampling (half-pixel centres, edge taps clamped) with each output's
     four taps weighted in float32, then requantized, and the skip requantized: the pass as it
-    was before stop 58."""
+    was before commit 53b8086."""
     f = np.float32
     h, w, cd = dec.shape
     H, W = 2 * h, 2 * w
