@@ -103,7 +103,9 @@ class ServeConfig:
     body_timeout: float = 60.0
     max_connections: int = option(256, "connections at once; the next gets a 503")
     max_nonfinite: float = 0.5  # a layer with more NaN/Inf than this fraction: 400 (a NaN flood)
-    keep_freed_memory: bool = False  # PipelineConfig.keep_freed_memory (process-wide; `jnds serve` sets it)
+    # PipelineConfig.keep_freed_memory (process-wide; `jnds serve` makes it with the other
+    # process-wide settings, process.tune_process)
+    keep_freed_memory: bool = False
     # the first frame at a new size otherwise pays ONNX Runtime's allocations at that size
     # (docs/performance.md)
     warmup: tuple[tuple[int, int], ...] = option(
