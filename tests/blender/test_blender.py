@@ -65,10 +65,20 @@ def test_configured_render_imports_validates_and_runs(renders, tmp_path, tiny_ar
     assert main(["validate", str(tmp_path / "seq"), "--strict"]) == 0
     assert main(["run", "--artifacts", str(tiny_artifacts[0]), "--input", str(tmp_path / "seq"),
                  "--output", str(tmp_path / "run"), "--precision", "fp32", "--quiet"]) == 0
+    # on Cycles' data the run computes what the torch specification does (as on the sample,
+    # tests/runtime/test_pipeline.py), and scores the frames it wrote against the reference
+    from jnds_deploy.metrics import psnr
+    from jnds_deploy.training.evaluate import infer_sequence
+    want = infer_sequence(tiny_artifacts[1], load_sequence(tmp_path / "seq"))
+    scores = json.loads((tmp_path / "run" / "run.json").read_text())["metrics"]["per_frame"]
+    assert len(want) == len(scores) == len(seq)
     for i in range(len(seq)):
         out = read_exr(tmp_path / "run" / f"{i:04d}.exr")
         out = np.stack([out[f"color.{c}"] for c in "RGB"], -1)
         assert out.shape == (80, 128, 3) and np.isfinite(out).all() and out.min() >= 0
+        rel = np.abs(out - want[i]).mean() / np.abs(want[i]).mean()
+        assert rel < 1e-4, (i, rel)
+        assert scores[i]["psnr"] == pytest.approx(psnr(out, seq.reference(i)["color"]), abs=1e-9), i
     assert (tmp_path / "run" / "contact.png").is_file()
 
 
