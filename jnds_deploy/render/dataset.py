@@ -57,8 +57,9 @@ EXTRA_SEEDS = {"mixed": 9000, "lights": 10000, "interior": 11000, "detail": 1200
 # the Cycles held-out splits' first seeds, in the order the splits were written
 # (blender_scene.CYCLES_HOLDOUT_KINDS)
 HOLDOUT_SEEDS = {"holdout": 7100, "street-studio": 7200, "grove-haze": 7300, "bathroom-fur": 7400}
-# the held-out splits' names before they were named by their kinds: still accepted, with a warning
-OLD_SPLIT_NAMES = {"holdout2": "street-studio", "holdout3": "grove-haze", "holdout4": "bathroom-fur"}
+# the later held-out splits' old names, "holdout" numbered from 2 in the order they were
+# written: still accepted, with a warning
+OLD_SPLIT_NAMES = {f"holdout{n}": split for n, split in enumerate(list(HOLDOUT_SEEDS)[1:], start=2)}
 SPLITS = ("train", "val", "all", "test", *HOLDOUT_SEEDS, "media")
 # the media split: unseen seeds of the training-only kind ``media``, rendered after the albedo
 # at holes (docs/model-gap.md) had been chosen on media training sequences, to check that choice
@@ -82,9 +83,9 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     trained on, and no checkpoint or setting is chosen by it. The held-out splits (Cycles
     only) are the same for two more scene kinds each, each written after the split before
     it had been looked at (``blender_scene.CYCLES_HOLDOUT_KINDS``): holdout (seeds 7100+),
-    street-studio (7200+), grove-haze (7300+) and bathroom-fur (7400+); their old names
-    holdout2, holdout3 and holdout4 (``OLD_SPLIT_NAMES``) are still accepted, with a
-    warning. The media split (Cycles only, seeds 16100+) is six sequences of the training
+    street-studio (7200+), grove-haze (7300+) and bathroom-fur (7400+); their old names,
+    ``holdout`` numbered from 2 (``OLD_SPLIT_NAMES``), are still accepted, with a warning.
+    The media split (Cycles only, seeds 16100+) is six sequences of the training
     kind ``media`` at unseen seeds (``MEDIA_SEEDS``).
     """
     if split in OLD_SPLIT_NAMES:
