@@ -144,8 +144,8 @@ def test_tune_process_makes_every_setting_once():
             "print(json.dumps([os.environ.get('NUMPY_MADVISE_HUGEPAGE'), os.environ.get('GOMP_SPINCOUNT'),\n"
             "                  numba.config.THREADING_LAYER, numba.config.SLP_VECTORIZE,\n"
             "                  process.shared_arena_registered(), process.keep_freed_memory()]))\n")
-    environ = {k: v for k, v in os.environ.items()
-               if k not in ("NUMPY_MADVISE_HUGEPAGE", "GOMP_SPINCOUNT", "OMP_WAIT_POLICY") and not k.startswith("NUMBA_")}
+    settings = ("NUMPY_MADVISE_HUGEPAGE", "GOMP_SPINCOUNT", "OMP_WAIT_POLICY")
+    environ = {k: v for k, v in os.environ.items() if k not in settings and not k.startswith("NUMBA_")}
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environ)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert json.loads(proc.stdout) == ["0", "1000", "threadsafe", 1, True, True]

@@ -112,8 +112,6 @@ class Timer:
 
 class Pipeline:
     def __init__(self, cfg: PipelineConfig):
-        import onnxruntime as ort
-
         self.cfg = cfg
         root = Path(cfg.artifacts)
         self.manifest = Manifest.load(root)
