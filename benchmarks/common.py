@@ -24,7 +24,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from jnds_deploy.heap import brief_openmp_spin
+from jnds_deploy.process import brief_openmp_spin
 
 # at import, not in tune_process: a script that imports torch (MAC counts, checkpoints) loads
 # libgomp before its main() runs, and libgomp reads its spin count once, when loaded
@@ -206,16 +206,13 @@ class CpuSteal:
 # --- the process, tuned as `jnds run` tunes its own ----------------------------------------
 
 def tune_process() -> None:
-    """Tune this process as `jnds run` and `jnds serve` tune theirs, so that timings
-    compare with the committed reports: numba's threading layer and SLP vectorizer
-    (``jnds_deploy.runtime.tune_numba``) and glibc's malloc keeping freed memory
-    (``PipelineConfig.keep_freed_memory``). Call it first in ``main``, before anything
-    compiles or runs a numba loop."""
-    from jnds_deploy.runtime import tune_numba
-    from jnds_deploy.heap import keep_freed_memory
+    """Tune this process as `jnds run` and `jnds serve` tune theirs
+    (``jnds_deploy.process.tune_process``), so that timings compare with the committed
+    reports. Call it first in ``main``, before anything compiles or runs a numba loop or
+    builds a pipeline."""
+    from jnds_deploy.process import tune_process as tune
 
-    tune_numba()
-    keep_freed_memory()
+    tune()
 
 
 def pipeline(artifacts: str | Path, **config):

@@ -34,53 +34,52 @@ CYCLES_TRAIN_KINDS = ("sunroom", "darkroom", "metals", "textures")
 # open ground, light rig, materials), for variety rather than another fixed layout; ``lights``
 # (``--lights-sequences``) does the same with every sort of light Blender has: spot lights,
 # area lights of each shape and emissive meshes other than small spheres besides mixed's;
-# ``interior`` (``--interior-sequences``, stop 46) is a closed room lit mostly by bounced light;
-# ``detail`` (``--detail-sequences``, stop 50) bump-mapped surfaces and dense, curved shapes;
-# ``layers`` (``--layers-sequences``, stop 53) the Principled BSDF's other layers (sheen, coat,
+# ``interior`` (``--interior-sequences``) is a closed room lit mostly by bounced light;
+# ``detail`` (``--detail-sequences``) bump-mapped surfaces and dense, curved shapes;
+# ``layers`` (``--layers-sequences``) the Principled BSDF's other layers (sheen, coat,
 # subsurface, anisotropy, thin film, transmission) mixed on smooth shapes, and meshes of struts;
-# ``glass`` (``--glass-sequences``, stop 53) thin-walled, solid, frosted and tinted glass and
-# water, caustics; ``print`` (``--print-sequences``, stop 53) lettering and signs of every size;
-# ``media`` (``--media-sequences``, stop 54) participating media: haze, drifting mist, smoke, glow
+# ``glass`` (``--glass-sequences``) thin-walled, solid, frosted and tinted glass and
+# water, caustics; ``print`` (``--print-sequences``) lettering and signs of every size;
+# ``media`` (``--media-sequences``) participating media: haze, drifting mist, smoke, glow
 CYCLES_EXTRA_KINDS = ("mixed", "lights", "interior", "detail", "layers", "glass", "print", "media")
 # kinds only the test set is made of (render.dataset): built apart from the training kinds,
 # so that the test measures scenes the model never saw the like of. gallery: a long hall
 # under strip lights, a polished floor, finely textured panels, sculptures; night: an
 # outdoor ground under a dark sky, spot lights and small very bright neon tubes
 CYCLES_TEST_KINDS = ("gallery", "night")
-# kinds of the holdout split (render.dataset), written at stop 38 after the light sorts of
-# the lights kind had been read off the test set's failures: built apart from every kind
-# above and never looked at to choose anything. atrium: a tall court lit by the sun and sky
-# through a skylight, rings of columns and a thin railing, a still pool; workshop: a dark
-# room under shaded pendant lamps, a bench of many small props, a spinning fan
-CYCLES_HOLDOUT_KINDS = ("atrium", "workshop")
-# kinds of the second holdout split (render.dataset), written at stop 40 after the first
-# holdout had been looked at (the firefly clamp's idea came from it): built apart from every
-# kind above, with what none of them has. street: a wet road at dusk between lit facades,
-# street lamps, cars whose headlights move with them; studio: a cyclorama under large
-# softboxes, a turntable, materials no other kind uses (subsurface, sheen, coat,
-# anisotropic metal, thin-film) and a wire mesh
-CYCLES_HOLDOUT2_KINDS = ("street", "studio")
-# kinds of the third holdout split (render.dataset), written at stop 53 after holdout2's
-# studio had been looked at to choose training data (the ``layers`` kind): built apart from
-# every kind above, with what none of them has. grove: trees of leaf cards in a translucent
-# material, grass of thin blades, dappled sun through swaying crowns; haze: a closed hall
-# filled with a scattering volume, spot lights and daylight drawing beams through it
-CYCLES_HOLDOUT3_KINDS = ("grove", "haze")
-# kinds of the fourth holdout split (render.dataset), written at stop 54 after holdout3's haze had
-# been seen failing and the ``media`` training kind written for it: built apart from every kind
-# above, with what none of them has. bathroom: a small tiled room of large plane mirrors (facing,
-# on some draws), chrome, ceramic, a sliding frosted screen; fur: shapes and a rug coated in hair
-# strands (Principled Hair BSDF, curves a fraction of a pixel thick)
-CYCLES_HOLDOUT4_KINDS = ("bathroom", "fur")
+# the held-out splits (render.dataset), {split: its kinds}, in the order they were written.
+# Each split's kinds were built apart from every kind above and every split before it, with
+# what none of them has, after the split before it had been looked at to choose something:
+# - holdout, after the light sorts of the lights kind had been read off the test set's
+#   failures. atrium: a tall court lit by the sun and sky through a skylight, rings of
+#   columns and a thin railing, a still pool; workshop: a dark room under shaded pendant
+#   lamps, a bench of many small props, a spinning fan;
+# - street-studio, after holdout had been looked at (the firefly clamp's idea came from it).
+#   street: a wet road at dusk between lit facades, street lamps, cars whose headlights move
+#   with them; studio: a cyclorama under large softboxes, a turntable, materials no other
+#   kind uses (subsurface, sheen, coat, anisotropic metal, thin-film) and a wire mesh;
+# - grove-haze, after street-studio's studio had been looked at to choose training data (the
+#   ``layers`` kind). grove: trees of leaf cards in a translucent material, grass of thin
+#   blades, dappled sun through swaying crowns; haze: a closed hall filled with a scattering
+#   volume, spot lights and daylight drawing beams through it;
+# - bathroom-fur, after grove-haze's haze had been seen failing and the ``media`` training
+#   kind written for it. bathroom: a small tiled room of large plane mirrors (facing, on some
+#   draws), chrome, ceramic, a sliding frosted screen; fur: shapes and a rug coated in hair
+#   strands (Principled Hair BSDF, curves a fraction of a pixel thick)
+CYCLES_HOLDOUT_KINDS = {
+    "holdout": ("atrium", "workshop"),
+    "street-studio": ("street", "studio"),
+    "grove-haze": ("grove", "haze"),
+    "bathroom-fur": ("bathroom", "fur"),
+}
 # kinds of the ghosting sets (docs/ghosting.md): what provokes a history-reusing denoiser to
 # ghost. plain: a user's first scene, default Principled cubes and spheres on a plain or
 # checkered floor under one area light, a near-mirror white cube, a ball rolling fast across
 # the view, a sliding cube, a thin pole and, on some draws, a moving lamp; the camera moves
 # twice as fast as in the other kinds
 CYCLES_GHOST_KINDS = ("plain",)
-CYCLES_SCENE_KINDS = (CYCLES_TRAIN_KINDS + CYCLES_EXTRA_KINDS + CYCLES_TEST_KINDS + CYCLES_HOLDOUT_KINDS
-                      + CYCLES_HOLDOUT2_KINDS + CYCLES_HOLDOUT3_KINDS + CYCLES_HOLDOUT4_KINDS
-                      + CYCLES_GHOST_KINDS)
+CYCLES_SCENE_KINDS = (CYCLES_TRAIN_KINDS + CYCLES_EXTRA_KINDS + CYCLES_TEST_KINDS
+                      + sum(CYCLES_HOLDOUT_KINDS.values(), ()) + CYCLES_GHOST_KINDS)
 TEXTURES = ("brick", "checker", "noise", "voronoi")
 
 
@@ -725,7 +724,7 @@ def _displace(name, noise_scale, strength):
     bpy.ops.object.shade_smooth()
 
 def _detail(scene, rng, frames):
-    """The ``detail`` training kind (stop 50): the surface and geometric detail of real assets,
+    """The ``detail`` training kind: the surface and geometric detail of real assets,
     which the other kinds' flat primitives lack. Surfaces with bump-mapped relief (``_relief``)
     and a wave texture besides the others; curved and dense shapes (``DETAIL_SHAPES``): a
     subdivided monkey head, rocks (icospheres displaced by noise), rows of slats a few pixels
@@ -886,7 +885,7 @@ LAYERS_SHAPES = ("torus", "sphere", "monkey", "capsule", "cloth")
 
 
 def _layers(scene, rng, frames):
-    """The ``layers`` training kind (stop 53): smooth curved shapes in layered materials
+    """The ``layers`` training kind: smooth curved shapes in layered materials
     (``_layered_material``) and one to three meshes of struts 1-8 cm apart, a tenth to a third of that thick,
     standing, tilted or hanging, some moving; ground with relief, sometimes a corner of walls;
     the light rigs of ``mixed`` and ``lights``. Returns (moving objects, camera target, radius,
@@ -962,7 +961,7 @@ GLASS_SHAPES = ("tumbler", "bottle", "ball", "pane", "tank")
 
 
 def _glass(scene, rng, frames):
-    """The ``glass`` training kind (stop 53): glassware on a table or the ground: thin-walled
+    """The ``glass`` training kind: glassware on a table or the ground: thin-walled
     tumblers and bottles (open cylinders given a wall by Blender's solidify modifier), solid
     balls, upright panes, a tank of water; clear, frosted or tinted; a sun, spot or area lights
     casting caustics; some pieces sliding or turning. Returns (moving objects, camera target,
@@ -1021,7 +1020,7 @@ PRINT_CHARS = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789 .,
 
 
 def _print(scene, rng, frames):
-    """The ``print`` training kind (stop 53): lettering, the fine high-contrast detail of signs,
+    """The ``print`` training kind: lettering, the fine high-contrast detail of signs,
     labels, posters and screens: 16-40 lines of random text 3-40 cm tall (strokes of under a pixel
     to a few pixels at the camera's distance) on panels, walls and boxes, extruded or flat, some glowing
     (signs, screens), some on moving boxes; Blender's magic texture (fine interference patterns)
@@ -1219,13 +1218,14 @@ def _volume_material(name, rng, density, noise=0.0, emission=0.0, drift=None, fr
 
 
 def _media(scene, rng, frames):
-    """The ``media`` training kind (stop 54): a ``lights`` scene (any world, a room or open ground,
+    """The ``media`` training kind: a ``lights`` scene (any world, a room or open ground,
     two to four light rigs of every sort) in participating media of one or two sorts
     (``MEDIA_SORTS``): air, a homogeneous haze filling the scene (0.005-0.08 per metre); mist,
     clouds of noise up to 0.03-0.4 per metre drifting through it; smoke, dense noisy blobs (1-12 per metre)
     hanging or sliding among the props; glow, an emissive blob (blackbody or a colour).
-    Written after holdout3's ``haze`` had been seen failing (docs/dataset.md), so that holdout3
-    no longer measures unseen volumes. Returns (moving objects, camera target, radius, height)."""
+    Written after the held-out ``haze`` had been seen failing (docs/dataset.md, "Splits"), so
+    that the grove-haze split no longer measures unseen volumes. Returns (moving objects,
+    camera target, radius, height)."""
     import bpy
 
     moving, target, radius, height = _mixed(scene, rng, frames, RIGS + LIGHTS_RIGS, (2, 4))
@@ -1259,7 +1259,7 @@ def _media(scene, rng, frames):
 
 
 def _atrium(scene, rng, frames):
-    """The ``atrium`` holdout kind: a tall court roofed but for a skylight, the sun and sky
+    """The ``atrium`` kind of the holdout split: a tall court roofed but for a skylight, the sun and sky
     coming in through it; a ring of columns, a thin metal railing, a still glossy pool."""
     import bpy
 
@@ -1302,7 +1302,7 @@ def _atrium(scene, rng, frames):
 
 
 def _workshop(scene, rng, frames):
-    """The ``workshop`` holdout kind: a closed room lit only by one or two pendant lamps in
+    """The ``workshop`` kind of the holdout split: a closed room lit only by one or two pendant lamps in
     open metal shades (hard-edged pools of light), a bench crowded with small props, and a
     fan whose thin blades spin about a vertical axis."""
     import bpy
@@ -1372,7 +1372,7 @@ def _key_path(obj, frames, start, step):
 
 
 def _street(scene, rng, frames):
-    """The ``street`` second-holdout kind: a wet road at dusk between two rows of facades
+    """The ``street`` kind of the street-studio held-out split: a wet road at dusk between two rows of facades
     with lit windows, street lamps on thin poles, and one to three cars driving along it
     whose headlights (emissive discs and spot lights) move with them."""
     import bpy
@@ -1483,7 +1483,7 @@ STUDIO_SORTS = ("subsurface", "sheen", "coat", "anisotropic", "thin_film")
 
 
 def _studio(scene, rng, frames):
-    """The ``studio`` second-holdout kind: a seamless backdrop curving from floor to wall
+    """The ``studio`` kind of the street-studio held-out split: a seamless backdrop curving from floor to wall
     under two or three large softboxes, a turntable carrying a smooth hero object, props of
     materials no other kind uses, and a fine wire mesh."""
     import bpy
@@ -1623,7 +1623,7 @@ def _leaf_material(name, rng):
 
 
 def _grove(scene, rng, frames):
-    """The ``grove`` third-holdout kind: three to six trees (a tapering trunk, a few branches,
+    """The ``grove`` kind of the grove-haze held-out split: three to six trees (a tapering trunk, a few branches,
     one or two crowns of 300-900 leaf cards that sway), grass of thin blades, a low sun through
     the crowns casting dappled light, a sky. Returns (moving objects, camera target, radius,
     height)."""
@@ -1690,7 +1690,7 @@ def _grove(scene, rng, frames):
 
 
 def _haze(scene, rng, frames):
-    """The ``haze`` third-holdout kind: a closed hall filled with a homogeneous scattering volume
+    """The ``haze`` kind of the grove-haze held-out split: a closed hall filled with a homogeneous scattering volume
     (density 0.02-0.12 per metre, forward scattering), lit by spot lights hung high and aimed down
     and by the sun through one or two openings in the roof, so that beams stand in the air; two
     rows of columns along the walls, crates in the middle, a few of them sliding. Returns (moving
@@ -1761,7 +1761,7 @@ def _haze(scene, rng, frames):
 
 
 def _bathroom(scene, rng, frames):
-    """The ``bathroom`` fourth-holdout kind: a small tiled room with one or two large plane mirrors
+    """The ``bathroom`` kind of the bathroom-fur held-out split: a small tiled room with one or two large plane mirrors
     (facing mirrors repeat the room into the distance), chrome rails and taps, a ceramic basin and
     tub, a frosted glass screen sliding along the tub, lit by strip lamps beside the mirror, a
     ceiling lamp, and on some draws daylight through a frosted window. Mirrors show the whole room
@@ -1881,7 +1881,7 @@ def _grow_hair(obj, rng, count, length, radius):
 
 
 def _fur(scene, rng, frames):
-    """The ``fur`` fourth-holdout kind: furry shapes and a shaggy rug in the Principled Hair BSDF,
+    """The ``fur`` kind of the bathroom-fur held-out split: furry shapes and a shaggy rug in the Principled Hair BSDF,
     strands a fraction of a pixel thick (Cycles' curves), which no other kind has: balls, a
     cushion and a torus coated in fur 1-12 cm long, some rolling or turning, on a rug of longer
     strands, under a sun and sky or area lights. Returns (moving objects, camera target, radius,

@@ -56,8 +56,8 @@ def load_model(path: str | Path):
 def load_fp32_model(path: str | Path):
     """The model as the fp32 graphs run it: activations in float and, from a QAT checkpoint,
     the weights it trained with (rounded to int8 per channel, ``model.round_weights``), so
-    that fp32 and int8 differ only in the activations (the float weights' difference:
-    benchmarks/results/int8_rounded_fp32.md)."""
+    that fp32 and int8 differ only in the activations (the float weights' difference: the
+    study at commit dfdbcb8, benchmarks/results/int8_rounded_fp32.md)."""
     from .model import round_weights, set_quantization
 
     model = load_model(path)

@@ -149,9 +149,10 @@ def cmd_export(args) -> int:
 def cmd_calibrate(args) -> int:
     from .calibration import CalibrateConfig, calibrate
     from .io import expand_sequences
-    from .runtime import tune_numba
+    from .process import shared_arena, tune_numba
 
     tune_numba()
+    shared_arena()  # the fp32 pipelines that make the calibration inputs share one arena
     options = given(args, CalibrateConfig)
     cfg = CalibrateConfig(**{**options, "data": tuple(map(str, expand_sequences(options["data"])))})
     manifest = calibrate(cfg)
@@ -167,19 +168,19 @@ def cmd_run(args) -> int:
     # of later collections
     gc.disable()
     try:
-        from .heap import FIRST_FRAME_HEAP_PER_PIXEL, pretouch
         from .io import exr_threads, open_sequence
+        from .process import FIRST_FRAME_HEAP_PER_PIXEL, pretouch, tune_process
 
         w, h = open_sequence(args.input).native_size
         pretouch(FIRST_FRAME_HEAP_PER_PIXEL * w * h)
-        from .runtime import PipelineConfig, tune_numba
+        from .runtime import PipelineConfig
         from .runtime.run import run_sequence, score_lines, stage_table
 
-        tune_numba()
+        tune_process()  # jnds run owns its process (jnds_deploy.process)
     finally:
         gc.freeze()
         gc.enable()
-    cfg = PipelineConfig(**given(args, PipelineConfig), keep_freed_memory=True)
+    cfg = PipelineConfig(**given(args, PipelineConfig))
     exr_threads(cfg.threads)
     report = run_sequence(cfg, args.input, args.output, progress=not args.quiet, output_format=args.output_format,
                           video=args.video, png=args.png)
@@ -215,12 +216,12 @@ def cmd_serve(args) -> int:
     import logging
 
     from .io import exr_threads
-    from .runtime import tune_numba
+    from .process import tune_process
     from .serve import ServeConfig, serve
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    tune_numba()
-    cfg = ServeConfig(**given(args, ServeConfig), keep_freed_memory=True)
+    tune_process()  # jnds serve owns its process (jnds_deploy.process)
+    cfg = ServeConfig(**given(args, ServeConfig))
     exr_threads(cfg.threads)
     serve(cfg, ready=lambda h, p: print(f"jnds serve: listening on http://{h}:{p}", flush=True))
     return 0
@@ -284,17 +285,26 @@ def _import_options(p: argparse.ArgumentParser) -> None:
     ic.set_defaults(func=cmd_import_cycles)
 
 
+def _split(name: str) -> str:
+    """``--split``'s value, a held-out split's old name as its new one (with a note)."""
+    from .render.dataset import OLD_SPLIT_NAMES
+
+    if name in OLD_SPLIT_NAMES:
+        print(f"jnds dataset: split {name} is now called {OLD_SPLIT_NAMES[name]} and renders into a directory "
+              f"of that name; the old name will go", file=sys.stderr)
+    return OLD_SPLIT_NAMES.get(name, name)
+
+
 def _dataset_options(d: argparse.ArgumentParser) -> None:
-    from .render.dataset import EXTRA_SEEDS, TRAIN_SEQUENCES
+    from .render.dataset import EXTRA_SEEDS, SPLITS, TRAIN_SEQUENCES
     from .render.sequence import ENGINES
 
     d.add_argument("--out", default="data", help="the directory the splits go to")
-    d.add_argument("--split", default="all",
-                   choices=("train", "val", "all", "test", "holdout", "holdout2", "holdout3", "holdout4", "media"),
-                   help="all = train + val; test (seeds never trained or selected on), holdout (Cycles: kinds "
-                        "written after the test was read), holdout2 (kinds written after the holdout was read), "
-                        "holdout3 (after holdout2 was read), holdout4 (after holdout3 was) and media (Cycles: unseen "
-                        "seeds of the media training kind) only when asked for")
+    d.add_argument("--split", default="all", choices=SPLITS, type=_split,
+                   help="all = train + val; test (seeds never trained or selected on); Cycles only: the held-out "
+                        "splits of kinds no training set has, each written after the one before had been looked "
+                        "at (holdout, street-studio, grove-haze, bathroom-fur; docs/dataset.md, \"Splits\"), and "
+                        "media (unseen seeds of the media training kind)")
     d.add_argument("--limit", type=int, default=None, help="only the first N sequences")
     d.add_argument("--list", action="store_true", help="print the sequences and exit")
     d.add_argument("--train-sequences", type=int, default=TRAIN_SEQUENCES,
@@ -431,11 +441,23 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
 
+# the commands that run the pipeline in a process of their own, which they tune
+# (process.tune_process)
+OWN_THEIR_PROCESS = ("run", "serve", "batch")
+
+
 def program() -> None:
-    """The ``jnds`` program: ``main`` on the command line, then exit. The objects left are
-    frozen first so that the interpreter's last garbage collections skip them: walking what
-    numba and ONNX Runtime built is a visible part of a short `jnds run`
-    (benchmarks/results/memory.md). Exit handlers and module teardown still run."""
+    """The ``jnds`` program: ``main`` on the command line, then exit. For the commands that
+    own their process, numpy's huge-page advice is turned off first, before their options
+    import numpy, by numpy's own environment variable (``process.no_huge_page_advice``).
+    The objects left are frozen before exit so that the interpreter's last garbage
+    collections skip them: walking what numba and ONNX Runtime built is a visible part of a
+    short `jnds run` (benchmarks/results/memory.md). Exit handlers and module teardown
+    still run."""
+    if sys.argv[1:2] and sys.argv[1] in OWN_THEIR_PROCESS:
+        from .process import no_huge_page_advice
+
+        no_huge_page_advice()
     code = main()
     gc.freeze()
     sys.exit(code)

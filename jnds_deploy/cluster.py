@@ -122,18 +122,20 @@ class SequenceWorker:
     through it one after another."""
 
     def __init__(self, cfg: BatchConfig):
+        from .process import tune_process
+
+        tune_process()  # the worker owns its process (jnds_deploy.process)
         import numba
 
         from .io import exr_threads
-        from .runtime import Pipeline, PipelineConfig, tune_numba
+        from .runtime import Pipeline, PipelineConfig
 
-        tune_numba()
         exr_threads(cfg.threads)
         # the filter stage's parallel loops on the worker's own CPUs, not on every core
         numba.set_num_threads(min(cfg.threads, numba.config.NUMBA_NUM_THREADS))
         self.pipe = Pipeline(PipelineConfig(artifacts=cfg.artifacts, precision=cfg.precision,
                                             filter_dtype=cfg.filter_dtype, threads=cfg.threads,
-                                            adaptive=cfg.adaptive, keep_freed_memory=True))
+                                            adaptive=cfg.adaptive))
         import ray
 
         self.output_format = cfg.output_format

@@ -23,9 +23,9 @@ passes onto the paper's split:
   microfacet alpha, the format's convention); depth = Depth, 0 on the background;
 - motion = (Vector.X, -Vector.Y): Vector.xy is the previous-frame position minus the
   current in Blender's y-up raster. Cycles computes it without the keyed lens shift: the
-  Vector pass of a jittered render equals an unjittered render's to a few thousandths of
-  a pixel (``tests/test_cycles.py``), i.e. it describes the pixel centre's point, as the
-  format wants; 0 on the background.
+  Vector pass of a jittered render equals an unjittered render's (tests/blender/test_blender.py,
+  ``test_motion_vectors_warp_the_previous_frame``), i.e. it describes the pixel centre's
+  point, as the format wants; 0 on the background.
 - denoising_albedo (optional) = Denoising Albedo where the render has it: not the
   model's input, but the guide a Cycles user gives OIDN, which the OIDN baseline takes.
 

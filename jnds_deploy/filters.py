@@ -24,7 +24,7 @@ def tonemap(x: torch.Tensor) -> torch.Tensor:
 
     The power is written as exp(log(.) / 2.2) (the floor keeps the log finite): the same
     values, but ONNX Runtime's Pow is scalar code where Exp and Log are vectorized
-    (docs/design-notes.md at commit 5431ce1)."""
+    (docs/architecture.md, "The network graph")."""
     return torch.exp(torch.log(torch.log1p(x.clamp(0.0, HDR_MAX)).clamp_min(TONEMAP_FLOOR)) * (1.0 / 2.2))
 
 
@@ -37,8 +37,7 @@ def apply_kernel(x: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
     h, w = x.shape[-2:]
     p = F.pad(x, (1, 1, 1, 1), mode="replicate")
     out = p[:, :, :h, :w] * kernel[:, 0:1]
-    # shifted views, no im2col copy (faster than unfold: docs/design-notes.md at commit 5431ce1)
-    for i in range(1, 9):
+    for i in range(1, 9):  # shifted views, no im2col copy (faster than unfold, docs/architecture.md)
         dy, dx = divmod(i, 3)
         out = out + p[:, :, dy:dy + h, dx:dx + w] * kernel[:, i:i + 1]
     return out
@@ -146,8 +145,7 @@ def _warp_input_grad():
 # must learn where not to trust it): the per-pixel normal test of SVGF (Schied et al.
 # 2017) with a 3x3 tolerance. Without it the shipped model pulled an area light's
 # radiance across the black background next to it and kept the ghost frame after frame,
-# and history cost more than no history at all (benchmarks/results/history_gain.md at commit
-# 5431ce1).
+# and history cost more than no history at all (commit 8f1dc31: benchmarks/results/history_gain.md).
 def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor, albedo: torch.Tensor,
                 warped_albedo: torch.Tensor) -> torch.Tensor:
     """(N, 1, H, W) bool: where the warped history must not be used, from the current
@@ -262,7 +260,7 @@ def albedo_at_holes(albedo: torch.Tensor, scattered: torch.Tensor) -> torch.Tens
     Why: the auxiliary filter keeps each hole's albedo 0, so where holes lie scattered (fur
     over a rug, a medium over a floor) the composite, even with the diffuse light filled
     (``fill_diffuse_holes``), keeps the 1-spp coverage pattern as grain; the reference has its
-    mean (docs/model-gap.md, "The albedo at holes"). Not in the paper, not a weight."""
+    mean (docs/model-gap.md, "Diffuse holes"). Not in the paper, not a weight."""
     return torch.where(scattered, _binomial(albedo), albedo)
 
 
@@ -365,8 +363,8 @@ def upsample_filter(color: torch.Tensor, kernel: torch.Tensor, factor: int, root
     raises the result back to the power ``root`` before the kernel: a bright pixel then
     does not spread its linear energy into its neighbours' target pixels, which after
     display tonemapping reads as a halo. Validation references pooled to native and
-    upsampled back score higher in fourth roots than linearly (measured at commit
-    6008607)."""
+    upsampled back score higher in fourth roots than linearly
+    (docs/architecture.md, "The filter stage")."""
     if factor == 1:
         up = color
     elif root == 1:

@@ -35,7 +35,8 @@ FORMAT = "jnds-sequence/1"
 INPUT_LAYERS: dict[str, tuple[str, ...]] = {layer.name: layer.suffixes for layer in LAYERS}
 # ``denoising_albedo`` (layout.GUIDE): the guide albedo a single-frame denoiser takes, a
 # metal's tint and what lies behind glass included (Cycles' Denoising Albedo pass); the OIDN
-# baseline reads it (commit 225f36d), and a network trained with it (ModelConfig.guide_albedo)
+# baseline reads it (docs/dataset.md, "What a sequence holds"), and a network trained
+# with it (ModelConfig.guide_albedo)
 OPTIONAL_INPUT_LAYERS: dict[str, tuple[str, ...]] = {"depth": ("",), GUIDE.name: GUIDE.suffixes}
 REFERENCE_LAYERS: dict[str, tuple[str, ...]] = {"color": ("R", "G", "B")}
 OPTIONAL_REFERENCE_LAYERS: dict[str, tuple[str, ...]] = {
@@ -46,8 +47,8 @@ OPTIONAL_REFERENCE_LAYERS: dict[str, tuple[str, ...]] = {
 OUTPUT_LAYERS = REFERENCE_LAYERS
 # how `jnds run` and `jnds batch` store output frames: {name: (layers stored as half,
 # compression)}. float: 32-bit, uncompressed (ZIP took several times as long to write and
-# saved little); half: 16-bit, PIZ (lossless for half data), small. Both against float ZIP:
-# benchmarks/results/exr_write.md
+# saved little on a denoised frame: benchmarks/results/exr_write.md); half: 16-bit, PIZ
+# (lossless for half data), a quarter of float ZIP's size
 OUTPUT_FORMATS = {"float": (frozenset(), OpenEXR.NO_COMPRESSION), "half": (frozenset({"color"}), OpenEXR.PIZ_COMPRESSION)}
 
 _FRAME_RE = re.compile(r"^(\d{4,})\.exr$")
@@ -185,9 +186,9 @@ def write_output(path: str | Path, color: np.ndarray, fmt: str = "float") -> Non
 
 def exr_threads(n: int) -> None:
     """OpenEXR compresses and decompresses with ``n`` threads (process-wide; 0: in the
-    calling thread, OpenEXR's default). Without threads, writing a 2x output frame took
-    longer than computing it (docs/design-notes.md at commit 5431ce1): `jnds run`,
-    `jnds batch`'s workers and `jnds serve` set it to their thread count."""
+    calling thread, OpenEXR's default). Writing a 2x output frame takes longer than
+    computing it without (benchmarks/results/exr_write.md): `jnds run`, `jnds batch`'s workers and
+    `jnds serve` set it to their thread count."""
     OpenEXR.set_global_thread_count(max(0, int(n)))
 
 

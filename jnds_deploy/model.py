@@ -49,9 +49,9 @@ class ModelConfig:
     output_width: int = 16  # output block hidden features at native resolution
     upsample_features: int = 8  # output-block features handed to the upsample block
     # upsample block hidden features at target resolution; 0: no per-pixel prediction, one
-    # learned kernel for every pixel (then upsample_features is 0): the kernel gen3 predicts
-    # is nearly constant, and predicting it is a sixth of the 720p frame
-    # (benchmarks/results/constant_upsample_kernel.md)
+    # learned kernel for every pixel (then upsample_features is 0): the kernel a trained model
+    # predicts is nearly constant, and predicting it per pixel is a large share of the frame
+    # (the study at commit 4d89f8a: benchmarks/results/constant_upsample_kernel.md)
     upsample_width: int = 8
     filter_levels: int = 3  # levels below native in the diffuse/specular filter paths
     scale: int = 2  # target = scale x native; 1 = denoise only (no upsample block)
@@ -72,14 +72,16 @@ class ModelConfig:
     # the input block also reads the guide albedo (layout.GUIDE: Cycles' Denoising Albedo, the
     # albedo where a frame has none), after current and history: what a mirror or chrome
     # reflects, where the albedo is 0 and the reflection lives only in the noisy specular
-    # layer (docs/model-gap.md, "Where the gap is"). A weight: three more projection inputs
+    # layer (docs/model-gap.md, "Mirrors, glossy reflections and hair"). A weight: three more
+    # projection inputs
     guide_albedo: bool = False
     # the input block's design (``INPUT_BLOCKS``): "native", the paper's (a 1x1 projection and a
     # 3x3 convolution at native resolution, then the 2x2 average pool); "space_to_depth", each
     # 2x2 block of input pixels as one pixel of 4x the channels at half resolution, a 1x1
     # projection to ``input_hidden`` and a 3x3 convolution to the four pixels' ``input_width``
     # features: the same native features and pooled ones, from fewer, wider convolutions that
-    # int8 kernels run nearer their peak (benchmarks/results/input_block_designs.md)
+    # int8 kernels run nearer their peak (docs/performance.md, "Where the time goes"; the
+    # study at commit 9bb4de9: benchmarks/results/input_block_designs.md)
     input_block: str = "native"
     input_hidden: int = 32  # "space_to_depth" only: the projection's width
 
@@ -137,7 +139,7 @@ class ModelConfig:
             "medium": dict(encoder_widths=(32, 48), bottleneck_width=64, output_width=24),
             # the U-Net wider again (about 53 GMAC at 720p; the output block as in "medium"):
             # what the time allowed beside OIDN left room for on a 2-core CPU (docs/training.md,
-            # gen8); widened from "medium" the same way
+            # "The lineage"); widened from "medium" the same way
             "large": dict(encoder_widths=(48, 64), bottleneck_width=96, output_width=24),
             # "large" one U-Net level deeper, filtering down to native / 16 (4 levels, as the
             # paper): the reach "large" lacked on unseen scenes (docs/model-gap.md); deepened
@@ -147,7 +149,7 @@ class ModelConfig:
             # 192; about 77 GMAC at 720p): the capacity where the model's excess error over OIDN
             # lies, at 2-32 pixels (docs/model-gap.md). Widened from "large" it gained nothing in a
             # fine-tune, and on an AVX2 CPU it is over the time allowed beside OIDN: a probe, not
-            # shipped (docs/training.md, gen38)
+            # shipped (docs/training.md, "What did not work")
             "wide": dict(encoder_widths=(48, 96), bottleneck_width=192, output_width=24),
             # deeper and wider, closer to the paper's network (whose exact widths are in its
             # Fig. 3, not in the text we have): for GPUs and quality comparisons
@@ -279,7 +281,7 @@ def _kernel(raw: torch.Tensor) -> torch.Tensor:
 def _normalized_kernel(raw: torch.Tensor) -> torch.Tensor:
     """Albedo/normal kernels: normalized (softmax over the 9 taps). Written out rather
     than ``torch.softmax``: ONNX Runtime's Softmax over the channel axis of an NCHW tensor
-    transposes internally and dominated the frame (docs/design-notes.md); the
+    transposes internally and dominated the frame (docs/architecture.md, "The network graph"); the
     ReduceMax/Exp/ReduceSum/Div form it exports to computes the same values."""
     e = torch.exp(raw - raw.amax(dim=1, keepdim=True))
     return e / e.sum(dim=1, keepdim=True)
@@ -551,7 +553,7 @@ class SubPixelUpsampleBlock(nn.Module):
     padding at both resolutions, the clamped bilinear sample outside the image is the edge
     pixel). It never builds the upsampled (3 + F)-channel input at target resolution, and
     leaves interleaving the phases to whoever applies the kernel (ONNX Runtime's
-    DepthToSpace is slow at it, docs/design-notes.md; the fused filter loop reads the
+    DepthToSpace is slow at it, docs/architecture.md, "The network graph"; the fused filter loop reads the
     phases directly). Fake quantization is not applied (used for export, fp32)."""
 
     def __init__(self, block: UpsampleBlock):

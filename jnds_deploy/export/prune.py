@@ -27,8 +27,9 @@ from onnx import numpy_helper
 
 from ..artifacts import GROUPS, Variant, variant_key
 # (max, mean) |variant - full| allowed for int8 graphs (see validate_variant): 1.5x the
-# largest difference measured, 3x the largest mean (docs/design-notes.md). Kernels and
-# blend weights lie in [-1, 1]; a broken variant (wrong channels kept) is off by far more.
+# largest difference seen, 3x the largest mean (docs/architecture.md, "The int8 graph").
+# Kernels and blend weights lie in [-1, 1]; a broken variant (wrong channels kept) is off
+# by far more.
 INT8_VARIANT_TOL = (2e-2, 1e-4)
 
 
@@ -131,7 +132,7 @@ def validate_variant(full: Path, variant: Path, feeds: dict[str, np.ndarray], at
 
     fp32 variants are bit-equal in practice. In int8 QDQ graphs ONNX Runtime may group
     QDQ nodes into int8 kernels differently once a tensor loses a consumer, which can move
-    a rare value by a quantization step (what was seen: docs/design-notes.md):
+    a rare value by a quantization step (docs/architecture.md, "The int8 graph"):
     ``calibrate`` validates them with ``INT8_VARIANT_TOL``."""
     import onnxruntime as ort
 

@@ -8,20 +8,19 @@ scene kinds, other seeds) into the same train/ and val/ directories, named ``cyc
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 
-from ..blender_scene import (CYCLES_HOLDOUT2_KINDS, CYCLES_HOLDOUT3_KINDS, CYCLES_HOLDOUT4_KINDS, CYCLES_HOLDOUT_KINDS,
-                             CYCLES_TEST_KINDS, CYCLES_TRAIN_KINDS)
+from ..blender_scene import CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS, CYCLES_TRAIN_KINDS
 from ..errors import ConfigError
 from .camera import CAMERA_PATHS
 from .sequence import ENGINES, RenderConfig
 
 SIZE = (192, 108)
 # the Cycles splits made of kinds no training or validation sequence has (blender_scene)
-UNSEEN_KINDS = {"test": CYCLES_TEST_KINDS, "holdout": CYCLES_HOLDOUT_KINDS, "holdout2": CYCLES_HOLDOUT2_KINDS,
-                "holdout3": CYCLES_HOLDOUT3_KINDS, "holdout4": CYCLES_HOLDOUT4_KINDS}
+UNSEEN_KINDS = {"test": CYCLES_TEST_KINDS, **CYCLES_HOLDOUT_KINDS}
 
 
 def _specs(split: str, seeds: range, frames: int, spp: int, engine: str = "mitsuba",
@@ -55,10 +54,13 @@ MOVING_SEEDS = 4000  # Mitsuba training sequences of scene kind ``moving`` (obje
 # first seeds of the Cycles training-only kinds (blender_scene.CYCLES_EXTRA_KINDS), added on request
 EXTRA_SEEDS = {"mixed": 9000, "lights": 10000, "interior": 11000, "detail": 12000, "layers": 13000,
                "glass": 14000, "print": 15000, "media": 16000}
-# the Cycles holdout splits' first seeds: holdout's kinds built after the test set was looked at,
-# holdout2's after the first holdout was, holdout3's after holdout2's studio was looked at to
-# choose training data, holdout4's after holdout3's haze was
-HOLDOUT_SEEDS = {"holdout": 7100, "holdout2": 7200, "holdout3": 7300, "holdout4": 7400}
+# the Cycles held-out splits' first seeds, in the order the splits were written
+# (blender_scene.CYCLES_HOLDOUT_KINDS)
+HOLDOUT_SEEDS = {"holdout": 7100, "street-studio": 7200, "grove-haze": 7300, "bathroom-fur": 7400}
+# the later held-out splits' old names, "holdout" numbered from 2 in the order they were
+# written: still accepted, with a warning
+OLD_SPLIT_NAMES = {f"holdout{n}": split for n, split in enumerate(list(HOLDOUT_SEEDS)[1:], start=2)}
+SPLITS = ("train", "val", "all", "test", *HOLDOUT_SEEDS, "media")
 # the media split: unseen seeds of the training-only kind ``media``, rendered after the albedo
 # at holes (docs/model-gap.md) had been chosen on media training sequences, to check that choice
 MEDIA_SEEDS = 16100
@@ -67,8 +69,8 @@ MEDIA_SEEDS = 16100
 def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
                   engine: str = "mitsuba", moving_sequences: int = 0,
                   extra_sequences: Mapping[str, int] | None = None) -> list[tuple[str, RenderConfig]]:
-    """(relative directory, config) of every sequence in a split: train, val, all (both)
-    test or holdout.
+    """(relative directory, config) of every sequence in a split (``SPLITS``): train, val,
+    all (both), test, a held-out split or media.
 
     ``train_sequences`` grows the training set with further seeds (the first 24 are
     always the same sequences); validation seeds (2000+; Cycles: 6000+) never overlap it.
@@ -78,16 +80,18 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     ``lights`` 10000+, ``interior`` 11000+, ``detail`` 12000+, ``layers`` 13000+, ``glass`` 14000+,
     ``print`` 15000+, ``media`` 16000+; ``train/cycles-<kind>-*``).
     The test split (8000+; Cycles: 7000+) is rendered only when asked for: it is never
-    trained on, and no checkpoint or setting is chosen by it. The holdout split (Cycles
-    only, seeds 7100+) is the same for two more scene kinds, written after the test set's
-    failures had been read to choose training data (``blender_scene.CYCLES_HOLDOUT_KINDS``);
-    holdout2 (seeds 7200+) for two more, written after the first holdout had been looked at
-    (``blender_scene.CYCLES_HOLDOUT2_KINDS``); holdout3 (seeds 7300+) for two more, written after
-    holdout2 had been looked at to choose training data (``blender_scene.CYCLES_HOLDOUT3_KINDS``);
-    holdout4 (seeds 7400+) for two more, written after holdout3 had been
-    (``blender_scene.CYCLES_HOLDOUT4_KINDS``). The media split (Cycles only, seeds 16100+) is
-    six sequences of the training kind ``media`` at unseen seeds (``MEDIA_SEEDS``).
+    trained on, and no checkpoint or setting is chosen by it. The held-out splits (Cycles
+    only) are the same for two more scene kinds each, each written after the split before
+    it had been looked at (``blender_scene.CYCLES_HOLDOUT_KINDS``): holdout (seeds 7100+),
+    street-studio (7200+), grove-haze (7300+) and bathroom-fur (7400+); their old names,
+    ``holdout`` numbered from 2 (``OLD_SPLIT_NAMES``), are still accepted, with a warning.
+    The media split (Cycles only, seeds 16100+) is six sequences of the training
+    kind ``media`` at unseen seeds (``MEDIA_SEEDS``).
     """
+    if split in OLD_SPLIT_NAMES:
+        warnings.warn(f"split {split!r} is now called {OLD_SPLIT_NAMES[split]!r} (and renders into a directory of "
+                      f"that name); the old name will go", FutureWarning, stacklevel=2)
+        split = OLD_SPLIT_NAMES[split]
     if not 1 <= train_sequences <= 1000:
         raise ConfigError(f"train_sequences must be in 1..1000, got {train_sequences}")
     if not 0 <= moving_sequences <= 1000 or (moving_sequences and engine != "mitsuba"):
@@ -121,7 +125,7 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     if split == "all":
         return specs["train"] + specs["val"]
     if split not in specs:
-        raise ConfigError(f"unknown split {split!r}, expected train, val, all, test, holdout, holdout2, holdout3, holdout4 or media")
+        raise ConfigError(f"unknown split {split!r}, expected one of {', '.join(SPLITS)}")
     return specs[split]
 
 

@@ -37,8 +37,9 @@ class PipelineConfig:
     # default: finding the tiles and putting them back costs about what the smaller upsample
     # box saves, benchmarks/results/adaptive.md)
     tile_skip: bool = False
-    # let malloc reuse freed memory (process-wide, see keep_freed_memory): off in the
-    # library, on in `jnds run` and `jnds serve`, which own their process
+    # make the process-wide process.keep_freed_memory when the pipeline is built: off in the
+    # library; `jnds run`, `serve` and `batch`, which own their process, make it and the other
+    # process-wide settings with process.tune_process
     keep_freed_memory: bool = False
     firefly_clamp: float | None = option(
         None, "limit each pixel's current radiance to K x the brightest of its neighbours and its history "

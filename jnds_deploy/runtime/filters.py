@@ -15,9 +15,9 @@ around it (the lerp of the spatiotemporal filter and of the up levels, the ReLU,
 pooling) are single-pass loops compiled by numba and run over rows on all threads; the
 same sums in the same order as the numpy code (bit-equal, a test holds it). numpy
 makes ~36 passes over memory for one spatiotemporal filter where the fused loop makes
-one (the speed-ups: docs/design-notes.md at commit 5431ce1). numba has no float16
-arithmetic on the CPU, so float16 runs the numpy code, which rounds every operation to
-float16 as a GPU's half arithmetic would (and is slow: numpy emulates half precision).
+one (docs/architecture.md, "The filter stage"). numba has no float16 arithmetic on the
+CPU, so float16 runs the numpy code, which rounds every operation to float16 as a GPU's half
+arithmetic would (and is slow: numpy emulates half precision).
 """
 from __future__ import annotations
 
@@ -62,7 +62,7 @@ def _taps(src, k, c, ya, yb, yc, y, xa, xb, xc, x):
 # The row loops below filter a row's first and last pixels (whose clamped neighbours are
 # the border) apart from its interior, where the neighbours are i - 1 and i + 1: with
 # clamped indices in the loop LLVM kept it scalar on AVX2 (same sums, bit-equal;
-# measured at commit 9404749).
+# docs/architecture.md, "The filter stage").
 
 
 @njit(inline="always")
@@ -182,7 +182,7 @@ def _pass_tiles(src: np.ndarray, out: np.ndarray, skip, tile: int) -> np.ndarray
     """Empty tiles (``skip``, float32 only) take the source's values. The filter loops
     run over every pixel and the tiles are put back afterwards: loops that skipped the
     tiles themselves lost their vectorization and ran slower per pixel
-    (docs/design-notes.md at commit 5431ce1)."""
+    (docs/architecture.md, "The filter stage")."""
     if skip is not None:
         _restore_tiles(src, out, skip, tile)
     return out
@@ -316,7 +316,7 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, tol, rej):
         off = np.empty(W, np.bool_)
         # the row's tap positions and weights first, in a loop of their own: independent per
         # pixel, it vectorizes. Computed inside the sampling loop, they left the channel sums
-        # scalar too, and the warp took longer (measured at commit ef27908)
+        # scalar too, and the warp slower (docs/architecture.md, "The filter stage")
         for x in range(W):
             px, py = np.float32(x) + motion[0, y, x], np.float32(y) + motion[1, y, x]
             # jnds_deploy.filters.offscreen
@@ -351,7 +351,7 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, tol, rej):
                 out[c, y, x] = min(max(row[x, c], lo[c]), hi[c])
         if reject:
             # on the clamped row just written (cache-resident); a select in the loop above
-            # kept LLVM from vectorizing it (measured at commit 0211b63)
+            # kept LLVM from vectorizing it (docs/architecture.md, "The filter stage")
             _mark_row(current, out, y, cos, background, tol, off, rej)
 
 
@@ -455,8 +455,7 @@ def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None, curr
     (2, H, W): out(x, y) = x_prev(x + mx, y + my), pixel centres at integers, taps beyond
     the border replicate it (``jnds_deploy.filters.warp``, exact coordinates: no 1/32-pixel
     quantization as in cv2.remap). Returns (12, H, W) float32, channel c clamped to
-    [lo[c], hi[c]] if given. Faster than one cv2.remap per channel (docs/design-notes.md at
-    commit 5431ce1).
+    [lo[c], hi[c]] if given. Faster than one cv2.remap per channel (docs/architecture.md, "The filter stage").
 
     With ``current`` (the frame's (13, H, W) inputs), the history rejection
     (``reject_disoccluded`` with this motion's ``offscreen``) runs in the same pass and the
@@ -637,7 +636,7 @@ def _max3(row, out, skip_centre):
 def _clamp_rows(current, lum, k, counts):
     # the 3x3 maximum as maxima of three along each row (border columns apart: clamped
     # indices in the loop kept it scalar) taken over the three rows; maxima are exact, so
-    # the bounds are the 3x3 loop's bit for bit, and faster (measured at commit 386b9bf)
+    # the bounds are the 3x3 loop's bit for bit (docs/architecture.md, "The filter stage")
     h, w = current.shape[1], current.shape[2]
     for y in prange(h):
         ya, yc = max(y - 1, 0), min(y + 1, h - 1)
@@ -995,7 +994,7 @@ def _apply_phases(x, k, out, s):
     Each target row's taps are first interleaved into a row buffer (cache-resident), so the
     tap loop stays contiguous and vectorizes; reading the phases in place was slower, and
     making a target-layout kernel with ONNX Runtime's DepthToSpace slower still
-    (docs/design-notes.md at commit 5431ce1)."""
+    (docs/architecture.md, "The network graph")."""
     C, H, W = x.shape
     w = W // s
     for y in prange(H):

@@ -13,7 +13,7 @@ by the current inputs, as on a first frame:
   (benchmarks/results/stability.md).
 The stored history is flushed to 0 below ``HISTORY_FLUSH``: the recurrence shrinks a
 signal that left a pixel until it reaches float32 denormals, which the CPU computes with
-microcode assists (docs/design-notes.md).
+microcode assists (docs/architecture.md, "The filter stage").
 
 Array contract: current inputs (13, H, W) float32 in ``layout.CURRENT`` order, motion
 (2, H, W) in pixels, warped history (12, H, W) in ``layout.HISTORY`` order; the stored

@@ -18,7 +18,6 @@ replicate) to the network's multiple and cropped back.
 from __future__ import annotations
 
 import copy
-import functools
 import threading
 import time
 from contextlib import contextmanager
@@ -29,7 +28,7 @@ import numpy as np
 
 from ..artifacts import Manifest, variant_key
 from ..errors import ArtifactError, FrameError
-from ..heap import keep_freed_memory
+from ..process import keep_freed_memory, shared_arena_registered
 from ..layout import CURRENT, GUIDE, HISTORY, INPUT_CHANNELS, RADIANCE, channels, guide_of
 from . import filters as F
 from .config import PipelineConfig
@@ -99,22 +98,6 @@ class FrameResult:
     filled: int = 0  # current diffuse pixels filled from their neighbours' (filters.fill_diffuse_holes)
 
 
-@functools.cache
-def shared_arena() -> bool:
-    """Register one CPU arena allocator in ONNX Runtime's process-wide environment, for the
-    sessions that opt in (``session.use_env_allocators``); it extends by the size asked
-    (``kSameAsRequested``) instead of the default doubling. False where this ONNX Runtime
-    cannot (the sessions then keep their own arenas)."""
-    import onnxruntime as ort
-
-    try:
-        info = ort.OrtMemoryInfo("Cpu", ort.OrtAllocatorType.ORT_ARENA_ALLOCATOR, 0, ort.OrtMemType.DEFAULT)
-        # max_mem 0: no limit; arena_extend_strategy 1: kSameAsRequested; -1: defaults
-        ort.create_and_register_allocator(info, ort.OrtArenaCfg(0, 1, -1, -1))
-        return True
-    except (AttributeError, RuntimeError):
-        return False
-
 
 class Timer:
     def __init__(self):
@@ -129,8 +112,6 @@ class Timer:
 
 class Pipeline:
     def __init__(self, cfg: PipelineConfig):
-        import onnxruntime as ort
-
         self.cfg = cfg
         root = Path(cfg.artifacts)
         self.manifest = Manifest.load(root)
@@ -157,15 +138,15 @@ class Pipeline:
         opts = quiet()  # errors only: a cut int8 graph's entries are warned about (runtime.network.quiet)
         opts.intra_op_num_threads = cfg.threads
         opts.inter_op_num_threads = 1
-        # memory (docs/design-notes.md, "ONNX Runtime's memory"): every session of the
-        # process allocates from one arena that grows by what is asked, not by powers of
-        # two, and no per-session pre-planned block: the graphs' intermediates reuse the
-        # same memory instead of each session keeping its own peak
+        # memory (docs/architecture.md, "The process"): no per-session pre-planned block,
+        # and, where the process opted into one (process.shared_arena: `jnds run`, `serve`,
+        # `batch`), the one arena of the process that grows by what is asked: the graphs'
+        # intermediates then reuse the same memory instead of each session keeping its peak
         opts.enable_mem_pattern = False
-        if shared_arena():
+        if shared_arena_registered():
             opts.add_session_config_entry("session.use_env_allocators", "1")
         # ORT's idle threads spin after each run by default and then compete with the
-        # numba filter stage for the cores (docs/design-notes.md)
+        # numba filter stage for the cores (docs/architecture.md, "The process")
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         self._opts = opts
         self.graphs = {}
@@ -210,7 +191,7 @@ class Pipeline:
         """ONNX Runtime graph optimizers the session of graph ``name`` runs without. int8
         graphs: no NCHWc layout. Their only fp32 convolution (the output block's head)
         would run in it, and reordering its 85 output channels back costs more than the
-        layout gains (docs/design-notes.md)."""
+        layout gains (docs/architecture.md, "The int8 graph")."""
         return ["NchwcTransformer"] if self.graphs[name].precision == "int8" else []
 
     def fork(self) -> "Pipeline":

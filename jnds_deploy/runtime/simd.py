@@ -20,8 +20,9 @@ Three kinds of loop kept scalar work that the CPU could do 16 or 64 bytes at a t
 
 LLVM lowers them for the CPU numba compiles for (``vpermt2b`` with AVX-512 VBMI, byte
 shuffles and unpacks with AVX2; 512-bit or two 256-bit vectors). Each computes what its
-scalar form computes, bit for bit (tests/runtime/test_head.py, test_reformat.py). Timings:
-docs/performance.md, stop 75.
+scalar form computes, bit for bit (tests/runtime/test_head.py, test_reformat.py). Why each
+is hand-written: docs/architecture.md, "The filter stage"; what they bought: the record in
+docs/performance.md at commit 5431ce1.
 """
 from __future__ import annotations
 

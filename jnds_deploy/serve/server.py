@@ -103,7 +103,9 @@ class ServeConfig:
     body_timeout: float = 60.0
     max_connections: int = option(256, "connections at once; the next gets a 503")
     max_nonfinite: float = 0.5  # a layer with more NaN/Inf than this fraction: 400 (a NaN flood)
-    keep_freed_memory: bool = False  # PipelineConfig.keep_freed_memory (process-wide; `jnds serve` sets it)
+    # PipelineConfig.keep_freed_memory (process-wide; `jnds serve` makes it with the other
+    # process-wide settings, process.tune_process)
+    keep_freed_memory: bool = False
     # the first frame at a new size otherwise pays ONNX Runtime's allocations at that size
     # (docs/performance.md)
     warmup: tuple[tuple[int, int], ...] = option(
@@ -131,8 +133,9 @@ class Stream:
         self.closed = False
 
 
-# peak memory of a frame in the pipeline per native pixel (int8, 2x output, buffers kept):
-# measured at 320x180 to 1280x720 (docs/design-notes.md, benchmarks/results/memory.md), rounded up
+# peak memory of a frame in the pipeline per native pixel (int8, 2x output, buffers kept), an
+# estimate on the safe side: the peak RSS per input pixel of `jnds run` between sizes
+# (benchmarks/results/memory.md and the per-CPU memory-*.md), rounded up
 FRAME_BYTES_PER_PIXEL = 1700
 
 

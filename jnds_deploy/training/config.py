@@ -99,8 +99,7 @@ class TrainConfig:
     seed: int = option(0, "seed of the weights' initialization and the sampling")
     device: str = option("cpu", "torch device of the training steps: cpu or cuda (the data stays on the host)")
     channels_last: bool = option(
-        True, "convolutions in NHWC memory: the same values, faster steps on a CPU "
-              "(benchmarks/results/train_throughput.md); off: NCHW")
+        True, "convolutions in NHWC memory: the same values, faster steps on a CPU; off: NCHW")
     # augmentations (training.data.Augment)
     exposure: tuple[float, float] | None = option(
         None, "augmentation: radiance (inputs and reference) x 2^u, u uniform in [LO, HI] stops",

@@ -98,7 +98,8 @@ def clean_references(seq: SequenceArrays, path: str | Path) -> SequenceArrays:
     (``high``, HDR, no guides: the components are lighting without the albedo's texture)
     and its colour recomposed from them (Eq. 2: albedo * diffuse + specular); albedo
     unchanged. Why: the renders' 64-spp references keep noise as strong as the model's
-    own error, which the losses may teach it to keep (benchmarks/results/reference_noise.md).
+    own error, which the losses may teach it to keep (docs/model-gap.md, "The references
+    keep noise").
     Cached in ``<sequence>/.cache/reference-oidn.npz``, redone when a reference frame is
     newer than the cache or OIDN's version differs; without a writable sequence directory
     it is recomputed at every load."""
@@ -154,10 +155,10 @@ def _recomposed(seq: SequenceArrays, diffuse: np.ndarray, specular: np.ndarray) 
 class Recomposed(Mapping):
     """A cleaned reference's components: albedo, diffuse and specular held, the colour (Eq. 2:
     albedo * diffuse + specular) computed where it is read rather than held: a quarter of
-    the reference's memory, 18 % of a Cycles sequence's (a training run holds every sequence:
-    132 took 10 GB). ``window``
-    gives a component's frames and crop, the colour computed on those pixels alone: the
-    same float32 values, element by element, as the whole array's."""
+    the reference's memory and a good share of a Cycles sequence's (a training run holds
+    every sequence in memory). ``window`` gives a component's frames and crop, the colour
+    computed on those pixels alone: the same float32 values, element by element, as the
+    whole array's."""
 
     def __init__(self, albedo: np.ndarray, diffuse: np.ndarray, specular: np.ndarray):
         self._parts = {"albedo": albedo, "diffuse": diffuse, "specular": specular}

@@ -31,8 +31,8 @@ from ..options import option
 
 class _MeanAbs(torch.autograd.Function):
     """mean(|d|), whose backward is sign(d) / n in one pass: autograd's backward of
-    ``abs().mean()`` takes ``sgn`` and two multiplications, about 1.6x the time of this on a
-    CPU (benchmarks/results/train_throughput.md). The same subgradient (0 at d = 0)."""
+    ``abs().mean()`` takes ``sgn`` and two multiplications, slower than this on a CPU (the
+    record: commit 7b331ac). The same subgradient (0 at d = 0)."""
 
     @staticmethod
     def forward(ctx, d: torch.Tensor) -> torch.Tensor:

@@ -6,7 +6,7 @@ Eq. 5. L_spatial is L1, the feature loss of ``training.feature_loss``, or their 
 ``TrainConfig.lowfreq_loss`` > 0 the radiance tasks' L_spatial also holds ``lowfreq``, the
 L1 of box averages over 4 to 16 target pixels (not in the paper: on scene kinds it was not
 trained on, the shipped model's excess error over OIDN lies in blotches of 2 to 64+ target
-pixels, docs/model-gap.md, "Where in scale the error lies")."""
+pixels, docs/model-gap.md, "Unseen content")."""
 from __future__ import annotations
 
 import torch
@@ -33,8 +33,8 @@ def lowfreq(o: torch.Tensor, r: torch.Tensor, pixel: int) -> torch.Tensor:
     that many target pixels (``pixel``: target pixels per pixel of o); sizes the patch
     cannot hold are left out. Per-pixel L1 weighs fine grain (the reference's own noise
     among it) as much as blotches; averaged over a box, grain falls away and what stays is
-    the blotches and level shifts of the box's size (on `gen14`'s training outputs each
-    scale still held about 0.6x the per-pixel L1: docs/training.md, "gen17")."""
+    the blotches and level shifts of the box's size, which on a trained model's outputs
+    still hold much of the per-pixel L1 at every scale (the record: commit d056829)."""
     total = o.new_zeros(())
     for s in LOWFREQ_SCALES:
         k = s // pixel
@@ -68,7 +68,8 @@ class Loss:
     def spatial(self, o: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
         """L1, the feature loss (of 3-channel images), or their sum: the feature loss alone
         compares tonemapped features and lets bright HDR regions darken
-        (benchmarks/results/brightness.md); the L1 term holds their level."""
+        (the study at commit 8f1dc31: benchmarks/results/brightness.md); the L1 term holds
+        their level."""
         if self.feature_net is not None and o.shape[1] == 3:
             feat = self.feature_net.loss(o, r)
             return feat + l1(o, r) if self.with_l1 else feat

@@ -65,10 +65,20 @@ def test_configured_render_imports_validates_and_runs(renders, tmp_path, tiny_ar
     assert main(["validate", str(tmp_path / "seq"), "--strict"]) == 0
     assert main(["run", "--artifacts", str(tiny_artifacts[0]), "--input", str(tmp_path / "seq"),
                  "--output", str(tmp_path / "run"), "--precision", "fp32", "--quiet"]) == 0
+    # on Cycles' data the run computes what the torch specification does (as on the sample,
+    # tests/runtime/test_pipeline.py), and scores the frames it wrote against the reference
+    from jnds_deploy.metrics import psnr
+    from jnds_deploy.training.evaluate import infer_sequence
+    want = infer_sequence(tiny_artifacts[1], load_sequence(tmp_path / "seq"))
+    scores = json.loads((tmp_path / "run" / "run.json").read_text())["metrics"]["per_frame"]
+    assert len(want) == len(scores) == len(seq)
     for i in range(len(seq)):
         out = read_exr(tmp_path / "run" / f"{i:04d}.exr")
         out = np.stack([out[f"color.{c}"] for c in "RGB"], -1)
         assert out.shape == (80, 128, 3) and np.isfinite(out).all() and out.min() >= 0
+        rel = np.abs(out - want[i]).mean() / np.abs(want[i]).mean()
+        assert rel < 1e-4, (i, rel)
+        assert scores[i]["psnr"] == pytest.approx(psnr(out, seq.reference(i)["color"]), abs=1e-9), i
     assert (tmp_path / "run" / "contact.png").is_file()
 
 
@@ -161,7 +171,7 @@ def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has
             for _, cfg in dataset_specs(split, 200, engine="cycles", extra_sequences=extra)]
     kinds, seeds = {k for k, _ in seen}, {s for _, s in seen}
     assert set(CYCLES_EXTRA_KINDS) <= kinds
-    assert list(UNSEEN_KINDS) == ["test", "holdout", "holdout2", "holdout3", "holdout4"]
+    assert list(UNSEEN_KINDS) == ["test", "holdout", "street-studio", "grove-haze", "bathroom-fur"]
     for split, split_kinds in UNSEEN_KINDS.items():
         specs = [cfg for _, cfg in dataset_specs(split, engine="cycles")]
         got = {cfg.scene for cfg in specs}
@@ -170,6 +180,21 @@ def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has
         kinds |= got
         seeds |= {cfg.seed for cfg in specs}
     assert kinds == set(CYCLES_SCENE_KINDS)  # every kind is in some split
+
+
+def test_the_held_out_splits_old_names_are_their_new_ones_with_a_warning(capsys):
+    """``holdout2``, ``holdout3`` and ``holdout4`` are what ``street-studio``, ``grove-haze`` and
+    ``bathroom-fur`` were called: the same sequences under the new name, and a warning."""
+    from jnds_deploy.render.dataset import OLD_SPLIT_NAMES, dataset_specs
+    assert OLD_SPLIT_NAMES == {"holdout2": "street-studio", "holdout3": "grove-haze", "holdout4": "bathroom-fur"}
+    for old, new in OLD_SPLIT_NAMES.items():
+        with pytest.warns(FutureWarning, match=f"{old}.*now called.*{new}"):
+            assert dataset_specs(old, engine="cycles") == dataset_specs(new, engine="cycles")
+        assert main(["dataset", "--engine", "cycles", "--split", old, "--list"]) == 0
+        out, err = capsys.readouterr()
+        assert f"split {old} is now called {new}" in err
+        assert [line.split()[0] for line in out.splitlines()] == [rel for rel, _ in dataset_specs(new, engine="cycles")]
+        assert all(line.startswith(f"{new}/") for line in out.splitlines())
 
 
 def test_the_media_split_is_unseen_seeds_of_the_media_training_kind():

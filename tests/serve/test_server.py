@@ -27,15 +27,29 @@ def test_stream_round_trip_equals_jnds_run(server, tiny_artifacts, tmp_path):
                  progress=False, metrics=False)
     client = Client(url)
     assert client.health()["status"] == "ok"
+    timings = []
     with client.open_stream() as stream:
         for i, (layers, cut) in enumerate(_frames()):
             got = stream.denoise(layers, cut)
             want = read_exr(tmp_path / "run" / f"{i:04d}.exr")
             # float32 EXR both ways: the server computes exactly what `jnds run` does
             np.testing.assert_array_equal(got, np.stack([want[f"color.{c}"] for c in "RGB"], -1))
-            assert stream.frame_index == i and stream.timings["total"] > 0
+            t = stream.timings
+            assert stream.frame_index == i
+            # the pipeline's total is its stages' sum; the request's time holds the queue and
+            # it (the header rounds each to 0.001 ms)
+            stages = {k: v for k, v in t.items() if k not in ("total", "queue", "server")}
+            assert "network" in stages and t["total"] == pytest.approx(sum(stages.values()), abs=5e-4 * len(t))
+            assert t["server"] >= t["queue"] + t["total"] - 2e-3
+            timings.append(t)
+    # the server's metrics hold exactly the frames sent: their count, and percentiles over the
+    # timings each frame's response carried
     m = client.metrics()
-    assert m["frames_served"] == 8 and m["streams_open"] == 0 and m["latency_ms"]["total"]["p50"] > 0
+    assert m["frames_served"] == m["latency_window"] == len(timings) == 8 and m["streams_open"] == 0
+    assert set(m["latency_ms"]) == set().union(*timings)
+    for k, p in m["latency_ms"].items():
+        for q in (50, 90, 99):
+            assert p[f"p{q}"] == pytest.approx(np.percentile([t.get(k, 0.0) for t in timings], q), abs=1e-3), (k, q)
 
 
 def test_warmup_sizes_leave_no_trace_in_the_streams(server, tiny_artifacts, tmp_path, caplog):
