@@ -28,7 +28,7 @@ import torch
 import torch.nn.functional as F
 
 from benchmarks.common import RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse, write_report
-from jnds_deploy import filters
+from jnds_deploy import filter_spec as filters
 from jnds_deploy.checkpoint import default_checkpoint, read_checkpoint
 from jnds_deploy.io import find_sequences
 from jnds_deploy.model import JNDS, ModelConfig

@@ -51,14 +51,14 @@ def cmd_validate(args) -> int:
 
 
 def cmd_import_cycles(args) -> int:
-    from .cycles import import_cycles
+    from .blender.importer import import_cycles
 
     report = import_cycles(args.raw, args.out, args.reference, progress=not args.quiet)
     print(report.summary())
     return 0
 
 
-# the training-only Cycles kinds (blender_scene.CYCLES_EXTRA_KINDS), for --<kind>-sequences' help
+# the training-only Cycles kinds (blender.scenes.CYCLES_EXTRA_KINDS), for --<kind>-sequences' help
 EXTRA_KIND_HELP = {
     "mixed": "random combinations of the training kinds' ingredients",
     "lights": "mixed with spot, shaped area and emissive bar lights",
@@ -74,7 +74,7 @@ EXTRA_KIND_HELP = {
 
 def _extra_sequences(args) -> dict[str, int]:
     """{kind: N} of the training-only Cycles kinds from --<kind>-sequences."""
-    from .blender_scene import CYCLES_EXTRA_KINDS
+    from .blender.scenes import CYCLES_EXTRA_KINDS
 
     return {kind: getattr(args, f"{kind}_sequences") for kind in CYCLES_EXTRA_KINDS
             if getattr(args, f"{kind}_sequences")}

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 # radiance is clamped to [0, HDR_MAX] before tonemapping (paper, Sec. 3.2.1)
 HDR_MAX = 65535.0
 # the tonemap raises log(x + 1) below this to it: d/dx of t^(1/2.2) is infinite at 0
-# (jnds_deploy.filters.tonemap; the runtime's int8 input packing, runtime.reformat)
+# (jnds_deploy.filter_spec.tonemap; the runtime's int8 input packing, runtime.reformat)
 TONEMAP_FLOOR = 1e-10
 
 
@@ -86,7 +86,7 @@ def head_kind(name: str) -> str:
     return "normalized" if name.startswith("aux.") else "kernel"
 
 
-# geometric history rejection (jnds_deploy.filters.disoccluded): a history normal further
+# geometric history rejection (jnds_deploy.filter_spec.disoccluded): a history normal further
 # than acos(REJECT_COS) ~ 46 deg from every current normal in the 3x3 neighbourhood is
 # another surface; a normal with |x| + |y| + |z| below BACKGROUND is background (unit: >= 1)
 REJECT_COS = 0.7
@@ -98,13 +98,13 @@ BACKGROUND = 0.5
 # blend of neighbours at texture edges, which the range holds
 REJECT_ALBEDO = 0.1
 
-# diffuse holes (jnds_deploy.filters.fill_diffuse_holes): a pixel whose sample hit no diffuse
+# diffuse holes (jnds_deploy.filter_spec.fill_diffuse_holes): a pixel whose sample hit no diffuse
 # surface (albedo 0 on a surface or a volume) gets the demodulated diffuse of its 5x5
 # neighbours that did, weighted by this binomial kernel (sigma 1 pixel), where their weight
 # sums to at least DIFFUSE_FILL_MIN of the kernel's
 DIFFUSE_FILL_TAPS = (1.0 / 16, 4.0 / 16, 6.0 / 16, 4.0 / 16, 1.0 / 16)
 DIFFUSE_FILL_MIN = 0.2
-# the albedo at holes (jnds_deploy.filters.albedo_at_holes): where the 5x5 share of holes (the
+# the albedo at holes (jnds_deploy.filter_spec.albedo_at_holes): where the 5x5 share of holes (the
 # same taps, the border replicated) lies strictly inside SCATTERED_SHARE and the 5x5 mean of
 # the hole mask's changes from pixel to pixel (horizontal plus vertical) is above
 # SCATTERED_CHANGES, the composite takes the 5x5 mean of the filtered albedo
@@ -112,7 +112,7 @@ SCATTERED_SHARE = (0.05, 0.95)
 SCATTERED_CHANGES = 0.5
 
 # Rec. 709 luminance weights: the brightness the firefly clamp compares
-# (jnds_deploy.filters.clamp_fireflies; the runtime's twin, runtime.filters)
+# (jnds_deploy.filter_spec.clamp_fireflies; the runtime's twin, runtime.filters)
 LUMINANCE = (0.2126, 0.7152, 0.0722)
 
 # the roots the upsample filter may interpolate in (model.ModelConfig.upsample_root; here,
@@ -122,6 +122,6 @@ UPSAMPLE_ROOTS = (1, 2, 4, 8)
 # read at half resolution (space-to-depth)
 INPUT_BLOCKS = ("native", "space_to_depth")
 
-# the upsample filter's root interpolation (jnds_deploy.filters.upsample_filter) raises the
+# the upsample filter's root interpolation (jnds_deploy.filter_spec.upsample_filter) raises the
 # composite to this floor first: the derivative of x^(1/root) is infinite at 0
 ROOT_FLOOR = 1e-10

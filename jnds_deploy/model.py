@@ -9,7 +9,7 @@ Stages, named as in the paper:
 - ``OutputBlock`` (native): 3x3 spatial and temporal kernels and blend weights for
   diffuse, specular and (shared) albedo/normal, the last upsampling kernels of the
   filter paths, and features for the upsample block.
-- filter paths, composite (``jnds_deploy.filters``, no parameters);
+- filter paths, composite (``jnds_deploy.filter_spec``, no parameters);
 - ``UpsampleBlock`` (target resolution): a 3x3 kernel predicted from the bilinearly
   upsampled tonemapped composite and output-block features -- or, with
   ``upsample_width`` 0 (not in the paper), one learned 3x3 kernel for every pixel.
@@ -33,7 +33,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from . import filters
+from . import filter_spec as filters
 from .errors import ConfigError
 from .layout import CURRENT, HISTORY, INPUT_BLOCKS, N_CURRENT, N_GUIDE, N_HISTORY, RADIANCE, UPSAMPLE_ROOTS, head_kind  # noqa: F401 (re-exported)
 

@@ -46,10 +46,10 @@ def test_a_wrong_int8_field_names_itself(tmp_path, key, value):
 def test_format_2_is_read_as_today(tmp_path):
     """``jnds-artifacts/2`` wrote the int8 edges as sentences; they load as the values, and
     the manifest is saved in today's format."""
-    old = {"head": "u8, channels last, a range per channel (calibration.head)",
+    old = {"head": "u8, channels last, a range per channel (calibration.head_ranges)",
            "inputs": "u8, channels last, preprocessed (calibration.inputs)",
            "block": "between the graph's runs, u8 (calibration.block)",
-           "levels": "u8 planes, the heads' own codes (calibration.head.code_levels)"}
+           "levels": "u8 planes, the heads' own codes (calibration.head_ranges.code_levels)"}
     for edges, want in ((old, (Edge.U8, Edge.U8, Edge.U8, Block.CUT)),
                         ({"head": "float", "inputs": "float", "block": "in the graph", "levels": "float"},
                          (Edge.FLOAT, Edge.FLOAT, Edge.FLOAT, Block.GRAPH))):

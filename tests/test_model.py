@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from jnds_deploy import filters
+from jnds_deploy import filter_spec as filters
 from jnds_deploy.model import (JNDS, N_CURRENT, ActQuant, ModelConfig, UpsampleBlock, bilinear_taps,
                                pad_to_multiple, quantize_weight, set_quantization)
 
@@ -804,7 +804,7 @@ def test_recomposed_reference_batches_equal_a_held_colour(tmp_path):
 
 def filters_upsampled(comp, cfg):
     """The upsample filter's bilinear upsampling alone (root ``cfg.upsample_root``)."""
-    from jnds_deploy import filters
+    from jnds_deploy import filter_spec as filters
     r = cfg.upsample_root
     return filters.upsample(comp.clamp_min(filters.ROOT_FLOOR).pow(1 / r), cfg.scale).pow(r).clamp_min(0)
 

@@ -100,7 +100,7 @@ def test_layers_import_downwards():
                 todo.append(d)
         return seen
 
-    for spec in ("jnds_deploy.model", "jnds_deploy.filters"):
+    for spec in ("jnds_deploy.model", "jnds_deploy.filter_spec"):
         assert not {m for m in reach(spec) if m.startswith("jnds_deploy.runtime")}, spec
     for fmt in ("jnds_deploy.artifacts", "jnds_deploy.artifacts.manifest", "jnds_deploy.artifacts.layouts"):
         assert not {m for m in reach(fmt) if m.startswith(("jnds_deploy.runtime", "jnds_deploy.calibration",

@@ -1,6 +1,6 @@
 """The layouts of an int8 network graph's u8 edges, kept as JSON in the graph's own
 metadata (the ONNX model's ``metadata_props``): written by ``jnds calibrate``
-(``calibration.inputs``, ``calibration.head``, ``calibration.block``), read by the
+(``calibration.inputs``, ``calibration.head_ranges``, ``calibration.block``), read by the
 runtime (``runtime.network``, ``runtime.reformat``, ``runtime.head``). One graph file
 carries what it takes to run it; docs/artifact-format.md describes every key.
 
@@ -27,7 +27,7 @@ from ..errors import ArtifactError
 from ..layout import CURRENT, HISTORY, N_GUIDE, RADIANCE, head_kind
 
 INPUTS = "inputs"  # the u8 input of an int8 network graph (calibration.inputs)
-HEAD = "head"  # the u8 output of its output block's head (calibration.head)
+HEAD = "head"  # the u8 output of its output block's head (calibration.head_ranges)
 INPUTS_KEY = "jnds.inputs"
 HEAD_KEY = "jnds.head"
 LEVELS_KEY = "jnds.levels"

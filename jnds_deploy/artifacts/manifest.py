@@ -124,7 +124,7 @@ class Int8Graph:
     # the upsamplings and concatenations: in the graph, or cut (BLOCK_KEY, calibration.block)
     block: Block = Block.GRAPH
     # the feature extractor's level heads: float outputs, or one u8 tensor each (LEVELS_KEY,
-    # calibration.head.code_levels)
+    # calibration.head_ranges.code_levels)
     levels: Edge = Edge.FLOAT
 
     @classmethod

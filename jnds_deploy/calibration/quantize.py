@@ -41,7 +41,7 @@ from ..errors import CalibrationError
 from ..export.prune import INT8_VARIANT_TOL, validate_variant, write_variants
 from ..options import option
 from .block import cut_blocks
-from .head import HEAD_NODE, RADIANCE, STOPS, channel_ranges, code_levels, quantize_head, raw_ranges
+from .head_ranges import HEAD_NODE, RADIANCE, STOPS, channel_ranges, code_levels, quantize_head, raw_ranges
 from .inputs import quantize_inputs
 from .reader import FeedReader, collect_feeds
 from .rewrite import fast_int8, write_model
@@ -52,7 +52,7 @@ METHODS = ("qat", "minmax", "percentile", "entropy")
 # quantized convolution output): the fastest in benchmarks/results/calibration.md
 DEFAULT_OP_TYPES = ("Conv", "Relu", "MaxPool", "AveragePool", "Resize", "Concat")
 # the 1x1 kernel heads at native and target resolution stay float (with u8 edges, the
-# network graph's head is quantized after all, by calibration.head): their outputs go out
+# network graph's head is quantized after all, by calibration.head_ranges): their outputs go out
 # of the graph as float anyway, and int8 there costs a transpose and a dequantization of
 # every per-pixel kernel; they are a few percent of the MACs
 FLOAT_NODES = ("/network/output_block/head/Conv", "/head/Conv")
@@ -79,7 +79,7 @@ class CalibrateConfig:
     verbose: bool = option(False, "print every validated output's difference (default: one summary line)")
     # the int8 network graph's edges in u8 (u8 activations only): its input the packed,
     # quantized preprocessing of the input block (calibration.inputs), its output the
-    # output block's head, read by the filter stage (calibration.head). False: both stay
+    # output block's head, read by the filter stage (calibration.head_ranges). False: both stay
     # float, the head as FLOAT_NODES says
     u8_edges: bool = option(True, "keep the input block's preprocessing and the output block's head float "
                                   "(default: the graph takes u8 inputs packed by the runtime and gives the head's u8 "
@@ -190,7 +190,7 @@ def validate_int8(root: Path, manifest: Manifest, method: str, feeds: dict[str, 
 
     from ..checkpoint import load_fp32_model
     from ..export.convert import validate_graph
-    from ..filters import to_phases
+    from ..filter_spec import to_phases
     from ..runtime.network import output_names, quiet
 
     ckpt = Path(checkpoint or manifest.checkpoint["path"])
@@ -286,7 +286,7 @@ def u8_edges(model: onnx.ModelProto, head: dict[str, dict[str, list[float]]], mu
              label: str = "the graph") -> onnx.ModelProto:
     """The int8 network graph (or pruned variant) ``model`` with u8 edges, its layouts in its
     metadata (``artifacts.layouts``): its head quantized at the ranges ``head``
-    (``calibration.head``), the input block's preprocessing cut off (``calibration.inputs``),
+    (``calibration.head_ranges``), the input block's preprocessing cut off (``calibration.inputs``),
     the level heads ending in their codes (``head.code_levels``), and the graph cut at its
     upsamplings and concatenations (``calibration.block``; ``multiple``: the network's
     ``pad_multiple``). In this order: each surgery finds what the one before left."""

@@ -12,7 +12,7 @@ from .. import __version__
 from ..artifacts import Graph, Manifest, file_hash, write_json
 from ..checkpoint import default_checkpoint, load_fp32_model
 from ..errors import ValidationError
-from ..filters import to_phases
+from ..filter_spec import to_phases
 from ..layout import GUIDE
 from ..model import CURRENT, HISTORY, N_CURRENT, N_GUIDE, N_HISTORY, JNDS, quant_ranges
 from ..options import option

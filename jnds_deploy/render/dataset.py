@@ -2,7 +2,7 @@
 
 ``jnds dataset --out data`` renders (or resumes) every sequence; re-running it after an
 interruption continues from the last finished frame. Validation seeds never appear in
-training. ``--engine cycles`` renders the Blender Cycles sets (``blender_scene``: other
+training. ``--engine cycles`` renders the Blender Cycles sets (``blender.scenes``: other
 scene kinds, other seeds) into the same train/ and val/ directories, named ``cycles-*``.
 """
 from __future__ import annotations
@@ -13,13 +13,13 @@ from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 
-from ..blender_scene import CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS, CYCLES_TRAIN_KINDS
+from ..blender.scenes import CYCLES_HOLDOUT_KINDS, CYCLES_TEST_KINDS, CYCLES_TRAIN_KINDS
 from ..errors import ConfigError
 from .camera import CAMERA_PATHS
 from .sequence import ENGINES, RenderConfig
 
 SIZE = (192, 108)
-# the Cycles splits made of kinds no training or validation sequence has (blender_scene)
+# the Cycles splits made of kinds no training or validation sequence has (blender.scenes)
 UNSEEN_KINDS = {"test": CYCLES_TEST_KINDS, **CYCLES_HOLDOUT_KINDS}
 
 
@@ -51,11 +51,11 @@ TRAIN_SEQUENCES = 24  # the training set's default size; seeds 1000, 1001, ...
 # first seeds of each engine's training, validation and test sequences (never overlapping)
 SEEDS = {"mitsuba": (1000, 2000, 8000), "cycles": (5000, 6000, 7000)}
 MOVING_SEEDS = 4000  # Mitsuba training sequences of scene kind ``moving`` (objects that move)
-# first seeds of the Cycles training-only kinds (blender_scene.CYCLES_EXTRA_KINDS), added on request
+# first seeds of the Cycles training-only kinds (blender.scenes.CYCLES_EXTRA_KINDS), added on request
 EXTRA_SEEDS = {"mixed": 9000, "lights": 10000, "interior": 11000, "detail": 12000, "layers": 13000,
                "glass": 14000, "print": 15000, "media": 16000}
 # the Cycles held-out splits' first seeds, in the order the splits were written
-# (blender_scene.CYCLES_HOLDOUT_KINDS)
+# (blender.scenes.CYCLES_HOLDOUT_KINDS)
 HOLDOUT_SEEDS = {"holdout": 7100, "street-studio": 7200, "grove-haze": 7300, "bathroom-fur": 7400}
 # the later held-out splits' old names, "holdout" numbered from 2 in the order they were
 # written: still accepted, with a warning
@@ -82,7 +82,7 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     The test split (8000+; Cycles: 7000+) is rendered only when asked for: it is never
     trained on, and no checkpoint or setting is chosen by it. The held-out splits (Cycles
     only) are the same for two more scene kinds each, each written after the split before
-    it had been looked at (``blender_scene.CYCLES_HOLDOUT_KINDS``): holdout (seeds 7100+),
+    it had been looked at (``blender.scenes.CYCLES_HOLDOUT_KINDS``): holdout (seeds 7100+),
     street-studio (7200+), grove-haze (7300+) and bathroom-fur (7400+); their old names,
     ``holdout`` numbered from 2 (``OLD_SPLIT_NAMES``), are still accepted, with a warning.
     The media split (Cycles only, seeds 16100+) is six sequences of the training

@@ -33,7 +33,7 @@ from ..io import (
     SequenceWriter,
     read_layers,
 )
-from ..blender_scene import CYCLES_SCENE_KINDS
+from ..blender.scenes import CYCLES_SCENE_KINDS
 from ..options import option, parse_size, show_size
 from ..sampling import jitter
 from .camera import CAMERA_PATHS, Camera, camera_path
@@ -63,7 +63,7 @@ class RenderConfig:
     variant: str | None = option(None, "Mitsuba variant (default: llvm_ad_rgb if LLVM 19 is installed, else "
                                        "scalar_rgb)")
     engine: str = option("mitsuba", "mitsuba: this package's path tracer; cycles: Blender (its environment, "
-                                    ".venv-blender; render.cycles)", choices=ENGINES)
+                                    ".venv-blender; blender.render)", choices=ENGINES)
 
     def __post_init__(self):
         if self.engine not in ENGINES:
@@ -214,7 +214,7 @@ def render_sequence(cfg: RenderConfig, out: str | Path, progress: bool = True) -
     Returns timing statistics: seconds per frame for inputs (+ motion) and reference.
     """
     if cfg.engine == "cycles":
-        from .cycles import render_sequence as render_cycles
+        from ..blender.render import render_sequence as render_cycles
 
         return render_cycles(cfg, out, progress)
     from .integrator import SplitPathTracer, load_mitsuba

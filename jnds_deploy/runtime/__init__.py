@@ -6,7 +6,7 @@ stage, no torch. ``Pipeline`` runs frames; ``jnds run`` (``run``) runs sequences
 - ``network``: a network graph run from float feeds, whatever its edges; ``head``: the int8
   head's u8 output, decoded where the filters read it;
 - ``history``: the previous frame's signals warped, cleaned and stored;
-- ``filters``: the filter stage (the numpy/numba implementation of ``jnds_deploy.filters``);
+- ``filters``: the filter stage (the numpy/numba implementation of ``jnds_deploy.filter_spec``);
 - ``config``: ``PipelineConfig`` (cheap to import); ``pipeline``: ``Pipeline``, ``FrameResult``;
 - ``run``: ``jnds run``; ``profile``: ONNX Runtime's profiler per network stage.
 

@@ -1,4 +1,4 @@
-"""The filter stage in numpy/opencv: the runtime's implementation of ``jnds_deploy.filters``.
+"""The filter stage in numpy/opencv: the runtime's implementation of ``jnds_deploy.filter_spec``.
 
 Same specification as the torch ops, a test holds them equal. Array contract: CHW
 arrays (one frame, the layout ONNX Runtime returns without the batch axis), float32 or
@@ -319,7 +319,7 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, tol, rej):
         # scalar too, and the warp slower (docs/architecture.md, "The filter stage")
         for x in range(W):
             px, py = np.float32(x) + motion[0, y, x], np.float32(y) + motion[1, y, x]
-            # jnds_deploy.filters.offscreen
+            # jnds_deploy.filter_spec.offscreen
             off[x] = (px < np.float32(-0.5)) | (px > np.float32(W - 0.5)) | (py < np.float32(-0.5)) | (py > np.float32(H - 0.5))
             # clamped before the integer conversion: beyond 2 px outside, every tap is the edge
             sx = min(max(px, np.float32(-3)), np.float32(W + 2))
@@ -453,7 +453,7 @@ def tile_sums(x, c0, tile):
 def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None, current=None):
     """Bicubic resampling of the previous frame ``x`` (H, W, 12, channels last) along motion
     (2, H, W): out(x, y) = x_prev(x + mx, y + my), pixel centres at integers, taps beyond
-    the border replicate it (``jnds_deploy.filters.warp``, exact coordinates: no 1/32-pixel
+    the border replicate it (``jnds_deploy.filter_spec.warp``, exact coordinates: no 1/32-pixel
     quantization as in cv2.remap). Returns (12, H, W) float32, channel c clamped to
     [lo[c], hi[c]] if given. Faster than one cv2.remap per channel (docs/architecture.md, "The filter stage").
 
@@ -479,7 +479,7 @@ def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None, curr
 
 @njit(inline="always")
 def _disoccluded_row(current, warped, y, cos, background, tol, off, bad):
-    """bad[x] = ``jnds_deploy.filters.disoccluded`` at row y, from current (13, H, W) and
+    """bad[x] = ``jnds_deploy.filter_spec.disoccluded`` at row y, from current (13, H, W) and
     the warped (clamped) history (12, H, W). Returns the count. The first loop, branch-free,
     settles every pixel whose own normal and albedo pass the tests; only the others look
     at their neighbours."""
@@ -526,7 +526,7 @@ def _disoccluded_row(current, warped, y, cos, background, tol, off, bad):
 
 @njit(inline="always")
 def _mark_row(current, warped, y, cos, background, tol, off, rej):
-    """Row y of ``jnds_deploy.filters.disoccluded`` or off[x] (``offscreen``) into rej[y]:
+    """Row y of ``jnds_deploy.filter_spec.disoccluded`` or off[x] (``offscreen``) into rej[y]:
     0 kept, 1 rejected, 2 rejected where the pixel sees a surface (``_replace_rejected``
     dilates those)."""
     w = warped.shape[2]
@@ -539,7 +539,7 @@ def _mark_row(current, warped, y, cos, background, tol, off, rej):
 
 @njit(parallel=True, cache=True)
 def _replace_rejected(current, warped, rej, counts):
-    """``jnds_deploy.filters.history_rejected`` from the marks of ``_mark_row``: a pixel
+    """``jnds_deploy.filter_spec.history_rejected`` from the marks of ``_mark_row``: a pixel
     marked, or next to one marked 2 (3x3), takes the current inputs' 12 channels; counts[y]
     says how many per row. The dilation is separable: rows' horizontal maxima first."""
     h, w = rej.shape
@@ -583,9 +583,9 @@ def _mark_rows(current, warped, cos, background, tol, rej):
 def reject_disoccluded(current: np.ndarray, warped: np.ndarray, cos: float = REJECT_COS,
                        background: float = BACKGROUND, albedo: float = REJECT_ALBEDO,
                        offscreen: np.ndarray | None = None) -> int:
-    """``jnds_deploy.filters.history_rejected`` applied in place: where the current sample
+    """``jnds_deploy.filter_spec.history_rejected`` applied in place: where the current sample
     sees background or the warped history shows another surface (or where ``offscreen``,
-    (H, W) bool: ``jnds_deploy.filters.offscreen``; None: no motion), and next to such a
+    (H, W) bool: ``jnds_deploy.filter_spec.offscreen``; None: no motion), and next to such a
     pixel that sees a surface, the history's 12 channels become the current inputs'
     (current (13, H, W), warped (12, H, W) float32, albedo at channels 6-8 and normals at
     9-11 of both). Returns how many pixels."""
@@ -605,7 +605,7 @@ _LUM = tuple(np.float32(v) for v in LUMINANCE)
 @njit(parallel=True, cache=True)
 def _luminance_planes(current, history, out):
     """out[2 s] = luminance of current's signal s, out[2 s + 1] = the history's (s:
-    diffuse, specular), with the sums in ``jnds_deploy.filters.luminance``'s order."""
+    diffuse, specular), with the sums in ``jnds_deploy.filter_spec.luminance``'s order."""
     r, g, b = _LUM
     for y in prange(current.shape[1]):
         for s in range(2):
@@ -619,7 +619,7 @@ def _luminance_planes(current, history, out):
 def _max3(row, out, skip_centre):
     """out[x] = max of row[x - 1], row[x] and row[x + 1] (without row[x] if ``skip_centre``),
     indices clamped to the row (a clamped index may bring row[x] back, as in
-    ``jnds_deploy.filters.clamp_fireflies``'s padding)."""
+    ``jnds_deploy.filter_spec.clamp_fireflies``'s padding)."""
     w = row.shape[0]
     out[0] = max(row[0], row[min(1, w - 1)])
     if w > 1:
@@ -665,7 +665,7 @@ def _clamp_rows(current, lum, k, counts):
 
 
 def clamp_fireflies(current: np.ndarray, history: np.ndarray, k: float) -> int:
-    """``jnds_deploy.filters.clamp_fireflies`` of the current diffuse and specular in place
+    """``jnds_deploy.filter_spec.clamp_fireflies`` of the current diffuse and specular in place
     (current (13, H, W), the warped history (12, H, W), float32). Returns how many pixel
     values (per signal) were clamped."""
     _, h, w = current.shape
@@ -750,7 +750,7 @@ def _fill_holes(current, flags, sums, counts):
 
 def diffuse_holes(current: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The current inputs' (13, H, W) float32 samples as flags (H, W) u8: 1 a diffuse surface,
-    2 a hole (``jnds_deploy.filters.diffuse_holes``), 0 background; and each row's number of
+    2 a hole (``jnds_deploy.filter_spec.diffuse_holes``), 0 background; and each row's number of
     holes (H,). One pass over the albedo and normals."""
     _, h, w = current.shape
     flags = np.empty((h, w), np.uint8)
@@ -760,7 +760,7 @@ def diffuse_holes(current: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fill_diffuse_holes(current: np.ndarray, holes: tuple[np.ndarray, np.ndarray] | None = None) -> int:
-    """``jnds_deploy.filters.fill_diffuse_holes`` on the current inputs (13, H, W) float32,
+    """``jnds_deploy.filter_spec.fill_diffuse_holes`` on the current inputs (13, H, W) float32,
     in place (``holes``: their ``diffuse_holes``, else found here). Returns how many pixels
     were filled. Separable, as the torch op: a frame without holes costs one pass over its
     albedo and normals."""
@@ -847,7 +847,7 @@ def _composite_at_holes(comp, albedo, diffuse, specular, sums, live, counts):
 
 def albedo_at_holes(comp: np.ndarray, albedo: np.ndarray, diffuse: np.ndarray, specular: np.ndarray,
                     holes: tuple[np.ndarray, np.ndarray]) -> int:
-    """``jnds_deploy.filters.albedo_at_holes`` then the composite, as a patch: the composite
+    """``jnds_deploy.filter_spec.albedo_at_holes`` then the composite, as a patch: the composite
     ``comp`` (3, H, W) of the filtered ``albedo``, ``diffuse`` and ``specular`` is computed
     again, in place, with the albedo's 5x5 binomial mean where ``holes`` (``diffuse_holes`` of
     the frame's inputs) lie scattered. The albedo itself, which the history keeps, is not
@@ -955,7 +955,7 @@ def up_level(skip: np.ndarray, coarse: np.ndarray, kernel: np.ndarray, blend: np
 
 def filter_path(x: np.ndarray, history: np.ndarray, native: dict, levels: list[dict],
                 skip=None, tile: int = 1) -> np.ndarray:
-    """The hierarchical filter of one signal; see ``jnds_deploy.filters.filter_path``.
+    """The hierarchical filter of one signal; see ``jnds_deploy.filter_spec.filter_path``.
     ``skip``: empty tiles passed through at native resolution (the levels below native are
     small and filtered whole)."""
     skips = [spatiotemporal(x, history, native["spatial"], native["temporal"], native["blend"], skip, tile)]
@@ -1011,7 +1011,7 @@ def _apply_phases(x, k, out, s):
 
 
 def from_phases(kernel: np.ndarray, factor: int) -> np.ndarray:
-    """(s*s*C, H, W) phase layout -> (C, sH, sW) (``jnds_deploy.filters.from_phases``)."""
+    """(s*s*C, H, W) phase layout -> (C, sH, sW) (``jnds_deploy.filter_spec.from_phases``)."""
     _, h, w = kernel.shape
     s = factor
     return np.ascontiguousarray(kernel.reshape(s, s, -1, h, w).transpose(2, 3, 0, 4, 1).reshape(-1, h * s, w * s))
@@ -1020,7 +1020,7 @@ def from_phases(kernel: np.ndarray, factor: int) -> np.ndarray:
 def upsample_filter(color: np.ndarray, kernel: np.ndarray, factor: int, skip=None, tile: int = 1,
                     root: int = 1) -> np.ndarray:
     """Bilinear upsampling of the linear composite (of its ``root``-th root, raised back to
-    the power ``root``: ``jnds_deploy.filters.upsample_filter``), the predicted 3x3 kernel,
+    the power ``root``: ``jnds_deploy.filter_spec.upsample_filter``), the predicted 3x3 kernel,
     ReLU; in the native tiles set in ``skip``, the upsampling alone. ``kernel`` comes in
     the upsample graph's phase layout (s*s*9, H, W) at native resolution (factor > 1)."""
     if factor == 1:

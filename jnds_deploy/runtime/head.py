@@ -1,7 +1,7 @@
 """The output block's head in int8: one u8 tensor of every native kernel, decoded where
 the filter stage reads it.
 
-The int8 network graph (``calibration.head``) ends in the head's quantized 1x1
+The int8 network graph (``calibration.head_ranges``) ends in the head's quantized 1x1
 convolution: graph output ``head``, u8, (1, H, W, C) channels last, C padded to a
 multiple of 16 for ONNX Runtime's fast int8 convolution. The float graph's split, clamp,
 sigmoid and softmax nodes are not in it: ``Head.coded`` turns the channels in use to u8

@@ -4,7 +4,7 @@ motion vectors into the current frame, cleaned, and stored again after filtering
 Warping is bicubic (``filters.warp_channels_last``); each channel is then clamped to its
 input layer's valid range (bicubic overshoots). Two rejections replace the warped history
 by the current inputs, as on a first frame:
-- geometric, per pixel (``jnds_deploy.filters.disoccluded``, the model's training does
+- geometric, per pixel (``jnds_deploy.filter_spec.disoccluded``, the model's training does
   the same): the current sample sees background, or the history shows another surface;
 - brightness, per tile (``reject_history``): a tile whose warped diffuse (or specular)
   history is far brighter than the current frame there restarts that signal. The

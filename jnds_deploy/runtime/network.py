@@ -3,7 +3,7 @@ the graph's precision at its edges.
 
 An int8 network graph from ``jnds calibrate`` starts at the input block's first
 convolution (``calibration.inputs``: input ``inputs``, u8 channels last) and ends in the
-output block's u8 head (``calibration.head``: output ``head``), and the feature extractor's
+output block's u8 head (``calibration.head_ranges``: output ``head``), and the feature extractor's
 level heads in u8 planes (outputs ``<path>.level<k>``). ``run_network`` takes the
 float ``current`` and ``history`` every graph's users have (the pipeline, calibration,
 validation) and returns the outputs by the float graph's names, so that each caller runs

@@ -23,7 +23,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from .. import filters
+from .. import filter_spec as filters
 from ..errors import TrainError
 from ..layout import channels
 from ..options import option

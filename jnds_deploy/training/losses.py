@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from .. import filters
+from .. import filter_spec as filters
 from .config import TrainConfig
 from .feature_loss import l1, load_feature_net
 

@@ -2,7 +2,7 @@
 
     python camera_paths.py JOBS_JSON
 
-Builds each job's scene with ``blender_scene.build`` (nothing is rendered) and prints one JSON
+Builds each job's scene with ``blender.scenes.build`` (nothing is rendered) and prints one JSON
 line per job: its seed, the room's half-size (null without a room) and the frames (1-based)
 whose camera is outside the room's walls."""
 import json
@@ -10,7 +10,7 @@ import sys
 
 import bpy
 
-from jnds_deploy import blender_scene
+from jnds_deploy.blender import scenes as blender_scene
 
 for job in json.loads(sys.argv[1]):
     scene, _ = blender_scene.build({**job, "size": tuple(job["size"])})

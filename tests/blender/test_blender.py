@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jnds_deploy.blender_scene import CYCLES_SCENE_KINDS
+from jnds_deploy.blender.scenes import CYCLES_SCENE_KINDS
 from jnds_deploy.cli import main
-from jnds_deploy.cycles import components, import_cycles, read_passes
+from jnds_deploy.blender.importer import components, import_cycles, read_passes
 from jnds_deploy.errors import RenderError, SequenceError
 from jnds_deploy.io import open_sequence, read_exr, validate
 from jnds_deploy.runtime import filters as N
@@ -22,7 +22,7 @@ SCENE = Path(__file__).with_name("tiny_scene.py")
 
 
 def _blender_python():
-    from jnds_deploy.render.cycles import blender_python
+    from jnds_deploy.blender.render import blender_python
 
     try:
         return blender_python()
@@ -161,7 +161,7 @@ def test_every_cycles_scene_kind_renders_a_lit_valid_frame(kind, tmp_path):
 def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has():
     """Each unseen split (test, then the holdouts in the order they were written) is made of its
     own kinds and seeds, none of which any split before it, training or validation has."""
-    from jnds_deploy.blender_scene import CYCLES_EXTRA_KINDS, CYCLES_GHOST_KINDS, CYCLES_SCENE_KINDS
+    from jnds_deploy.blender.scenes import CYCLES_EXTRA_KINDS, CYCLES_GHOST_KINDS, CYCLES_SCENE_KINDS
     from jnds_deploy.cli import EXTRA_KIND_HELP
     from jnds_deploy.render.dataset import EXTRA_SEEDS, UNSEEN_KINDS, dataset_specs
     assert set(EXTRA_SEEDS) == set(CYCLES_EXTRA_KINDS)  # every training-only kind has its seeds
@@ -215,7 +215,7 @@ def test_procedural_cameras_stay_inside_their_rooms():
     """The ``mixed``, ``lights`` and ``interior`` training kinds draw a room's size and the camera's radius
     apart; before the clamp, lights 10002, 10009 and 10012 looked at walls from outside
     (docs/dataset.md). Every training seed rendered so far, built and not rendered."""
-    from jnds_deploy.render.cycles import scene_job
+    from jnds_deploy.blender.render import scene_job
     from jnds_deploy.render.dataset import dataset_specs
 
     jobs = [scene_job(c) for _, c in dataset_specs("train", 1, "cycles",
@@ -278,7 +278,7 @@ def _volume_passes(volume_mark: bool) -> dict:
 
 
 def test_volume_pixels_need_the_camera_direction_and_a_render_without_the_mark_is_counted(tmp_path):
-    from jnds_deploy.cycles import input_layers, unmarked_volume_pixels
+    from jnds_deploy.blender.importer import input_layers, unmarked_volume_pixels
 
     layers = input_layers(_volume_passes(True), tmp_path / "0001.exr", [0.0, -1.0, 0.0])
     np.testing.assert_array_equal(layers["normal"][1], [[0, -1, 0], [0, -1, 0]])
@@ -292,7 +292,7 @@ def test_volume_pixels_need_the_camera_direction_and_a_render_without_the_mark_i
 
 
 def test_volume_pixels_take_the_motion_of_the_surfaces_around_them():
-    from jnds_deploy.cycles import volume_motion
+    from jnds_deploy.blender.importer import volume_motion
 
     h, w = 40, 64
     motion = np.zeros((h, w, 2), np.float32)

@@ -9,7 +9,7 @@ from onnx import numpy_helper
 
 from jnds_deploy.calibration import CalibrateConfig, calibrate
 from jnds_deploy.errors import CalibrationError
-from jnds_deploy.calibration.head import BOUNDS, HEAD_NODE, MIN_RANGE, STOPS
+from jnds_deploy.calibration.head_ranges import BOUNDS, HEAD_NODE, MIN_RANGE, STOPS
 from jnds_deploy.calibration.inputs import PROJECT
 from jnds_deploy.calibration.quantize import FLOAT_NODES, validate_int8
 from jnds_deploy.calibration.reader import collect_feeds
@@ -32,8 +32,8 @@ def calibrated(tmp_path_factory):
     d = tmp_path_factory.mktemp("artifacts")
     export(ExportConfig(out=str(d)), log=lambda s: None)
     lines = []
-    manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="qat", frames=3),
-                         log=lines.append)
+    manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="qat", frames=3,
+                                         verbose=True), log=lines.append)
     return d, manifest, lines
 
 
@@ -341,7 +341,7 @@ def test_the_cut_graph_computes_what_the_whole_graph_did(calibrated, tmp_path, m
 
 
 def test_coded_level_heads_give_the_outputs_their_nodes_gave(calibrated, tmp_path, monkeypatch):
-    """calibration.head.code_levels ends each level head in its u8 codes (planes, one output
+    """calibration.head_ranges.code_levels ends each level head in its u8 codes (planes, one output
     per head, metadata per head); decoded, they are the float outputs the graph's
     dequantization, clamps and sigmoids gave, in every variant that has them."""
     import shutil
@@ -381,7 +381,7 @@ def test_coded_level_heads_give_the_outputs_their_nodes_gave(calibrated, tmp_pat
 
 
 def test_feed_reader_gives_every_feed_at_every_exposure():
-    from jnds_deploy.calibration.head import RADIANCE
+    from jnds_deploy.calibration.head_ranges import RADIANCE
     from jnds_deploy.calibration.reader import FeedReader
     rng = np.random.default_rng(0)
     feeds = [{"current": rng.random((1, 13, 4, 4), np.float32), "history": rng.random((1, 12, 4, 4), np.float32)}
@@ -408,7 +408,7 @@ def test_float_edges_ranges_left_to_the_calibrator_cover_every_exposure(tmp_path
     the output block's head is."""
     import onnxruntime as ort
     from onnx import helper
-    from jnds_deploy.calibration.head import RADIANCE
+    from jnds_deploy.calibration.head_ranges import RADIANCE
     from jnds_deploy.calibration.reader import exposed
     d = tmp_path
     export(ExportConfig(out=str(d)), log=lambda s: None)

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from jnds_deploy.errors import ValidationError
-from jnds_deploy.filters import to_phases
+from jnds_deploy.filter_spec import to_phases
 from jnds_deploy.export import ExportConfig, export
 from jnds_deploy.export.convert import report_validation, validate_graph
 from jnds_deploy.model import JNDS, ModelConfig
@@ -24,7 +24,7 @@ def tiny_checkpoint(tmp_path_factory):
 
 def test_export_writes_valid_graphs_and_manifest(tiny_checkpoint, tmp_path):
     lines = []
-    manifest = export(ExportConfig(checkpoint=str(tiny_checkpoint), out=str(tmp_path)), log=lines.append)
+    manifest = export(ExportConfig(checkpoint=str(tiny_checkpoint), out=str(tmp_path), verbose=True), log=lines.append)
     for g in ("network.onnx", "upsample.onnx"):
         model = onnx.load(tmp_path / g)
         onnx.checker.check_model(model, full_check=True)
@@ -54,7 +54,7 @@ def test_validation_catches_a_corrupted_graph(tiny_checkpoint, tmp_path):
     assert not rows[0]["ok"] and rows[0]["max_abs"] > 0.1
     lines = []
     with pytest.raises(ValidationError, match="1 output.* upsample.onnx:kernel max"):
-        report_validation(rows, lines.append)
+        report_validation(rows, lines.append, verbose=True)
     assert lines[0].startswith("✗ upsample.onnx:kernel")
 
 
@@ -105,3 +105,24 @@ def test_pruned_variants_drop_their_kernels(tiny_checkpoint, tmp_path):
             assert not any("/diffuse" in n.name for n in model.graph.node)
     rows = [r for r in manifest.validation if r["graph"].startswith("network.no-")]
     assert len(rows) == 7 and all(r["ok"] and r["max_abs"] == 0 for r in rows)
+
+
+def test_validation_report_is_one_line_unless_verbose():
+    import pytest
+
+    from jnds_deploy.errors import ValidationError
+    from jnds_deploy.export.convert import report_validation
+
+    rows = [{"graph": "g.onnx", "output": f"o{i}", "ok": True, "max_abs": d, "mean_abs": d / 10, "atol": 1e-4}
+            for i, d in enumerate((1e-6, 5e-5, 2e-5))]
+    lines = []
+    report_validation(rows, lines.append)
+    assert len(lines) == 1 and lines[0].startswith("✓ 3 of 3 outputs") and "g.onnx:o1" in lines[0]
+    lines = []
+    report_validation(rows, lines.append, verbose=True)
+    assert [line.split()[1] for line in lines] == ["g.onnx:o0", "g.onnx:o1", "g.onnx:o2"]
+    rows[2]["ok"] = False
+    lines = []
+    with pytest.raises(ValidationError):
+        report_validation(rows, lines.append)
+    assert lines[0].startswith("✗ 2 of 3 outputs")

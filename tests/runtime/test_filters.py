@@ -1,9 +1,9 @@
-"""The numpy/opencv filter stage against the torch specification (jnds_deploy.filters)."""
+"""The numpy/opencv filter stage against the torch specification (jnds_deploy.filter_spec)."""
 import numpy as np
 import pytest
 import torch
 
-from jnds_deploy import filters as T
+from jnds_deploy import filter_spec as T
 from jnds_deploy.io import open_sequence
 from jnds_deploy.layout import HDR_MAX, REJECT_ALBEDO
 from jnds_deploy.runtime import filters as N

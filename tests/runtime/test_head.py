@@ -79,7 +79,7 @@ def test_filters_read_coded_parts_as_their_decoded_values(head):
 
 
 def test_level_heads_read_as_planes_decode_as_their_nodes_and_filter_alike():
-    """A u8 level head (calibration.head.code_levels: the QLinearConv's own codes, one scale,
+    """A u8 level head (calibration.head_ranges.code_levels: the QLinearConv's own codes, one scale,
     planes) decodes as its DequantizeLinear, Clip and Sigmoid did (within a rounding), without
     a copy, and the
     levels' filter loops read it bit-equal to its decoded values."""

@@ -2,9 +2,9 @@
 Blender's own environment (``.venv-blender``: bpy pins numpy < 2, so it cannot share
 this one), then imported into ``jnds-sequence/1``.
 
-The scene is built by ``jnds_deploy.blender_scene`` (procedural kinds unlike the Mitsuba
+The scene is built by ``jnds_deploy.blender.scenes`` (procedural kinds unlike the Mitsuba
 ones), set up by ``jnds_deploy.blender.configure`` and rendered frame by frame into
-``<out>/.cycles/raw`` (and ``ref``); ``jnds_deploy.cycles`` imports them and the raw
+``<out>/.cycles/raw`` (and ``ref``); ``jnds_deploy.blender.importer`` imports them and the raw
 frames are deleted. An interrupted render resumes: Blender skips the frames on disk.
 """
 from __future__ import annotations
@@ -34,7 +34,7 @@ def blender_python() -> Path:
 
 
 def scene_job(cfg) -> dict:
-    """What ``blender_scene`` is given of a ``RenderConfig``: the scene's kind, seed, camera
+    """What ``blender.scenes`` is given of a ``RenderConfig``: the scene's kind, seed, camera
     path, frames, size, samples and scale."""
     return {"scene": cfg.scene, "seed": cfg.seed, "camera": cfg.camera, "frames": cfg.frames,
             "size": list(cfg.size), "spp": cfg.spp, "scale": cfg.scale}
@@ -45,7 +45,7 @@ def render_sequence(cfg, out: str | Path, progress: bool = True) -> dict:
     median seconds per frame of the inputs and the reference."""
     from tqdm import tqdm
 
-    from ..cycles import import_cycles
+    from .importer import import_cycles
 
     out = Path(out)
     work = out / ".cycles"
@@ -55,7 +55,7 @@ def render_sequence(cfg, out: str | Path, progress: bool = True) -> dict:
         raise RenderError(f"{out}: holds a render of another configuration; use a new --out")
     out.mkdir(parents=True, exist_ok=True)
     marker.write_text(json.dumps({"config": config, "engine": "cycles"}, indent=1))
-    cmd = [str(blender_python()), "-m", "jnds_deploy.blender_scene", json.dumps(scene_job(cfg)), str(work / "raw")]
+    cmd = [str(blender_python()), "-m", "jnds_deploy.blender.scenes", json.dumps(scene_job(cfg)), str(work / "raw")]
     if cfg.reference:
         cmd.append(str(work / "ref"))
     env = {**os.environ, "PYTHONPATH": str(ROOT)}

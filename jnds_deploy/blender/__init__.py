@@ -28,7 +28,7 @@ What ``configure`` sets (and nothing else of the user's look):
   and per frame a Halton (2, 3) sub-pixel jitter (``sampling.jitter``) by a keyed camera
   lens shift; the jitter of every frame goes to ``jnds.json`` beside the frames, where the
   import reads it. Cycles' Vector pass does not see the lens shift: it describes the pixel
-  centre's point, as the format wants (``jnds_deploy.cycles``);
+  centre's point, as the format wants (``jnds_deploy.blender.importer``);
 - Cycles' Denoising Data passes, which mark the camera rays that scattered in a volume
   before reaching any surface, and per frame the direction back to the camera in
   ``jnds.json``, the normal the import gives those pixels;
@@ -40,8 +40,8 @@ import json
 import os
 from dataclasses import dataclass, field
 
-from .errors import ConfigError
-from .sampling import jitter
+from ..errors import ConfigError
+from ..sampling import jitter
 
 # view-layer property -> pass name in the EXR (``ViewLayer.<pass>.<channel>``)
 PASSES = {
@@ -67,7 +67,7 @@ CYCLES_PASSES = {  # on view_layer.cycles
 }
 # view_layer.cycles.denoising_store_passes ("Denoising Data") writes these; the import takes
 # from "Denoising Normal" which camera rays scattered in a volume before any surface (Cycles
-# writes the view direction there, and nothing in Normal, Depth or Vector): ``jnds_deploy.cycles``
+# writes the view direction there, and nothing in Normal, Depth or Vector): ``jnds_deploy.blender.importer``
 DENOISING_PASSES = ("Denoising Normal", "Denoising Albedo", "Denoising Depth")
 ROUGHNESS_AOV = "Roughness"
 AOV_NODE = "jnds_roughness"  # the name of the AOV Output node added to each material

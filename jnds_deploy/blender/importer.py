@@ -41,9 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .blender import CYCLES_PASSES, DENOISING_PASSES, PASSES, ROUGHNESS_AOV, SIDECAR  # names only: no bpy at import
-from .errors import SequenceError
-from .io import FrameInfo, SequenceWriter, read_exr, validate
+from . import CYCLES_PASSES, DENOISING_PASSES, PASSES, ROUGHNESS_AOV, SIDECAR  # names only: no bpy at import
+from ..errors import SequenceError
+from ..io import FrameInfo, SequenceWriter, read_exr, validate
 
 SETTINGS = {  # pass -> the Blender setting that enables it
     "Combined": "View Layer Properties > Passes > Data > Combined",
@@ -202,7 +202,7 @@ def find_frames(raw: Path) -> dict[int, Path]:
 
 def _sidecar(raw: Path, numbers: list[int]) -> tuple[dict[int, tuple[float, float]], set[int]]:
     """Per frame the jitter ``blender.configure`` keyed (0 without its ``jnds.json``), and
-    the frames that are camera cuts (``blender_scene`` records them)."""
+    the frames that are camera cuts (``blender.scenes`` records them)."""
     side = raw / SIDECAR
     data = json.loads(side.read_text()) if side.is_file() else {}
     jit = {int(k): tuple(v) for k, v in data.get("jitter", {}).items()}

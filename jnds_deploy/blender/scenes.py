@@ -8,9 +8,9 @@ thin geometry, and objects that move on their own (not only the camera). Determi
 per seed: one ``random.Random(seed)``, emitters are icospheres (Cycles' light sampling
 varied from run to run with UV spheres), path guiding off, a fixed noise seed.
 
-Run by ``jnds render --engine cycles`` (``render.cycles``) in Blender's environment::
+Run by ``jnds render --engine cycles`` (``blender.render``) in Blender's environment::
 
-    python -m jnds_deploy.blender_scene CONFIG_JSON RAW_DIR [REF_DIR]
+    python -m jnds_deploy.blender.scenes CONFIG_JSON RAW_DIR [REF_DIR]
 
 It renders frame by frame into RAW_DIR (inputs, ``blender.configure``) and REF_DIR (the
 reference, ``blender.configure_reference``), skipping frames already there (each file is
@@ -25,7 +25,7 @@ import random
 import sys
 import time
 
-from .errors import ConfigError
+from ..errors import ConfigError
 
 # the kinds the training and validation sets are made of
 CYCLES_TRAIN_KINDS = ("sunroom", "darkroom", "metals", "textures")
@@ -1931,7 +1931,7 @@ def _fur(scene, rng, frames):
 
 
 def _all_fcurves(obj):
-    from .blender import _fcurves
+    from . import _fcurves
 
     if not (obj.animation_data and obj.animation_data.action):
         return []
@@ -1960,7 +1960,7 @@ def _render_frames(scene, folder: str, frames, label: str) -> None:
 
 
 def render_sequence(cfg: dict, raw: str, ref: str | None) -> None:
-    from . import blender as jb
+    from .. import blender as jb
 
     scene, cuts = build(cfg)
     frames = range(scene.frame_start, scene.frame_end + 1)
@@ -1976,7 +1976,7 @@ def render_sequence(cfg: dict, raw: str, ref: str | None) -> None:
 
 
 def _add_cuts(raw: str, cuts: list[int]) -> None:
-    from .blender import SIDECAR
+    from . import SIDECAR
 
     path = os.path.join(raw, SIDECAR)
     with open(path) as fh:
