@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as F
 
 from .layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_ALBEDO, REJECT_COS,
+                     RING_MIN,
                      SCATTERED_CHANGES, SCATTERED_SHARE,
                      ROOT_FLOOR, TONEMAP_FLOOR)
 
@@ -183,13 +184,17 @@ def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor, albedo: torch
 def history_rejected(normal: torch.Tensor, warped_normal: torch.Tensor, albedo: torch.Tensor,
                      warped_albedo: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
     """(N, 1, H, W) bool: where the current inputs replace the warped history: ``disoccluded``
-    or ``offscreen``, and the pixels next to such a pixel that sees a surface now. The ring:
-    a pixel beside another surface's trail takes its temporal kernel's taps from that
-    trail's neighbourhood, and the warp's bicubic taps blend the trail into its edge
+    or ``offscreen``, and a ring around trails. The ring: a pixel beside another surface's
+    trail takes its temporal kernel's taps from that trail's neighbourhood, and the warp's
+    bicubic taps blend the trail into its edge, so the 3x3 around a rejected pixel that
+    sees a surface is rejected too, where at least RING_MIN of that 3x3's pixels are such
+    pixels: a trail, not one pixel of a fine texture whose filtered albedo left the range
     (docs/ghosting.md). Background pixels are not dilated: their radiance is exact."""
     rejected = disoccluded(normal, warped_normal, albedo, warped_albedo) | offscreen(motion)
-    surface = normal.abs().sum(1, keepdim=True) >= BACKGROUND
-    ring = F.max_pool2d((rejected & surface).to(normal.dtype), 3, stride=1, padding=1) > 0
+    surface = (rejected & (normal.abs().sum(1, keepdim=True) >= BACKGROUND)).to(normal.dtype)
+    ones = torch.ones(1, 1, 3, 3, dtype=normal.dtype, device=normal.device)
+    trail = (surface > 0) & (F.conv2d(surface, ones, padding=1) >= RING_MIN)
+    ring = F.max_pool2d(trail.to(normal.dtype), 3, stride=1, padding=1) > 0
     return rejected | ring
 
 

@@ -97,6 +97,9 @@ BACKGROUND = 0.5
 # (docs/ghosting.md). The range, not one pixel's value: the stored albedo is filtered, a
 # blend of neighbours at texture edges, which the range holds
 REJECT_ALBEDO = 0.1
+# the ring around rejected pixels (jnds_deploy.filter_spec.history_rejected) is drawn around a
+# rejected pixel that sees a surface where at least RING_MIN of its 3x3 (itself included) are
+RING_MIN = 3
 
 # diffuse holes (jnds_deploy.filter_spec.fill_diffuse_holes): a pixel whose sample hit no diffuse
 # surface (albedo 0 on a surface or a volume) gets the demodulated diffuse of its 5x5

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..bicubic import cubic_weights
-from ..layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_ALBEDO, REJECT_COS, ROOT_FLOOR,
+from ..layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_ALBEDO, REJECT_COS, RING_MIN, ROOT_FLOOR,
                       SCATTERED_CHANGES, SCATTERED_SHARE, channels)
 from .head import Coded, decode_row
 
@@ -473,7 +473,7 @@ def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None, curr
     if current is None:
         return out
     counts = np.zeros(h, np.int64)
-    _replace_rejected(cur, out, rej, counts)
+    _replace_rejected(cur, out, rej, RING_MIN, counts)
     return out, int(counts.sum())
 
 
@@ -538,19 +538,28 @@ def _mark_row(current, warped, y, cos, background, tol, off, rej):
 
 
 @njit(parallel=True, cache=True)
-def _replace_rejected(current, warped, rej, counts):
+def _replace_rejected(current, warped, rej, ring_min, counts):
     """``jnds_deploy.filter_spec.history_rejected`` from the marks of ``_mark_row``: a pixel
-    marked, or next to one marked 2 (3x3), takes the current inputs' 12 channels; counts[y]
-    says how many per row. The dilation is separable: rows' horizontal maxima first."""
+    marked, or next to a trail's pixel (marked 2, with at least ``ring_min`` marked 2 in its
+    3x3), takes the current inputs' 12 channels; counts[y] says how many per row."""
     h, w = rej.shape
-    across = np.empty((h, w), np.uint8)
+    trail = np.zeros((h, w), np.uint8)
     for y in prange(h):
         for x in range(w):
-            m = rej[y, x] == 2
+            if rej[y, x] == 2:
+                n = 0
+                for yy in range(max(y - 1, 0), min(y + 2, h)):
+                    for xx in range(max(x - 1, 0), min(x + 2, w)):
+                        n += rej[yy, xx] == 2
+                trail[y, x] = n >= ring_min
+    across = np.empty((h, w), np.uint8)  # the dilation, separable: rows' maxima first
+    for y in prange(h):
+        for x in range(w):
+            m = trail[y, x]
             if x > 0:
-                m |= rej[y, x - 1] == 2
+                m |= trail[y, x - 1]
             if x < w - 1:
-                m |= rej[y, x + 1] == 2
+                m |= trail[y, x + 1]
             across[y, x] = m
     for y in prange(h):
         bad = np.empty(w, np.bool_)
@@ -566,7 +575,7 @@ def _replace_rejected(current, warped, rej, counts):
         counts[y] = n
         if n:
             # one channel at a time: the planes of a frame are far apart, and touching all 25
-            # per pixel thrashed the cache (docs/architecture.md)
+            # per pixel thrashed the cache (docs/architecture.md, "The filter stage")
             for c in range(WARP_CHANNELS):
                 for x in range(w):
                     if bad[x]:
@@ -595,7 +604,7 @@ def reject_disoccluded(current: np.ndarray, warped: np.ndarray, cos: float = REJ
         surface = np.abs(current[_NX:_NZ + 1]).sum(0) >= np.float32(background)
         rej = np.where(offscreen & (rej == 0), 1 + surface, rej).astype(np.uint8)
     counts = np.zeros(warped.shape[1], np.int64)
-    _replace_rejected(current, warped, rej, counts)
+    _replace_rejected(current, warped, rej, RING_MIN, counts)
     return int(counts.sum())
 
 

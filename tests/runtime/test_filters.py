@@ -337,18 +337,33 @@ def test_warp_with_rejection_fused_equals_warp_then_reject():
     np.testing.assert_array_equal(got, want)
 
 
-def test_history_rejected_rings_surface_rejections_only():
+def test_history_rejected_rings_trails_only():
+    """The 3x3 around a trail's pixels (at least RING_MIN rejected surface pixels in its 3x3)
+    is rejected; not around a lone rejected pixel, nor around background."""
+    from jnds_deploy.layout import RING_MIN
+
+    assert RING_MIN == 3
     n = np.zeros((3, 5, 7), np.float32)
     n[2] = 1.0
     n[:, :, 6] = 0.0  # background in the last column: rejected, not dilated
     a = np.full((3, 5, 7), 0.5, np.float32)
     ha = a.copy()
-    ha[:, 2, 2] = 0.0  # another surface was there
+    ha[:, 2, 1:4] = 0.0  # another surface was there: a trail of three
+    ha[:, 4, 4] = 0.0  # one pixel of a texture whose filtered albedo left the range
     got = T.history_rejected(_t(n), _t(n), _t(a), _t(ha), torch.zeros(1, 2, 5, 7))[0, 0].numpy()
     want = np.zeros((5, 7), bool)
-    want[1:4, 1:4] = True
+    want[1:4, 1:4] = True  # the ring around the trail's middle pixel (its 3x3 holds 3)
+    want[2, 1:4] = True
+    want[4, 4] = True
     want[:, 6] = True
     assert (got == want).all(), np.argwhere(got != want)
+    cur = np.zeros((13, 5, 7), np.float32)
+    cur[6:9], cur[9:12] = a, n
+    warped = np.zeros((12, 5, 7), np.float32)
+    warped[6:9], warped[9:12] = ha, n
+    warped[:6] = 7.0
+    assert N.reject_disoccluded(cur, warped) == want.sum()
+    np.testing.assert_array_equal(warped[0] == 0, want)
 
 
 def test_offscreen():
