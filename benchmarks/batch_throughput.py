@@ -13,6 +13,7 @@ workers (their ONNX Runtime sessions). Medians of the runs. The two-node cluster
 with Ray's own command line, each node given one CPU, and the batch connects with
 --address; it is stopped afterwards.
 """
+
 from __future__ import annotations
 
 import shutil
@@ -24,8 +25,19 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse,
-                               parse_size, resized_frames, tune_process, write_report)
+from benchmarks.common import (
+    RESULTS,
+    ROOT,
+    arguments,
+    command_line,
+    cpu_line,
+    machine_info,
+    parse,
+    parse_size,
+    resized_frames,
+    tune_process,
+    write_report,
+)
 from jnds_deploy.io import FrameInfo, SequenceWriter, open_sequence
 
 RAY = str(Path(sys.executable).with_name("ray"))
@@ -54,8 +66,18 @@ def run_batch(artifacts: str, root: Path, workers: int, threads: int, address: s
     out = Path(tempfile.mkdtemp(prefix="batch-out-"))
     t0 = time.perf_counter()
     try:
-        summary = batch(BatchConfig(artifacts=artifacts, input=str(root), output=str(out), precision="int8",
-                                    workers=workers, threads=threads, address=address), progress=False)
+        summary = batch(
+            BatchConfig(
+                artifacts=artifacts,
+                input=str(root),
+                output=str(out),
+                precision="int8",
+                workers=workers,
+                threads=threads,
+                address=address,
+            ),
+            progress=False,
+        )
     finally:
         ray.shutdown()
         shutil.rmtree(out, ignore_errors=True)
@@ -67,10 +89,22 @@ def run_batch(artifacts: str, root: Path, workers: int, threads: int, address: s
 def two_nodes() -> str:
     """A head node and a worker node on this machine, one CPU each; returns the address."""
     port = "6399"
-    subprocess.run([RAY, "start", "--head", f"--port={port}", "--num-cpus=1", "--include-dashboard=false",
-                    "--disable-usage-stats"], check=True, capture_output=True)
+    subprocess.run(
+        [
+            RAY,
+            "start",
+            "--head",
+            f"--port={port}",
+            "--num-cpus=1",
+            "--include-dashboard=false",
+            "--disable-usage-stats",
+        ],
+        check=True,
+        capture_output=True,
+    )
     subprocess.run([RAY, "start", f"--address=127.0.0.1:{port}", "--num-cpus=1"], check=True, capture_output=True)
     import ray
+
     ray.init(address=f"127.0.0.1:{port}")
     for _ in range(100):  # the second node registers within seconds
         if len([n for n in ray.nodes() if n["Alive"]]) == 2:
@@ -84,8 +118,11 @@ def two_nodes() -> str:
 
 
 def main() -> None:
-    ap = arguments(__doc__, RESULTS / "batch_throughput",
-                   smoke={"sequences": 2, "frames": 2, "size": "64x32", "runs": 1, "configs": ["1 worker x 1 thread"]})
+    ap = arguments(
+        __doc__,
+        RESULTS / "batch_throughput",
+        smoke={"sequences": 2, "frames": 2, "size": "64x32", "runs": 1, "configs": ["1 worker x 1 thread"]},
+    )
     ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
     ap.add_argument("--sequences", type=int, default=6)
     ap.add_argument("--frames", type=int, default=8)
@@ -121,32 +158,49 @@ def main() -> None:
     total = args.sequences * args.frames
     rows = {}
     for name, runs in results.items():
-        rows[name] = {"frames_per_s": float(np.median([r["frames_per_s"] for r in runs])),
-                      "frames_per_s_runs": [r["frames_per_s"] for r in runs],
-                      "with_start_frames_per_s": float(np.median([total / r["with_start_s"] for r in runs])),
-                      "median_frame_ms": float(np.median([s["median_ms"] for r in runs for s in r["sequences"].values()])),
-                      "workers": runs[0]["workers"], "cluster_cpus": runs[0]["cluster_cpus"],
-                      # the Ray nodes that ran sequences, per run
-                      "nodes_used": [len({s["node_id"] for s in r["sequences"].values()}) for r in runs]}
+        rows[name] = {
+            "frames_per_s": float(np.median([r["frames_per_s"] for r in runs])),
+            "frames_per_s_runs": [r["frames_per_s"] for r in runs],
+            "with_start_frames_per_s": float(np.median([total / r["with_start_s"] for r in runs])),
+            "median_frame_ms": float(np.median([s["median_ms"] for r in runs for s in r["sequences"].values()])),
+            "workers": runs[0]["workers"],
+            "cluster_cpus": runs[0]["cluster_cpus"],
+            # the Ray nodes that ran sequences, per run
+            "nodes_used": [len({s["node_id"] for s in r["sequences"].values()}) for r in runs],
+        }
     base = next(iter(rows.values()))["frames_per_s"]
-    md = ["# `jnds batch` throughput on Ray\n",
-          f"`{command_line()}`\n",
-          f"Machine: {cpu_line(info)}, {info['usable_cores']} usable cores. {args.sequences} sequences of "
-          f"{args.frames} frames at {size[0]}x{size[1]} -> {2 * size[0]}x{2 * size[1]}, int8, no reference; "
-          f"medians of {args.runs} runs.\n",
-          f"| configuration | frames/s | x {next(iter(rows))} | frames/s with Ray and worker start "
-          "| median ms per frame in a worker "
-          "| Ray nodes used |",
-          "| --- | ---: | ---: | ---: | ---: | ---: |"]
+    md = [
+        "# `jnds batch` throughput on Ray\n",
+        f"`{command_line()}`\n",
+        f"Machine: {cpu_line(info)}, {info['usable_cores']} usable cores. {args.sequences} sequences of "
+        f"{args.frames} frames at {size[0]}x{size[1]} -> {2 * size[0]}x{2 * size[1]}, int8, no reference; "
+        f"medians of {args.runs} runs.\n",
+        f"| configuration | frames/s | x {next(iter(rows))} | frames/s with Ray and worker start "
+        "| median ms per frame in a worker "
+        "| Ray nodes used |",
+        "| --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
     for name, r in rows.items():
-        md.append(f"| {name} | {r['frames_per_s']:.2f} | {r['frames_per_s'] / base:.2f} | "
-                  f"{r['with_start_frames_per_s']:.2f} | {r['median_frame_ms']:.0f} | "
-                  f"{', '.join(map(str, r['nodes_used']))} |")
-    write_report(Path(args.out), {"machine": info, "command": command_line(), "size": list(size),
-                                  "sequences": args.sequences, "frames": args.frames, "results": rows,
-                                  "runs": {k: [{kk: v for kk, v in r.items() if kk != "config"} for r in runs]
-                                           for k, runs in results.items()}},
-                 "\n".join(md) + "\n")
+        md.append(
+            f"| {name} | {r['frames_per_s']:.2f} | {r['frames_per_s'] / base:.2f} | "
+            f"{r['with_start_frames_per_s']:.2f} | {r['median_frame_ms']:.0f} | "
+            f"{', '.join(map(str, r['nodes_used']))} |"
+        )
+    write_report(
+        Path(args.out),
+        {
+            "machine": info,
+            "command": command_line(),
+            "size": list(size),
+            "sequences": args.sequences,
+            "frames": args.frames,
+            "results": rows,
+            "runs": {
+                k: [{kk: v for kk, v in r.items() if kk != "config"} for r in runs] for k, runs in results.items()
+            },
+        },
+        "\n".join(md) + "\n",
+    )
     print("\n".join(md))
 
 

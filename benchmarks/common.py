@@ -9,6 +9,7 @@ its report into the ``--out`` given; ``tests/test_benchmarks.py`` runs them all)
 Heavy modules (onnxruntime, numba, cv2, the runtime) are imported by the functions that
 need them, so a script that renders or reads checkpoints pays nothing for them.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -99,9 +100,16 @@ def machine_info() -> dict:
     ``FLAGS`` it has and the versions of ``VERSIONS``."""
     flags = cpu_flags()
     cpu = _cpuinfo()
-    return {"platform": platform.platform(), "cpu_count": os.cpu_count(), "processor": cpu_model(),
-            "cpu_family": cpu.get("cpu family"), "cpu_model": cpu.get("model"),
-            "usable_cores": usable_cores(), "flags": [f for f in FLAGS if f in flags], "versions": versions()}
+    return {
+        "platform": platform.platform(),
+        "cpu_count": os.cpu_count(),
+        "processor": cpu_model(),
+        "cpu_family": cpu.get("cpu family"),
+        "cpu_model": cpu.get("model"),
+        "usable_cores": usable_cores(),
+        "flags": [f for f in FLAGS if f in flags],
+        "versions": versions(),
+    }
 
 
 def cpu_line(info: dict) -> str:
@@ -132,21 +140,27 @@ def cpu_peaks() -> dict:
     width = 256 if halves or "avx512f" not in flags else 512
     int8 = INT8_MACS_PER_CYCLE[isa] // (2 if halves and isa == "avx512_vnni" else 1)
     fp32 = 2 * width // 32
-    return {"cores": cores, "ghz": ghz, "avx512_vnni": "avx512_vnni" in flags, "amx_int8": "amx_int8" in flags,
-            "int8_isa": isa, "avx512_halves": halves, "int8_gmacs": cores * ghz * int8,
-            "fp32_fma_gmacs": cores * ghz * fp32,
-            "derivation": f"cores x GHz x {int8} int8 MACs per cycle ({isa}"
-                          f"{', 512-bit instructions run as two 256-bit halves (Zen 4)' if halves else ''}) or "
-                          f"{fp32} fp32 MACs per cycle (two {width}-bit FMAs a cycle)"
-                          f"{'; AMX int8 tiles present, not counted' if 'amx_int8' in flags else ''}"}
+    return {
+        "cores": cores,
+        "ghz": ghz,
+        "avx512_vnni": "avx512_vnni" in flags,
+        "amx_int8": "amx_int8" in flags,
+        "int8_isa": isa,
+        "avx512_halves": halves,
+        "int8_gmacs": cores * ghz * int8,
+        "fp32_fma_gmacs": cores * ghz * fp32,
+        "derivation": f"cores x GHz x {int8} int8 MACs per cycle ({isa}"
+        f"{', 512-bit instructions run as two 256-bit halves (Zen 4)' if halves else ''}) or "
+        f"{fp32} fp32 MACs per cycle (two {width}-bit FMAs a cycle)"
+        f"{'; AMX int8 tiles present, not counted' if 'amx_int8' in flags else ''}",
+    }
 
 
 def avx512_halves() -> bool:
     """Whether this CPU runs AVX-512 on a 256-bit datapath, two halves per instruction:
     AMD's Zen 4, /proc/cpuinfo family 25 (19h; its Zen 3 models have no AVX-512)."""
     info = _cpuinfo()
-    return (info.get("vendor_id") == "AuthenticAMD" and info.get("cpu family") == "25"
-            and "avx512f" in cpu_flags())
+    return info.get("vendor_id") == "AuthenticAMD" and info.get("cpu family") == "25" and "avx512f" in cpu_flags()
 
 
 def gemm_throughput(threads: int, n: int = 2048, runs: int = 10) -> dict:
@@ -161,14 +175,28 @@ def gemm_throughput(threads: int, n: int = 2048, runs: int = 10) -> dict:
     rng = np.random.default_rng(0)
     out = {"n": n, "runs": runs}
     for name, op, a, b, result in (
-            ("int8", "MatMulInteger", rng.integers(0, 256, (n, n), dtype=np.uint8),
-             rng.integers(-127, 128, (n, n), dtype=np.int8), TensorProto.INT32),
-            ("fp32", "MatMul", rng.standard_normal((n, n), dtype=np.float32),
-             rng.standard_normal((n, n), dtype=np.float32), TensorProto.FLOAT)):
+        (
+            "int8",
+            "MatMulInteger",
+            rng.integers(0, 256, (n, n), dtype=np.uint8),
+            rng.integers(-127, 128, (n, n), dtype=np.int8),
+            TensorProto.INT32,
+        ),
+        (
+            "fp32",
+            "MatMul",
+            rng.standard_normal((n, n), dtype=np.float32),
+            rng.standard_normal((n, n), dtype=np.float32),
+            TensorProto.FLOAT,
+        ),
+    ):
         graph = helper.make_graph(
-            [helper.make_node(op, ["a", "b"], ["y"])], name,
+            [helper.make_node(op, ["a", "b"], ["y"])],
+            name,
             [helper.make_tensor_value_info("a", helper.np_dtype_to_tensor_dtype(a.dtype), [n, n])],
-            [helper.make_tensor_value_info("y", result, [n, n])], [onnx.numpy_helper.from_array(b, "b")])
+            [helper.make_tensor_value_info("y", result, [n, n])],
+            [onnx.numpy_helper.from_array(b, "b")],
+        )
         # the exported graphs' IR version: make_model writes the onnx package's newest, which
         # an older ONNX Runtime refuses (1.30 takes at most 13; onnx 1.23 writes 14)
         model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8)
@@ -181,7 +209,7 @@ def gemm_throughput(threads: int, n: int = 2048, runs: int = 10) -> dict:
             t0 = time.perf_counter()
             sess.run(None, {"a": a})
             ms.append(time.perf_counter() - t0)
-        out[f"{name}_gmacs"] = n ** 3 / float(np.median(ms)) / 1e9
+        out[f"{name}_gmacs"] = n**3 / float(np.median(ms)) / 1e9
     return out
 
 
@@ -205,6 +233,7 @@ class CpuSteal:
 
 # --- the process, tuned as `jnds run` tunes its own ----------------------------------------
 
+
 def tune_process() -> None:
     """Tune this process as `jnds run` and `jnds serve` tune theirs
     (``jnds_deploy.process.tune_process``), so that timings compare with the committed
@@ -224,6 +253,7 @@ def pipeline(artifacts: str | Path, **config):
 
 
 # --- timed repeats -------------------------------------------------------------------------
+
 
 def timed(fn: Callable, *args, **kwargs) -> tuple[Any, float]:
     """``fn(*args, **kwargs)`` and the milliseconds it took (wall clock)."""
@@ -246,8 +276,9 @@ def interleaved(calls: dict[str, Callable[[], Any]], runs: int, warmup: int = 1)
     return ms
 
 
-def run_frames(runners: dict[str, Callable[[dict, bool], Any]],
-               frames: list[tuple[dict, bool]]) -> dict[str, list[tuple[Any, float]]]:
+def run_frames(
+    runners: dict[str, Callable[[dict, bool], Any]], frames: list[tuple[dict, bool]]
+) -> dict[str, list[tuple[Any, float]]]:
     """Every runner on every (layers, camera_cut) frame, interleaved: all run frame t
     before any runs frame t + 1 (each keeps its own history). Per runner: (result, wall
     ms) per frame."""
@@ -262,12 +293,21 @@ def spread(values, prefix: str = "", suffix: str = "") -> dict[str, float]:
     """Median, 10th and 90th percentile: {prefix}median{suffix}, {prefix}p10{suffix},
     {prefix}p90{suffix} (``spread(ms, suffix="_ms")`` gives median_ms, p10_ms, p90_ms)."""
     v = np.asarray(values, np.float64)
-    return {f"{prefix}median{suffix}": float(np.median(v)), f"{prefix}p10{suffix}": float(np.percentile(v, 10)),
-            f"{prefix}p90{suffix}": float(np.percentile(v, 90))}
+    return {
+        f"{prefix}median{suffix}": float(np.median(v)),
+        f"{prefix}p10{suffix}": float(np.percentile(v, 10)),
+        f"{prefix}p90{suffix}": float(np.percentile(v, 90)),
+    }
 
 
-def time_sessions(paths: dict[str, Path], feeds: dict, runs: int, threads: int, levels: dict[str, str],
-                  disabled: dict[str, list[str]] | None = None) -> dict:
+def time_sessions(
+    paths: dict[str, Path],
+    feeds: dict,
+    runs: int,
+    threads: int,
+    levels: dict[str, str],
+    disabled: dict[str, list[str]] | None = None,
+) -> dict:
     """Median and range (ms) of each ONNX graph run on ``feeds`` with ONNX Runtime's
     optimization ``levels[name]`` ("all" or "extended") and without the graph optimizers
     ``disabled[name]`` (as ``Pipeline.disabled_optimizers`` gives them), interleaved run by
@@ -280,17 +320,21 @@ def time_sessions(paths: dict[str, Path], feeds: dict, runs: int, threads: int, 
         o = ort.SessionOptions()
         o.intra_op_num_threads, o.inter_op_num_threads = threads, 1
         o.graph_optimization_level = opt[levels[name]]
-        sessions[name] = ort.InferenceSession(str(path), o, providers=["CPUExecutionProvider"],
-                                              disabled_optimizers=(disabled or {}).get(name) or None)
+        sessions[name] = ort.InferenceSession(
+            str(path), o, providers=["CPUExecutionProvider"], disabled_optimizers=(disabled or {}).get(name) or None
+        )
     ms = interleaved({name: functools.partial(s.run, None, feeds) for name, s in sessions.items()}, runs)
-    return {name: {"median_ms": float(np.median(v)), "min_ms": float(np.min(v)), "max_ms": float(np.max(v)),
-                   "runs": v} for name, v in ms.items()}
+    return {
+        name: {"median_ms": float(np.median(v)), "min_ms": float(np.min(v)), "max_ms": float(np.max(v)), "runs": v}
+        for name, v in ms.items()
+    }
 
 
 # --- frames at a benchmark's size ----------------------------------------------------------
 
+
 def parse_size(text: str, multiple: int = 1) -> tuple[int, int]:
-    """"1280x720" -> (1280, 720); exits with a message unless both are multiples of
+    """ "1280x720" -> (1280, 720); exits with a message unless both are multiples of
     ``multiple`` (the network graphs take multiples of the artifacts' ``pad_multiple``)."""
     try:
         w, h = (int(v) for v in text.lower().split("x"))
@@ -335,26 +379,32 @@ def network_feeds(seq_path: Path, size: tuple[int, int], guide: bool = False) ->
     layers = dict(open_sequence(seq_path).inputs(0))
     layers[GUIDE.name] = guide_of(layers)
     names = [n for n, _ in CURRENT] + ([GUIDE.name] if guide else [])
-    x = np.concatenate([cv2.resize(layers[n], size, interpolation=cv2.INTER_LINEAR).reshape(size[1], size[0], -1)
-                        for n in names], -1).transpose(2, 0, 1)
+    x = np.concatenate(
+        [cv2.resize(layers[n], size, interpolation=cv2.INTER_LINEAR).reshape(size[1], size[0], -1) for n in names], -1
+    ).transpose(2, 0, 1)
     x = np.ascontiguousarray(x[None], np.float32)
-    cur = np.ascontiguousarray(x[:, :-GUIDE.channels]) if guide else x
+    cur = np.ascontiguousarray(x[:, : -GUIDE.channels]) if guide else x
     feeds = {"current": cur, "history": np.ascontiguousarray(cur[:, :N_HISTORY])}
     if guide:
-        feeds["guide"] = np.ascontiguousarray(x[:, -GUIDE.channels:])
+        feeds["guide"] = np.ascontiguousarray(x[:, -GUIDE.channels :])
     return feeds
 
 
 # --- reports -------------------------------------------------------------------------------
 
-SMOKE_HELP = ("a run of seconds on a tiny input, to check that the benchmark runs (CI: "
-              "tests/test_benchmarks.py), with these settings in place of the defaults (flags given still "
-              "win): {settings}; its report goes to --out, which must be given, outside benchmarks/results")
+SMOKE_HELP = (
+    "a run of seconds on a tiny input, to check that the benchmark runs (CI: "
+    "tests/test_benchmarks.py), with these settings in place of the defaults (flags given still "
+    "win): {settings}; its report goes to --out, which must be given, outside benchmarks/results"
+)
 
 
-def arguments(doc: str, out: Path | None = None,
-              out_help: str = "the report's path without suffix: .json and .md are written",
-              smoke: dict[str, Any] | None = None) -> argparse.ArgumentParser:
+def arguments(
+    doc: str,
+    out: Path | None = None,
+    out_help: str = "the report's path without suffix: .json and .md are written",
+    smoke: dict[str, Any] | None = None,
+) -> argparse.ArgumentParser:
     """A script's argument parser: its docstring as the help, ``--out`` (default ``out``,
     e.g. ``RESULTS / "timing"``) and, for a benchmark, ``--smoke``, whose settings ``smoke``
     holds ({dest: value}: what ``parse`` puts in place of the defaults)."""

@@ -3,6 +3,7 @@ sequence (reference albedo of frame t-1 warped into frame t, outside disocclusio
 
     python -m benchmarks.dataset_report --data data --out benchmarks/results/dataset.md
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -15,8 +16,12 @@ from jnds_deploy.metrics import motion_warp_error
 
 
 def main() -> None:
-    ap = arguments(__doc__, RESULTS / "dataset.md", "the markdown report (the JSON goes beside it)",
-                   smoke={"data": str(ROOT), "splits": ["samples"]})
+    ap = arguments(
+        __doc__,
+        RESULTS / "dataset.md",
+        "the markdown report (the JSON goes beside it)",
+        smoke={"data": str(ROOT), "splits": ["samples"]},
+    )
     ap.add_argument("--data", default="data")
     ap.add_argument("--splits", nargs="+", default=["train", "val"], help="directories of --data holding sequences")
     args = parse(ap)
@@ -37,24 +42,40 @@ def main() -> None:
             rows.append((split, p.name, len(seq), size, w, u, v))
         totals[split] = (len(seqs), n_frames, n_bytes)
 
-    lines = ["# Dataset", "", f"Made by `{command_line()}`.", "",
-             "| split | sequences | frames | size (GB) |", "| --- | --- | --- | --- |"]
+    lines = [
+        "# Dataset",
+        "",
+        f"Made by `{command_line()}`.",
+        "",
+        "| split | sequences | frames | size (GB) |",
+        "| --- | --- | --- | --- |",
+    ]
     for split, (s, f, b) in totals.items():
         lines.append(f"| {split} | {s} | {f} | {b / 1e9:.3f} |")
-    lines += ["", "Motion vectors: mean |error| of the reference albedo of frame t-1 warped into frame t "
-              "(bilinear, along the motion vectors) against frame t, outside disocclusions (depth "
-              "discontinuities, silhouettes, off-screen), and the same without warping.", "",
-              "| split | sequence | frames | MB | warped | unwarped | ratio | pixels used |",
-              "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines += [
+        "",
+        "Motion vectors: mean |error| of the reference albedo of frame t-1 warped into frame t "
+        "(bilinear, along the motion vectors) against frame t, outside disocclusions (depth "
+        "discontinuities, silhouettes, off-screen), and the same without warping.",
+        "",
+        "| split | sequence | frames | MB | warped | unwarped | ratio | pixels used |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for split, name, f, b, w, u, v in rows:
-        lines.append(f"| {split} | {name} | {f} | {b / 1e6:.1f} | {w:.5f} | {u:.5f} | "
-                     f"{w / max(u, 1e-9):.3f} | {v:.1%} |")
+        lines.append(
+            f"| {split} | {name} | {f} | {b / 1e6:.1f} | {w:.5f} | {u:.5f} | {w / max(u, 1e-9):.3f} | {v:.1%} |"
+        )
     moving = [r for r in rows if r[5] > 1e-6]
-    summary = {"command": command_line(), "warped_mean": float(np.mean([r[4] for r in moving])),
-               "unwarped_mean": float(np.mean([r[5] for r in moving])),
-               "totals": {k: {"sequences": s, "frames": f, "bytes": b} for k, (s, f, b) in totals.items()}}
-    lines += ["", f"Over moving-camera sequences: warped {summary['warped_mean']:.5f}, unwarped "
-              f"{summary['unwarped_mean']:.5f}."]
+    summary = {
+        "command": command_line(),
+        "warped_mean": float(np.mean([r[4] for r in moving])),
+        "unwarped_mean": float(np.mean([r[5] for r in moving])),
+        "totals": {k: {"sequences": s, "frames": f, "bytes": b} for k, (s, f, b) in totals.items()},
+    }
+    lines += [
+        "",
+        f"Over moving-camera sequences: warped {summary['warped_mean']:.5f}, unwarped {summary['unwarped_mean']:.5f}.",
+    ]
     write_report(Path(args.out).with_suffix(""), summary, "\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -13,6 +13,7 @@ Writes OUT.json/.md, OUT.jpg (per sequence the frame with the most changed pixel
 OIDN, before, int8 output, reference, the changed pixels marked) and OUT.mp4 (every frame of
 every sequence side by side: OIDN, before, int8 output, reference).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -37,8 +38,9 @@ def outputs(seq_path: Path, args) -> dict[str, list[np.ndarray]]:
     methods = {"OIDN balanced + bicubic": [baselines.oidn_bicubic(a, scale) for a in inputs]}
     if args.before:
         d = Path(args.before) / seq_path.name
-        methods["before"] = [read_layers(d / f"{i:04d}.exr", seq.target_size, OUTPUT_LAYERS)["color"]
-                             for i in range(len(seq))]
+        methods["before"] = [
+            read_layers(d / f"{i:04d}.exr", seq.target_size, OUTPUT_LAYERS)["color"] for i in range(len(seq))
+        ]
     for precision in args.precision:
         pipe = Pipeline(PipelineConfig(artifacts=args.artifacts, precision=precision))
         methods[f"JNDS {precision}"] = [pipe(a, f.camera_cut).output for a, f in zip(inputs, seq.frames)]
@@ -48,31 +50,56 @@ def outputs(seq_path: Path, args) -> dict[str, list[np.ndarray]]:
 def markdown(report: dict) -> str:
     methods = list(report["mean"])
     int8 = next(m for m in methods if m.startswith("JNDS"))
-    lines = ["# Ghost trails: changed-pixel PSNR against a single-frame denoiser", "",
-             f"`{report['command']}`", "", f"{cpu_line(report['machine'])}, {report['machine']['usable_cores']} cores", "",
-             "Changed pixels: where the previous frame showed another surface (`metrics.changed_mask`, "
-             "docs/ghosting.md); their PSNR is pooled over every frame after the first. "
-             "Display values (Reinhard, gamma 1/2.2) as every metric of the project.", "",
-             "## Per sequence: changed-pixel PSNR (dB)", "",
-             "| sequence | changed | " + " | ".join(methods) + f" | {int8} - OIDN |",
-             "| --- | ---: |" + " ---: |" * (len(methods) + 1)]
+    lines = [
+        "# Ghost trails: changed-pixel PSNR against a single-frame denoiser",
+        "",
+        f"`{report['command']}`",
+        "",
+        f"{cpu_line(report['machine'])}, {report['machine']['usable_cores']} cores",
+        "",
+        "Changed pixels: where the previous frame showed another surface (`metrics.changed_mask`, "
+        "docs/ghosting.md); their PSNR is pooled over every frame after the first. "
+        "Display values (Reinhard, gamma 1/2.2) as every metric of the project.",
+        "",
+        "## Per sequence: changed-pixel PSNR (dB)",
+        "",
+        "| sequence | changed | " + " | ".join(methods) + f" | {int8} - OIDN |",
+        "| --- | ---: |" + " ---: |" * (len(methods) + 1),
+    ]
     for name, per in report["sequences"].items():
         oidn = per["OIDN balanced + bicubic"]["changed_psnr"]
         cells = [f"{per[m]['changed_psnr']:.2f}" for m in methods]
-        lines.append(f"| {name} | {100 * per[int8]['changed_fraction']:.1f} % | " + " | ".join(cells)
-                     + f" | {per[int8]['changed_psnr'] - oidn:+.2f} |")
-    lines += ["", "## Mean over the sequences", "",
-              "| method | PSNR (dB) ↑ | FLIP ↓ | temporal error ↓ | changed-pixel PSNR (dB) ↑ |",
-              "| --- | ---: | ---: | ---: | ---: |"]
+        lines.append(
+            f"| {name} | {100 * per[int8]['changed_fraction']:.1f} % | "
+            + " | ".join(cells)
+            + f" | {per[int8]['changed_psnr'] - oidn:+.2f} |"
+        )
+    lines += [
+        "",
+        "## Mean over the sequences",
+        "",
+        "| method | PSNR (dB) ↑ | FLIP ↓ | temporal error ↓ | changed-pixel PSNR (dB) ↑ |",
+        "| --- | ---: | ---: | ---: | ---: |",
+    ]
     for m in methods:
         v = report["mean"][m]
         lines.append(f"| {m} | {v['psnr']:.2f} | {v['flip']:.4f} | {v['temporal']:.5f} | {v['changed_psnr']:.2f} |")
-    lines += ["", "## Per sequence: PSNR (dB) / FLIP", "",
-              "| sequence | " + " | ".join(methods) + " |", "| --- |" + " ---: |" * len(methods)]
+    lines += [
+        "",
+        "## Per sequence: PSNR (dB) / FLIP",
+        "",
+        "| sequence | " + " | ".join(methods) + " |",
+        "| --- |" + " ---: |" * len(methods),
+    ]
     for name, per in report["sequences"].items():
-        lines.append(f"| {name} | " + " | ".join(f"{per[m]['psnr']:.2f} / {per[m]['flip']:.4f}" for m in methods) + " |")
-    lines += ["", f"Contact sheet: [{report['sheet']}]({report['sheet']}); video: [{report['video']}]({report['video']}).",
-              ""]
+        lines.append(
+            f"| {name} | " + " | ".join(f"{per[m]['psnr']:.2f} / {per[m]['flip']:.4f}" for m in methods) + " |"
+        )
+    lines += [
+        "",
+        f"Contact sheet: [{report['sheet']}]({report['sheet']}); video: [{report['video']}]({report['video']}).",
+        "",
+    ]
     return "\n".join(lines)
 
 
@@ -93,17 +120,31 @@ def main() -> int:
         seq = open_sequence(p)
         shown = {m: o for m, o in methods.items() if m != "JNDS fp32"}
         t = int(np.argmax([0 if m is None else m.mean() for m in masks]))
-        rows.append((f"{p.name} {t}", {"input": baselines.noisy_composite(seq.inputs(t)), **{m: o[t] for m, o in shown.items()},
-                                       "reference": refs[t], "changed pixels": contact_sheet.mark(refs[t], masks[t])}))
+        rows.append(
+            (
+                f"{p.name} {t}",
+                {
+                    "input": baselines.noisy_composite(seq.inputs(t)),
+                    **{m: o[t] for m, o in shown.items()},
+                    "reference": refs[t],
+                    "changed pixels": contact_sheet.mark(refs[t], masks[t]),
+                },
+            )
+        )
         for i in range(len(refs)):
             frame = video.side_by_side(f"{p.name} {i}", {**{m: o[i] for m, o in shown.items()}, "reference": refs[i]})
             if clips and frame.shape != clips[0].shape:  # one video: every frame at the first one's size
                 frame = cv2.resize(frame, clips[0].shape[1::-1], interpolation=cv2.INTER_AREA)
             clips.append(frame)
     first = next(iter(per_seq.values()))
-    report = {"command": command_line(), "machine": machine_info(),
-              "mean": {m: mean_over_sequences({s: per[m] for s, per in per_seq.items()}) for m in first},
-              "sequences": per_seq, "sheet": out.with_suffix(".jpg").name, "video": out.with_suffix(".mp4").name}
+    report = {
+        "command": command_line(),
+        "machine": machine_info(),
+        "mean": {m: mean_over_sequences({s: per[m] for s, per in per_seq.items()}) for m in first},
+        "sequences": per_seq,
+        "sheet": out.with_suffix(".jpg").name,
+        "video": out.with_suffix(".mp4").name,
+    }
     out.parent.mkdir(parents=True, exist_ok=True)
     contact_sheet.write(out.with_suffix(".jpg"), rows)
     video.write_mp4(out.with_suffix(".mp4"), clips, fps=4)

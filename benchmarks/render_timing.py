@@ -4,14 +4,24 @@ reference separately: median over frames 1..N-1 (frame 0 pays for kernel compila
     python -m benchmarks.render_timing [--frames 4] [--size 192x108] [--spp 64 128]
         [--out benchmarks/results/render_timing.json]
 """
+
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import (RESULTS, arguments, command_line, machine_info, machine_line, parse, parse_size, timed,
-                               write_report)
+from benchmarks.common import (
+    RESULTS,
+    arguments,
+    command_line,
+    machine_info,
+    machine_line,
+    parse,
+    parse_size,
+    timed,
+    write_report,
+)
 from jnds_deploy.render.camera import camera_path
 from jnds_deploy.render.dataset import SIZE
 from jnds_deploy.render.integrator import SplitPathTracer, load_mitsuba
@@ -21,8 +31,9 @@ from jnds_deploy.sampling import jitter
 
 
 def main() -> None:
-    ap = arguments(__doc__, RESULTS / "render_timing.json", "the JSON report",
-                   smoke={"frames": 2, "size": "32x18", "spp": [2]})
+    ap = arguments(
+        __doc__, RESULTS / "render_timing.json", "the JSON report", smoke={"frames": 2, "size": "32x18", "spp": [2]}
+    )
     ap.add_argument("--frames", type=int, default=4)
     ap.add_argument("--seed", type=int, default=1002)
     ap.add_argument("--size", default=f"{SIZE[0]}x{SIZE[1]}", help="native size (default: the dataset's)")
@@ -34,8 +45,13 @@ def main() -> None:
     scene, materials = build_scene(mi, args.seed, "procedural")
     tracer = SplitPathTracer(mi, dr, scene, materials)
     cams, _ = camera_path("orbit", args.frames, np.random.default_rng(args.seed))
-    result = {"command": command_line(), "machine": machine_line(), "machine_info": machine_info(),
-              "variant": mi.variant(), "size": list(size)}
+    result = {
+        "command": command_line(),
+        "machine": machine_line(),
+        "machine_info": machine_info(),
+        "variant": mi.variant(),
+        "size": list(size),
+    }
     for spp in args.spp:
         cfg = RenderConfig(size=size, spp=spp)
         t_in, t_ref = [], []
@@ -47,10 +63,16 @@ def main() -> None:
             if i:
                 t_in.append(ms_in / 1000)
                 t_ref.append(ms_ref / 1000)
-        result[f"spp{spp}"] = {"inputs_s": float(np.median(t_in)), "reference_s": float(np.median(t_ref)),
-                               "inputs_all": t_in, "reference_all": t_ref}
-        print(f"{size[0]}x{size[1]} -> {2 * size[0]}x{2 * size[1]}, reference {spp} spp: inputs "
-              f"{np.median(t_in):.2f} s/frame, reference {np.median(t_ref):.2f} s/frame")
+        result[f"spp{spp}"] = {
+            "inputs_s": float(np.median(t_in)),
+            "reference_s": float(np.median(t_ref)),
+            "inputs_all": t_in,
+            "reference_all": t_ref,
+        }
+        print(
+            f"{size[0]}x{size[1]} -> {2 * size[0]}x{2 * size[1]}, reference {spp} spp: inputs "
+            f"{np.median(t_in):.2f} s/frame, reference {np.median(t_ref):.2f} s/frame"
+        )
     write_report(Path(args.out).with_suffix(""), result)
 
 

@@ -14,6 +14,7 @@ the server crashes (0 is the only good number), its RSS over the run, and whethe
 reference frame equals the first run's. ``tests/serve/test_fuzz.py`` runs a small budget
 of the same cases in-process on every CI run.
 """
+
 from __future__ import annotations
 
 import io
@@ -28,16 +29,32 @@ import numpy as np
 
 from benchmarks.common import RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse, write_report
 
-INPUT_CHANNELS = ["diffuse.R", "diffuse.G", "diffuse.B", "specular.R", "specular.G", "specular.B", "albedo.R",
-                  "albedo.G", "albedo.B", "normal.X", "normal.Y", "normal.Z", "roughness", "motion.X", "motion.Y"]
+INPUT_CHANNELS = [
+    "diffuse.R",
+    "diffuse.G",
+    "diffuse.B",
+    "specular.R",
+    "specular.G",
+    "specular.B",
+    "albedo.R",
+    "albedo.G",
+    "albedo.B",
+    "normal.X",
+    "normal.Y",
+    "normal.Z",
+    "roughness",
+    "motion.X",
+    "motion.Y",
+]
 
 
 def _exr(channels: dict, compression=None) -> bytes:
     import OpenEXR
 
     buf = io.BytesIO()
-    OpenEXR.File({"type": OpenEXR.scanlineimage, "compression": compression or OpenEXR.ZIP_COMPRESSION},
-                 channels).write(buf)
+    OpenEXR.File(
+        {"type": OpenEXR.scanlineimage, "compression": compression or OpenEXR.ZIP_COMPRESSION}, channels
+    ).write(buf)
     return buf.getvalue()
 
 
@@ -50,7 +67,7 @@ def _with_data_window(exr: bytes, x0: int, y0: int, x1: int, y1: int) -> bytes:
         key = name + b"\x00box2i\x00\x10\x00\x00\x00"
         i = out.find(key)
         if i >= 0:
-            out[i + len(key):i + len(key) + 16] = box
+            out[i + len(key) : i + len(key) + 16] = box
     return bytes(out)
 
 
@@ -61,7 +78,7 @@ def hostile_body(rng: random.Random) -> bytes:
     if kind == 0:  # huge declared size, tiny file
         return _with_data_window(_exr(ok), 0, 0, rng.choice([4000, 20000, 2**30]), rng.choice([4000, 2**30]))
     if kind == 1:  # negative or inverted windows
-        return _with_data_window(_exr(ok), rng.randint(-2**31, 0), 0, rng.randint(-2**31, -1), 5)
+        return _with_data_window(_exr(ok), rng.randint(-(2**31), 0), 0, rng.randint(-(2**31), -1), 5)
     if kind == 2:  # hundreds of channels
         return _exr({f"c{i}": np.zeros((h, w), np.float16) for i in range(rng.choice([65, 300]))})
     if kind == 3:  # integer channels
@@ -72,7 +89,7 @@ def hostile_body(rng: random.Random) -> bytes:
         return _exr({c: np.full((h, w), np.nan, np.float16) for c in INPUT_CHANNELS})
     good = _exr(ok)
     if kind == 6:  # truncated
-        return good[:rng.randrange(1, len(good))]
+        return good[: rng.randrange(1, len(good))]
     if kind == 7:  # bytes flipped
         b = bytearray(good)
         for _ in range(rng.randint(1, 20)):
@@ -91,15 +108,27 @@ def hostile_request(rng: random.Random, stream: str) -> bytes:
         return b"GET /" + b"a" * rng.choice([70000, 200000]) + b" HTTP/1.1\r\n\r\n"
     if kind == 2:  # methods and paths
         method = rng.choice([b"GET", b"PUT", b"PATCH", b"DELETE", b"OPTIONS", b"BREW", b"POST"])
-        p = rng.choice([b"/", b"/streams/nope/frames", b"/../../etc/passwd", b"/streams/%00", b"/metrics?x=\xff",
-                        path.encode() + b"?cut=maybe", b"/streams/" + b"x" * 5000])
+        p = rng.choice(
+            [
+                b"/",
+                b"/streams/nope/frames",
+                b"/../../etc/passwd",
+                b"/streams/%00",
+                b"/metrics?x=\xff",
+                path.encode() + b"?cut=maybe",
+                b"/streams/" + b"x" * 5000,
+            ]
+        )
         return method + b" " + p + b" HTTP/1.1\r\nHost: x\r\nContent-Length: 0\r\n\r\n"
     if kind == 3:  # broken Content-Length
         cl = rng.choice([b"-1", b"abc", b"99999999999999999999", b"10, 20", b""])
         return f"POST {path} HTTP/1.1\r\nHost: x\r\n".encode() + b"Content-Length: " + cl + b"\r\n\r\nxyz"
     if kind == 4:  # many headers
-        return (f"POST {path} HTTP/1.1\r\n".encode() + b"".join(b"X-%d: y\r\n" % i for i in range(rng.choice([50, 150])))
-                + b"Content-Length: 0\r\n\r\n")
+        return (
+            f"POST {path} HTTP/1.1\r\n".encode()
+            + b"".join(b"X-%d: y\r\n" % i for i in range(rng.choice([50, 150])))
+            + b"Content-Length: 0\r\n\r\n"
+        )
     if kind == 5:  # a body shorter than announced, then the connection closes
         body = hostile_body(rng)
         return f"POST {path} HTTP/1.1\r\nHost: x\r\nContent-Length: {len(body) + 100}\r\n\r\n".encode() + body
@@ -178,14 +207,22 @@ def slow_clients(url: str, frames, count: int = 200, rounds: int = 15) -> dict:
             pass
         closed_after.append(time.monotonic() - t_open)
         sock.close()
-    return {"slow_connections": count, "frame_ms_alone": alone, "frame_ms_beside_slow": beside,
-            "median_ms_alone": float(np.median(alone)), "median_ms_beside_slow": float(np.median(beside)),
-            "all_closed_after_s": float(max(closed_after))}
+    return {
+        "slow_connections": count,
+        "frame_ms_alone": alone,
+        "frame_ms_beside_slow": beside,
+        "median_ms_alone": float(np.median(alone)),
+        "median_ms_beside_slow": float(np.median(beside)),
+        "all_closed_after_s": float(max(closed_after)),
+    }
 
 
 def main() -> None:
-    ap = arguments(__doc__, RESULTS / "serve_fuzz",
-                   smoke={"cases": 40, "every": 20, "slow": 4, "rounds": 2, "request_timeout": 1.0})
+    ap = arguments(
+        __doc__,
+        RESULTS / "serve_fuzz",
+        smoke={"cases": 40, "every": 20, "slow": 4, "rounds": 2, "request_timeout": 1.0},
+    )
     ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
     ap.add_argument("--cases", type=int, default=10000)
     ap.add_argument("--seed", type=int, default=0)
@@ -199,9 +236,23 @@ def main() -> None:
     from jnds_deploy.serve import Client
     from jnds_deploy.serve.server import rss_bytes
 
-    proc = subprocess.Popen([sys.executable, "-m", "jnds_deploy", "serve", "--artifacts", args.artifacts,
-                             "--port", "0", "--request-timeout", str(args.request_timeout)], stdout=subprocess.PIPE,
-                            text=True, cwd=ROOT)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "jnds_deploy",
+            "serve",
+            "--artifacts",
+            args.artifacts,
+            "--port",
+            "0",
+            "--request-timeout",
+            str(args.request_timeout),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
     try:
         url = proc.stdout.readline().strip().rsplit(" ", 1)[-1]
         seq = open_sequence(ROOT / "samples" / "orbit-160x90")
@@ -226,24 +277,49 @@ def main() -> None:
         proc.terminate()
         proc.wait(30)
     mib = [r / 2**20 for _, r in rss]
-    report = {"command": command_line(), "machine": machine_info(), "cases": args.cases, "seed": args.seed,
-              "wall_s": wall, "statuses": counts, "server_alive": alive, "server_exit_code": proc.returncode,
-              "reference_checks": len(mismatches), "reference_frames_changed": int(sum(mismatches)),
-              "rss_mib": mib, "slow_clients": slow}
-    md = ["# `jnds serve` under fuzzing", "", f"Command: `{report['command']}`  ",
-          f"Machine: {cpu_line(report['machine'])}, {report['machine']['cpu_count']} cores.", "",
-          f"{args.cases} hostile requests (seed {args.seed}), one connection each, in {wall:.0f} s; a reference "
-          f"stream ran the sample's first 3 frames every {args.every} cases ({len(mismatches)} times).", "",
-          "| answer | requests |", "| --- | ---: |"] + [f"| {k} | {v} |" for k, v in counts.items()] + [
-          "", f"- server alive at the end: {alive} (crashes: {0 if alive else 1})",
-          f"- reference frames different from the first run's: {int(sum(mismatches))}",
-          f"- server RSS: {mib[0]:.0f} MiB at the start, max {max(mib):.0f}, last {mib[-1]:.0f} MiB", "",
-          f"Slow clients: {slow['slow_connections']} connections send half a request line and stop (the "
-          f"server's --request-timeout {args.request_timeout:g} s). A normal stream's 160x90 frame, "
-          f"{len(slow['frame_ms_alone'])} each: "
-          f"median {slow['median_ms_alone']:.1f} ms alone, {slow['median_ms_beside_slow']:.1f} ms beside them; "
-          f"all {slow['slow_connections']} closed by the server {slow['all_closed_after_s']:.1f} s after they "
-          "were opened.", ""]
+    report = {
+        "command": command_line(),
+        "machine": machine_info(),
+        "cases": args.cases,
+        "seed": args.seed,
+        "wall_s": wall,
+        "statuses": counts,
+        "server_alive": alive,
+        "server_exit_code": proc.returncode,
+        "reference_checks": len(mismatches),
+        "reference_frames_changed": int(sum(mismatches)),
+        "rss_mib": mib,
+        "slow_clients": slow,
+    }
+    md = (
+        [
+            "# `jnds serve` under fuzzing",
+            "",
+            f"Command: `{report['command']}`  ",
+            f"Machine: {cpu_line(report['machine'])}, {report['machine']['cpu_count']} cores.",
+            "",
+            f"{args.cases} hostile requests (seed {args.seed}), one connection each, in {wall:.0f} s; a reference "
+            f"stream ran the sample's first 3 frames every {args.every} cases ({len(mismatches)} times).",
+            "",
+            "| answer | requests |",
+            "| --- | ---: |",
+        ]
+        + [f"| {k} | {v} |" for k, v in counts.items()]
+        + [
+            "",
+            f"- server alive at the end: {alive} (crashes: {0 if alive else 1})",
+            f"- reference frames different from the first run's: {int(sum(mismatches))}",
+            f"- server RSS: {mib[0]:.0f} MiB at the start, max {max(mib):.0f}, last {mib[-1]:.0f} MiB",
+            "",
+            f"Slow clients: {slow['slow_connections']} connections send half a request line and stop (the "
+            f"server's --request-timeout {args.request_timeout:g} s). A normal stream's 160x90 frame, "
+            f"{len(slow['frame_ms_alone'])} each: "
+            f"median {slow['median_ms_alone']:.1f} ms alone, {slow['median_ms_beside_slow']:.1f} ms beside them; "
+            f"all {slow['slow_connections']} closed by the server {slow['all_closed_after_s']:.1f} s after they "
+            "were opened.",
+            "",
+        ]
+    )
     write_report(Path(args.out), report, "\n".join(md))
     print("\n".join(md))
 

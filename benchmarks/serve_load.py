@@ -13,6 +13,7 @@ read, EXR encoding and decoding included); the server's RSS is sampled from /pro
 its first and last minute. Bounded: every phase has a frame count or a deadline.
 Writes benchmarks/results/serve_load.md and .json.
 """
+
 from __future__ import annotations
 
 import subprocess
@@ -68,9 +69,16 @@ def drive(url: str, frames: list, streams: int, per_stream: int | None, deadline
     [t.join() for t in threads]
     wall = time.perf_counter() - t0
     flat = [x for s in lat for x in s]
-    return {"streams": streams, "frames": len(flat), "wall_s": wall, "fps": len(flat) / wall,
-            "p50_ms": float(np.percentile(flat, 50)), "p99_ms": float(np.percentile(flat, 99)),
-            "server_p50_ms": float(np.percentile(server_ms, 50)), "errors": errors}
+    return {
+        "streams": streams,
+        "frames": len(flat),
+        "wall_s": wall,
+        "fps": len(flat) / wall,
+        "p50_ms": float(np.percentile(flat, 50)),
+        "p99_ms": float(np.percentile(flat, 99)),
+        "server_p50_ms": float(np.percentile(server_ms, 50)),
+        "errors": errors,
+    }
 
 
 def main() -> int:
@@ -86,8 +94,22 @@ def main() -> int:
 
     seq = open_sequence(args.input)
     frames = [(seq.inputs(i), seq.frames[i].camera_cut) for i in range(len(seq))]
-    cmd = [sys.executable, "-m", "jnds_deploy", "serve", "--artifacts", args.artifacts, "--port", "0",
-           "--precision", args.precision, "--workers", str(args.workers), "--queue", "2"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "jnds_deploy",
+        "serve",
+        "--artifacts",
+        args.artifacts,
+        "--port",
+        "0",
+        "--precision",
+        args.precision,
+        "--workers",
+        str(args.workers),
+        "--queue",
+        "2",
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     try:
         url = proc.stdout.readline().split()[-1]
@@ -97,8 +119,11 @@ def main() -> int:
         for n in args.counts:
             r = drive(url, frames, n, max(1, args.frames // n), None)
             results.append(r)
-            print(f"{n} streams: {r['fps']:.1f} frames/s, p50 {r['p50_ms']:.1f} ms, p99 {r['p99_ms']:.1f} ms, "
-                  f"errors {len(r['errors'])}", flush=True)
+            print(
+                f"{n} streams: {r['fps']:.1f} frames/s, p50 {r['p50_ms']:.1f} ms, p99 {r['p99_ms']:.1f} ms, "
+                f"errors {len(r['errors'])}",
+                flush=True,
+            )
         t_long = sampler.samples[-1][0]
         long = drive(url, frames, 2, None, args.long_s)
         rss_long = [(t - t_long, m) for t, m in sampler.samples if t >= t_long]
@@ -106,10 +131,14 @@ def main() -> int:
         long["rss_first_quarter_mib"] = float(np.median([m for _, m in rss_long[:k]]))
         long["rss_last_quarter_mib"] = float(np.median([m for _, m in rss_long[-k:]]))
         # median RSS per 30 s window: growth shows as a rising sequence, a plateau as a flat one
-        long["rss_windows_mib"] = [float(np.median([m for t, m in rss_long if a <= t < a + 30]))
-                                   for a in range(0, int(args.long_s), 30)]
-        print(f"long run: {long['frames']} frames in {long['wall_s']:.0f} s, RSS {long['rss_first_quarter_mib']:.1f} -> "
-              f"{long['rss_last_quarter_mib']:.1f} MiB", flush=True)
+        long["rss_windows_mib"] = [
+            float(np.median([m for t, m in rss_long if a <= t < a + 30])) for a in range(0, int(args.long_s), 30)
+        ]
+        print(
+            f"long run: {long['frames']} frames in {long['wall_s']:.0f} s, RSS {long['rss_first_quarter_mib']:.1f} -> "
+            f"{long['rss_last_quarter_mib']:.1f} MiB",
+            flush=True,
+        )
         metrics = Client(url).metrics()
         sampler.stop.set()
         proc.terminate()
@@ -117,39 +146,63 @@ def main() -> int:
     finally:
         proc.kill()
 
-    report = {"command": command_line(), "machine": machine_info(),
-              "input": seq.path.name, "native": list(seq.native_size), "precision": args.precision,
-              "workers": args.workers, "results": results, "long": long, "server_exit_code": rc,
-              "server_metrics": metrics, "rss_mib": sampler.samples}
+    report = {
+        "command": command_line(),
+        "machine": machine_info(),
+        "input": seq.path.name,
+        "native": list(seq.native_size),
+        "precision": args.precision,
+        "workers": args.workers,
+        "results": results,
+        "long": long,
+        "server_exit_code": rc,
+        "server_metrics": metrics,
+        "rss_mib": sampler.samples,
+    }
     out = Path(args.out)
     w, h = seq.native_size
-    md = ["# `jnds serve` under load (loopback)", "", f"Command: `{report['command']}`  ",
-          f"Machine: {cpu_line(report['machine'])}, {report['machine']['platform']}, "
-          f"{report['machine']['cpu_count']} cores; server: "
-          f"{args.precision}, {args.workers} worker(s), 2 ORT threads, queue 2 per stream; frames of "
-          f"{seq.path.name} ({w}x{h} → {2 * w}x{2 * h}), EXR float32 uncompressed both ways. Latency at the "
-          "client: request sent to response decoded; each stream waits for a response before sending again.", "",
-          "| streams | frames | frames/s | p50 ms | p99 ms | server p50 ms | errors |",
-          "| ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    md = [
+        "# `jnds serve` under load (loopback)",
+        "",
+        f"Command: `{report['command']}`  ",
+        f"Machine: {cpu_line(report['machine'])}, {report['machine']['platform']}, "
+        f"{report['machine']['cpu_count']} cores; server: "
+        f"{args.precision}, {args.workers} worker(s), 2 ORT threads, queue 2 per stream; frames of "
+        f"{seq.path.name} ({w}x{h} → {2 * w}x{2 * h}), EXR float32 uncompressed both ways. Latency at the "
+        "client: request sent to response decoded; each stream waits for a response before sending again.",
+        "",
+        "| streams | frames | frames/s | p50 ms | p99 ms | server p50 ms | errors |",
+        "| ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
     for r in results:
-        md.append(f"| {r['streams']} | {r['frames']} | {r['fps']:.1f} | {r['p50_ms']:.1f} | {r['p99_ms']:.1f} | "
-                  f"{r['server_p50_ms']:.1f} | {len(r['errors'])} |")
-    md += ["", f"Long run: 2 streams for {long['wall_s']:.0f} s, {long['frames']} frames ({long['fps']:.1f} frames/s, "
-           f"p50 {long['p50_ms']:.1f} ms, p99 {long['p99_ms']:.1f} ms, {len(long['errors'])} errors). Server RSS, "
-           f"median of the first and last quarter of the run: {long['rss_first_quarter_mib']:.1f} → "
-           f"{long['rss_last_quarter_mib']:.1f} MiB "
-           f"({long['rss_last_quarter_mib'] - long['rss_first_quarter_mib']:+.1f} MiB); median per 30 s: "
-           + " → ".join(f"{m:.1f}" for m in long["rss_windows_mib"]) + " MiB.",
-           f"Peak RSS over the whole test: {max(m for _, m in sampler.samples):.1f} MiB. Server exit code after "
-           f"SIGTERM: {rc}.", "",
-           "The server's own per-stage percentiles over its last frames (`GET /metrics.json`, ms):", "",
-           "| stage | p50 | p90 | p99 |", "| --- | ---: | ---: | ---: |"]
+        md.append(
+            f"| {r['streams']} | {r['frames']} | {r['fps']:.1f} | {r['p50_ms']:.1f} | {r['p99_ms']:.1f} | "
+            f"{r['server_p50_ms']:.1f} | {len(r['errors'])} |"
+        )
+    md += [
+        "",
+        f"Long run: 2 streams for {long['wall_s']:.0f} s, {long['frames']} frames ({long['fps']:.1f} frames/s, "
+        f"p50 {long['p50_ms']:.1f} ms, p99 {long['p99_ms']:.1f} ms, {len(long['errors'])} errors). Server RSS, "
+        f"median of the first and last quarter of the run: {long['rss_first_quarter_mib']:.1f} → "
+        f"{long['rss_last_quarter_mib']:.1f} MiB "
+        f"({long['rss_last_quarter_mib'] - long['rss_first_quarter_mib']:+.1f} MiB); median per 30 s: "
+        + " → ".join(f"{m:.1f}" for m in long["rss_windows_mib"])
+        + " MiB.",
+        f"Peak RSS over the whole test: {max(m for _, m in sampler.samples):.1f} MiB. Server exit code after "
+        f"SIGTERM: {rc}.",
+        "",
+        "The server's own per-stage percentiles over its last frames (`GET /metrics.json`, ms):",
+        "",
+        "| stage | p50 | p90 | p99 |",
+        "| --- | ---: | ---: | ---: |",
+    ]
     for k, v in metrics["latency_ms"].items():
         md.append(f"| {k} | {v['p50']:.1f} | {v['p90']:.1f} | {v['p99']:.1f} |")
     write_report(out, report, "\n".join(md) + "\n")
     print("\n".join(md))
     try:
         import matplotlib
+
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 

@@ -11,6 +11,7 @@ that size; with ``warmup=(size,)`` it ran one before serving. The two kinds of p
 alternate, --runs each; medians per frame index. Writes benchmarks/results/serve_warmup.md
 and .json.
 """
+
 from __future__ import annotations
 
 import json
@@ -20,8 +21,17 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse,
-                               parse_size, write_report)
+from benchmarks.common import (
+    RESULTS,
+    ROOT,
+    arguments,
+    command_line,
+    cpu_line,
+    machine_info,
+    parse,
+    parse_size,
+    write_report,
+)
 
 
 def one_process(artifacts: str, size: tuple[int, int], frames: int, warmup: bool) -> dict:
@@ -34,8 +44,9 @@ def one_process(artifacts: str, size: tuple[int, int], frames: int, warmup: bool
 
     tune_process()
     t0 = time.perf_counter()
-    fs = FrameServer(ServeConfig(artifacts=artifacts, threads=2, warmup=(size,) if warmup else (),
-                                 keep_freed_memory=True))
+    fs = FrameServer(
+        ServeConfig(artifacts=artifacts, threads=2, warmup=(size,) if warmup else (), keep_freed_memory=True)
+    )
     build_ms = 1000 * (time.perf_counter() - t0)
     stream = fs.open_stream()
     ms = []
@@ -62,27 +73,60 @@ def main() -> None:
     runs = {"none": [], "warmup": []}
     for _ in range(args.runs):
         for kind in runs:
-            out = subprocess.run([sys.executable, "-m", "benchmarks.serve_warmup", "--artifacts", args.artifacts,
-                                  "--size", args.size, "--frames", str(args.frames), "--child", kind],
-                                 capture_output=True, text=True, check=True, cwd=ROOT)
+            out = subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "benchmarks.serve_warmup",
+                    "--artifacts",
+                    args.artifacts,
+                    "--size",
+                    args.size,
+                    "--frames",
+                    str(args.frames),
+                    "--child",
+                    kind,
+                ],
+                capture_output=True,
+                text=True,
+                check=True,
+                cwd=ROOT,
+            )
             runs[kind].append(json.loads(out.stdout.strip().splitlines()[-1]))
-    med = {k: {"build_ms": float(np.median([r["build_ms"] for r in v])),
-               "frame_ms": np.median([r["frame_ms"] for r in v], axis=0).tolist()} for k, v in runs.items()}
+    med = {
+        k: {
+            "build_ms": float(np.median([r["build_ms"] for r in v])),
+            "frame_ms": np.median([r["frame_ms"] for r in v], axis=0).tolist(),
+        }
+        for k, v in runs.items()
+    }
     w, h = size
-    md = ["# A stream's first frames in `jnds serve`, with and without `--warmup`\n", f"`{command_line()}`\n",
-          f"Machine: {cpu_line(machine_info())}, 2 threads. The sample's first {args.frames} frames at {w}x{h} "
-          f"native through a new stream of a new server (`FrameServer`, int8, no HTTP); a fresh process per run, "
-          f"{args.runs} runs each, alternating; medians.\n",
-          "| server | build (s) | " + " | ".join(f"frame {i} (ms)" for i in range(args.frames)) + " |",
-          "| --- | ---: |" + " ---: |" * args.frames]
+    md = [
+        "# A stream's first frames in `jnds serve`, with and without `--warmup`\n",
+        f"`{command_line()}`\n",
+        f"Machine: {cpu_line(machine_info())}, 2 threads. The sample's first {args.frames} frames at {w}x{h} "
+        f"native through a new stream of a new server (`FrameServer`, int8, no HTTP); a fresh process per run, "
+        f"{args.runs} runs each, alternating; medians.\n",
+        "| server | build (s) | " + " | ".join(f"frame {i} (ms)" for i in range(args.frames)) + " |",
+        "| --- | ---: |" + " ---: |" * args.frames,
+    ]
     for k, label in (("none", "default warm-up (one tiny frame)"), ("warmup", f"`--warmup {w}x{h}`")):
-        md.append(f"| {label} | {med[k]['build_ms'] / 1000:.2f} | "
-                  + " | ".join(f"{v:.0f}" for v in med[k]["frame_ms"]) + " |")
-    md += ["", f"- First frame: {med['none']['frame_ms'][0]:.0f} ms without, {med['warmup']['frame_ms'][0]:.0f} ms "
-               f"with the warm-up at its size, which costs {(med['warmup']['build_ms'] - med['none']['build_ms']):.0f}"
-               " ms more at start-up."]
-    write_report(Path(args.out), {"machine": machine_info(), "command": command_line(), "size": [w, h],
-                                  "median": med, "runs": runs}, "\n".join(md) + "\n")
+        md.append(
+            f"| {label} | {med[k]['build_ms'] / 1000:.2f} | "
+            + " | ".join(f"{v:.0f}" for v in med[k]["frame_ms"])
+            + " |"
+        )
+    md += [
+        "",
+        f"- First frame: {med['none']['frame_ms'][0]:.0f} ms without, {med['warmup']['frame_ms'][0]:.0f} ms "
+        f"with the warm-up at its size, which costs {(med['warmup']['build_ms'] - med['none']['build_ms']):.0f}"
+        " ms more at start-up.",
+    ]
+    write_report(
+        Path(args.out),
+        {"machine": machine_info(), "command": command_line(), "size": [w, h], "median": med, "runs": runs},
+        "\n".join(md) + "\n",
+    )
     print("\n".join(md))
 
 

@@ -11,6 +11,7 @@ block, feature extractor and output block by ONNX Runtime's profiler on the same
 (its per-stage shares of the profiled time, applied to the pipeline's measured network
 time). Writes benchmarks/results/timing.md and timing.json.
 """
+
 from __future__ import annotations
 
 import sys
@@ -18,19 +19,50 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import (RESULTS, ROOT, CpuSteal, arguments, command_line, cpu_line, cpu_peaks, gemm_throughput,
-                               machine_info, parse, parse_size, pipeline, resized_frames, run_frames, spread, timed,
-                               tune_process, write_report)
+from benchmarks.common import (
+    RESULTS,
+    ROOT,
+    CpuSteal,
+    arguments,
+    command_line,
+    cpu_line,
+    cpu_peaks,
+    gemm_throughput,
+    machine_info,
+    parse,
+    parse_size,
+    pipeline,
+    resized_frames,
+    run_frames,
+    spread,
+    timed,
+    tune_process,
+    write_report,
+)
 from jnds_deploy.artifacts import Manifest
 from jnds_deploy.io import open_sequence
 from jnds_deploy.model import ModelConfig, count_macs
 from jnds_deploy.runtime import Pipeline
 from jnds_deploy.runtime.network import Edges
-from jnds_deploy.runtime.reformat import block_input
 from jnds_deploy.runtime.profile import STAGES, profile_stages
+from jnds_deploy.runtime.reformat import block_input
 
-ROWS = ("reformat", "diffuse_fill", "warp", "firefly_clamp", "input_block", "feature_extractor", "output_block", "filter_diffuse",
-        "filter_specular", "filter_auxiliary", "composite", "albedo_at_holes", "upsample_kernel", "upsample_filter")
+ROWS = (
+    "reformat",
+    "diffuse_fill",
+    "warp",
+    "firefly_clamp",
+    "input_block",
+    "feature_extractor",
+    "output_block",
+    "filter_diffuse",
+    "filter_specular",
+    "filter_auxiliary",
+    "composite",
+    "albedo_at_holes",
+    "upsample_kernel",
+    "upsample_filter",
+)
 
 
 def time_pipeline(pipe: Pipeline, frames, repeats: int, between=None) -> list[dict]:
@@ -58,8 +90,13 @@ def network_split(pipe: Pipeline, frames, threads: int) -> tuple[dict[str, float
     pipe.reset()
     pipe(*frames[0])
     pipe.on_feeds = None
-    profile = profile_stages(pipe.graphs["network"].path, feeds["network"], runs=3, threads=threads,
-                             disabled_optimizers=pipe.disabled_optimizers("network"))
+    profile = profile_stages(
+        pipe.graphs["network"].path,
+        feeds["network"],
+        runs=3,
+        threads=threads,
+        disabled_optimizers=pipe.disabled_optimizers("network"),
+    )
     prof = profile["median_ms"]
     # layout changes and scheduling are spread over the three stages by their share
     inside = sum(prof[s] for s in STAGES)
@@ -75,8 +112,15 @@ def network_split(pipe: Pipeline, frames, threads: int) -> tuple[dict[str, float
     return {s: prof[s] / inside for s in STAGES}, profile["by_node_ms"], pack, glue
 
 
-def summarize(recorded: list[dict], split: dict, macs: dict, peaks: dict, gemm: dict, pack_ms: float = 0.0,
-              glue_ms: dict[str, float] | None = None) -> dict:
+def summarize(
+    recorded: list[dict],
+    split: dict,
+    macs: dict,
+    peaks: dict,
+    gemm: dict,
+    pack_ms: float = 0.0,
+    glue_ms: dict[str, float] | None = None,
+) -> dict:
     """Per stage: spread of its time, share of the frame, and for the network stages and
     the upsample block GMAC, GMAC/s and the share of ``peaks`` ({stage: GMAC/s of this CPU
     at the precision the stage runs at}) and of ``gemm`` (the same, by ONNX Runtime on one
@@ -108,14 +152,20 @@ def summarize(recorded: list[dict], split: dict, macs: dict, peaks: dict, gemm: 
 
 
 def table(rows: dict) -> str:
-    lines = ["| stage | median ms | p10–p90 ms | % of total | GMAC | GMAC/s | % of peak | % of GEMM |",
-             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    lines = [
+        "| stage | median ms | p10–p90 ms | % of total | GMAC | GMAC/s | % of peak | % of GEMM |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
     for k, r in rows.items():
-        g = (f"{r['gmac']:.2f} | {r['gmac_per_s']:.1f} | {100 * r['peak_share']:.0f} | {100 * r['gemm_share']:.0f}"
-             if "gmac" in r else " |  |  | ")
+        g = (
+            f"{r['gmac']:.2f} | {r['gmac_per_s']:.1f} | {100 * r['peak_share']:.0f} | {100 * r['gemm_share']:.0f}"
+            if "gmac" in r
+            else " |  |  | "
+        )
         name = f"**{k}**" if k == "total" else k
-        lines.append(f"| {name} | {r['median_ms']:.1f} | {r['p10_ms']:.1f}–{r['p90_ms']:.1f} | "
-                     f"{100 * r['share']:.1f} | {g} |")
+        lines.append(
+            f"| {name} | {r['median_ms']:.1f} | {r['p10_ms']:.1f}–{r['p90_ms']:.1f} | {100 * r['share']:.1f} | {g} |"
+        )
     return "\n".join(lines)
 
 
@@ -137,14 +187,19 @@ def traffic_bytes(cfg: ModelConfig, w: int, h: int, u8_head: bool = False) -> di
     - composite: 9N read, 3N written;
     - upsample filter: composite 3N and kernel 9T read, 3T written (one fixed kernel for
       every pixel, ``ModelConfig.fixed_upsample``: nothing per pixel to read for it)."""
-    n, t = w * h, w * h * cfg.scale ** 2
+    n, t = w * h, w * h * cfg.scale**2
     k = 1.0 if u8_head else 4.0  # bytes per native kernel tap
     native = 19 + (10 if cfg.filter_levels > 0 else 0)
-    levels = sum((9 if lv == cfg.filter_levels else 19) * n / 4 ** lv for lv in range(1, cfg.filter_levels + 1))
+    levels = sum((9 if lv == cfg.filter_levels else 19) * n / 4**lv for lv in range(1, cfg.filter_levels + 1))
     path = 4 * (6 + 3) * n + k * native * n + 4 * levels
-    return {"warp": 4.0 * 29 * n, "filter_diffuse": path, "filter_specular": path,
-            "filter_auxiliary": 4 * 18 * n + k * 19 * n, "composite": 4.0 * 12 * n,
-            "upsample_filter": 4.0 * (3 * n + (3 if cfg.fixed_upsample else 12) * t) if cfg.scale > 1 else 0.0}
+    return {
+        "warp": 4.0 * 29 * n,
+        "filter_diffuse": path,
+        "filter_specular": path,
+        "filter_auxiliary": 4 * 18 * n + k * 19 * n,
+        "composite": 4.0 * 12 * n,
+        "upsample_filter": 4.0 * (3 * n + (3 if cfg.fixed_upsample else 12) * t) if cfg.scale > 1 else 0.0,
+    }
 
 
 class CopyProbe:
@@ -177,8 +232,10 @@ class CopyProbe:
 
 
 def traffic_table(rows: dict, need: dict, bandwidth: float) -> tuple[str, dict]:
-    lines = ["| step | must move (MB) | bound (ms) | measured median (ms) | measured / bound |",
-             "| --- | ---: | ---: | ---: | ---: |"]
+    lines = [
+        "| step | must move (MB) | bound (ms) | measured median (ms) | measured / bound |",
+        "| --- | ---: | ---: | ---: | ---: |",
+    ]
     result = {}
     for k in (*FILTER_ROWS, "total"):
         if k == "total":
@@ -202,8 +259,11 @@ def head_to_head(pipe: Pipeline, frames, passes: int) -> dict:
     benchmarks/results/timing.md). Each pass starts from a first frame, not timed."""
     from jnds_deploy.baselines import oidn
 
-    runners = {"pipeline": pipe, "balanced": lambda layers, cut: oidn(layers, "balanced"),
-               "fast": lambda layers, cut: oidn(layers, "fast")}
+    runners = {
+        "pipeline": pipe,
+        "balanced": lambda layers, cut: oidn(layers, "balanced"),
+        "fast": lambda layers, cut: oidn(layers, "fast"),
+    }
     ms_pipe, ms_oidn, ms_fast = [], [], []
     for _ in range(passes):
         pipe.reset()
@@ -215,10 +275,16 @@ def head_to_head(pipe: Pipeline, frames, passes: int) -> dict:
     ratio = np.array(ms_pipe) / np.array(ms_oidn)
     ratio_fast = np.array(ms_pipe) / np.array(ms_fast)
     oidn_spread = spread(ms_oidn, "oidn_", "_ms")
-    return {"frames": len(ms_pipe), "int8_pipeline_median_ms": float(np.median(ms_pipe)),
-            "oidn_balanced_median_ms": oidn_spread["oidn_median_ms"], "oidn_p10_ms": oidn_spread["oidn_p10_ms"],
-            "oidn_p90_ms": oidn_spread["oidn_p90_ms"], **spread(ratio, "ratio_"),
-            "oidn_fast_median_ms": float(np.median(ms_fast)), **spread(ratio_fast, "ratio_fast_")}
+    return {
+        "frames": len(ms_pipe),
+        "int8_pipeline_median_ms": float(np.median(ms_pipe)),
+        "oidn_balanced_median_ms": oidn_spread["oidn_median_ms"],
+        "oidn_p10_ms": oidn_spread["oidn_p10_ms"],
+        "oidn_p90_ms": oidn_spread["oidn_p90_ms"],
+        **spread(ratio, "ratio_"),
+        "oidn_fast_median_ms": float(np.median(ms_fast)),
+        **spread(ratio_fast, "ratio_fast_"),
+    }
 
 
 def main() -> int:
@@ -229,8 +295,9 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3, help="passes over the sequence's frames 1..N")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--precisions", nargs="+", default=["int8", "fp32"])
-    ap.add_argument("--no-oidn", action="store_true",
-                    help="leave out the head to head with OIDN (where pyoidn cannot be installed)")
+    ap.add_argument(
+        "--no-oidn", action="store_true", help="leave out the head to head with OIDN (where pyoidn cannot be installed)"
+    )
     args = parse(ap)
     tune_process()
     seq = open_sequence(args.input)
@@ -238,9 +305,14 @@ def main() -> int:
     cfg = ModelConfig(**manifest.model_config)
     big = parse_size(args.size)
     big_label = f"{big[0]}x{big[1]}"
-    report = {"command": command_line(), "machine": machine_info(),
-              "input": str(seq.path), "threads": args.threads, "int8_method": manifest.int8_method,
-              "results": {}}
+    report = {
+        "command": command_line(),
+        "machine": machine_info(),
+        "input": str(seq.path),
+        "threads": args.threads,
+        "int8_method": manifest.int8_method,
+        "results": {},
+    }
     steal = CpuSteal()
     probe = CopyProbe(args.threads, 8 if args.smoke else 256)
     cpu = report["cpu_peaks"] = cpu_peaks()
@@ -258,104 +330,159 @@ def main() -> int:
             # filter stage's memory-traffic bound (below)
             probed = size == big and precision == "int8"
             peak = {"int8": cpu["int8_gmacs"], "fp32": cpu["fp32_fma_gmacs"]}
-            peaks = {**{s: peak[pipe.graph_precision["network"]] for s in STAGES},
-                     "upsample_kernel": peak[pipe.graph_precision.get("upsample", "fp32")]}
+            peaks = {
+                **{s: peak[pipe.graph_precision["network"]] for s in STAGES},
+                "upsample_kernel": peak[pipe.graph_precision.get("upsample", "fp32")],
+            }
             at = {"int8": gemm["int8_gmacs"], "fp32": gemm["fp32_gmacs"]}
-            gemms = {**{s: at[pipe.graph_precision["network"]] for s in STAGES},
-                     "upsample_kernel": at[pipe.graph_precision.get("upsample", "fp32")]}
-            rows = summarize(time_pipeline(pipe, frames, args.repeats, probe if probed else None), split, macs,
-                             peaks, gemms, pack_ms, glue_ms)
-            report["results"][f"{label} {precision}"] = {"native": [w, h], "target": [w * pipe.scale, h * pipe.scale],
-                                                         "precision": precision, "graphs": dict(pipe.graph_precision),
-                                                         "split": split, "input_packing_ms": pack_ms,
-                                                         "block_glue_ms": glue_ms, "stages": rows,
-                                                         "network_nodes": nodes}
+            gemms = {
+                **{s: at[pipe.graph_precision["network"]] for s in STAGES},
+                "upsample_kernel": at[pipe.graph_precision.get("upsample", "fp32")],
+            }
+            rows = summarize(
+                time_pipeline(pipe, frames, args.repeats, probe if probed else None),
+                split,
+                macs,
+                peaks,
+                gemms,
+                pack_ms,
+                glue_ms,
+            )
+            report["results"][f"{label} {precision}"] = {
+                "native": [w, h],
+                "target": [w * pipe.scale, h * pipe.scale],
+                "precision": precision,
+                "graphs": dict(pipe.graph_precision),
+                "split": split,
+                "input_packing_ms": pack_ms,
+                "block_glue_ms": glue_ms,
+                "stages": rows,
+                "network_nodes": nodes,
+            }
             if probed:
                 bw = np.array(probe.samples)
                 report["copy_bandwidth_gb_s"] = {**spread(bw / 1e9), "samples": len(bw)}
                 report["results"][f"{label} {precision}"]["traffic"] = traffic_table(
-                    rows, traffic_bytes(cfg, w, h, u8_head), float(np.median(bw)))[1]
+                    rows, traffic_bytes(cfg, w, h, u8_head), float(np.median(bw))
+                )[1]
             print(f"{label} {precision}: {rows['total']['median_ms']:.1f} ms/frame", flush=True)
         if size == big and not args.no_oidn:
-            report[f"head_to_head_{label}"] = head_to_head(pipeline(args.artifacts, precision="int8",
-                                                                    threads=args.threads), frames,
-                                                                    1 if args.smoke else args.repeats + 2)
+            report[f"head_to_head_{label}"] = head_to_head(
+                pipeline(args.artifacts, precision="int8", threads=args.threads),
+                frames,
+                1 if args.smoke else args.repeats + 2,
+            )
     # the share of CPU time the VM host stole during this run goes into the report
     report["cpu_steal_share"] = steal.share()
     out = Path(args.out)
-    md = ["# Per-stage timing (the paper's Table 4, on this CPU)", "", f"Command: `{report['command']}`  ",
-          f"Machine: {cpu_line(report['machine'])}, {report['machine']['platform']}, "
-          f"{report['machine']['cpu_count']} cores, "
-          f"{args.threads} threads; input {seq.path.name}, frames 2–{len(seq)} × {args.repeats} passes "
-          f"(the first frame is a warm-up); filter stage float32; int8 graphs: {report['int8_method']}; "
-          f"CPU time stolen by the VM host during the run: {100 * report['cpu_steal_share']:.0f} %.", "",
-          f"Peaks of this CPU (`common.cpu_peaks`, {cpu['derivation']}; {cpu['cores']} cores at the nominal "
-          f"{cpu['ghz']:.2f} GHz): int8 {cpu['int8_gmacs']:.0f} GMAC/s, fp32 {cpu['fp32_fma_gmacs']:.0f} GMAC/s. "
-          "\"% of peak\" sets a stage's GMAC/s against the peak of the precision its graph runs at. "
-          f"The same ONNX Runtime on one {gemm['n']}^3 matrix product here (`common.gemm_throughput`, median of "
-          f"{gemm['runs']}): int8 (MatMulInteger, u8 x s8) {gemm['int8_gmacs']:.0f} GMAC/s, fp32 (MatMul) "
-          f"{gemm['fp32_gmacs']:.0f} GMAC/s; \"% of GEMM\" sets a stage against that. A stage above 100 % of "
-          "peak means the cores ran above the nominal clock (turbo, which a VM's /proc/cpuinfo does not show).", ""]
+    md = [
+        "# Per-stage timing (the paper's Table 4, on this CPU)",
+        "",
+        f"Command: `{report['command']}`  ",
+        f"Machine: {cpu_line(report['machine'])}, {report['machine']['platform']}, "
+        f"{report['machine']['cpu_count']} cores, "
+        f"{args.threads} threads; input {seq.path.name}, frames 2–{len(seq)} × {args.repeats} passes "
+        f"(the first frame is a warm-up); filter stage float32; int8 graphs: {report['int8_method']}; "
+        f"CPU time stolen by the VM host during the run: {100 * report['cpu_steal_share']:.0f} %.",
+        "",
+        f"Peaks of this CPU (`common.cpu_peaks`, {cpu['derivation']}; {cpu['cores']} cores at the nominal "
+        f"{cpu['ghz']:.2f} GHz): int8 {cpu['int8_gmacs']:.0f} GMAC/s, fp32 {cpu['fp32_fma_gmacs']:.0f} GMAC/s. "
+        '"% of peak" sets a stage\'s GMAC/s against the peak of the precision its graph runs at. '
+        f"The same ONNX Runtime on one {gemm['n']}^3 matrix product here (`common.gemm_throughput`, median of "
+        f"{gemm['runs']}): int8 (MatMulInteger, u8 x s8) {gemm['int8_gmacs']:.0f} GMAC/s, fp32 (MatMul) "
+        f'{gemm["fp32_gmacs"]:.0f} GMAC/s; "% of GEMM" sets a stage against that. A stage above 100 % of '
+        "peak means the cores ran above the nominal clock (turbo, which a VM's /proc/cpuinfo does not show).",
+        "",
+    ]
     for name, r in report["results"].items():
         graphs = ", ".join(f"{g} {p}" for g, p in r["graphs"].items())
-        md += [f"## {r['native'][0]}x{r['native'][1]} → {r['target'][0]}x{r['target'][1]}, {r['precision']} "
-               f"pipeline ({graphs})", "", table(r["stages"]), ""]
+        md += [
+            f"## {r['native'][0]}x{r['native'][1]} → {r['target'][0]}x{r['target'][1]}, {r['precision']} "
+            f"pipeline ({graphs})",
+            "",
+            table(r["stages"]),
+            "",
+        ]
     if f"head_to_head_{big_label}" in report:
         o = report[f"head_to_head_{big_label}"]
         s = manifest.scale
-        md += [f"Head to head at {big_label}, interleaved frame by frame ({o['frames']} frames): the int8 pipeline "
-               f"(denoising and {s}x upsampling to {big[0] * s}x{big[1] * s}) median "
-               f"{o['int8_pipeline_median_ms']:.1f} ms, OIDN `balanced` denoising alone at native resolution median "
-               f"{o['oidn_balanced_median_ms']:.1f} ms (p10–p90 {o['oidn_p10_ms']:.1f}–{o['oidn_p90_ms']:.1f}); "
-               f"per-frame time ratio pipeline/OIDN median {o['ratio_median']:.2f} "
-               f"(p10–p90 {o['ratio_p10']:.2f}–{o['ratio_p90']:.2f}). OIDN `fast`, timed in the same loop: median "
-               f"{o['oidn_fast_median_ms']:.1f} ms, ratio pipeline/OIDN fast "
-               f"{o['ratio_fast_median']:.2f} (p10–p90 {o['ratio_fast_p10']:.2f}–{o['ratio_fast_p90']:.2f}).", ""]
+        md += [
+            f"Head to head at {big_label}, interleaved frame by frame ({o['frames']} frames): the int8 pipeline "
+            f"(denoising and {s}x upsampling to {big[0] * s}x{big[1] * s}) median "
+            f"{o['int8_pipeline_median_ms']:.1f} ms, OIDN `balanced` denoising alone at native resolution median "
+            f"{o['oidn_balanced_median_ms']:.1f} ms (p10–p90 {o['oidn_p10_ms']:.1f}–{o['oidn_p90_ms']:.1f}); "
+            f"per-frame time ratio pipeline/OIDN median {o['ratio_median']:.2f} "
+            f"(p10–p90 {o['ratio_p10']:.2f}–{o['ratio_p90']:.2f}). OIDN `fast`, timed in the same loop: median "
+            f"{o['oidn_fast_median_ms']:.1f} ms, ratio pipeline/OIDN fast "
+            f"{o['ratio_fast_median']:.2f} (p10–p90 {o['ratio_fast_p10']:.2f}–{o['ratio_fast_p90']:.2f}).",
+            "",
+        ]
     if "copy_bandwidth_gb_s" in report:
         r, bw = report["results"][f"{big_label} int8"], report["copy_bandwidth_gb_s"]
-        md += ["## The filter stage against its memory-traffic bound "
-               f"({big_label} → {r['target'][0]}x{r['target'][1]}, int8 pipeline)", "",
-               f"Bound = bytes a step must move (its inputs read once, its output written once, float32, the "
-               f"native kernels as {'bytes' if u8_head else 'float32'}; "
-               f"`traffic_bytes` says what is counted) ÷ the copy bandwidth measured between the frames of this "
-               f"run: median {bw['median']:.1f} GB/s (p10–p90 {bw['p10']:.1f}–{bw['p90']:.1f}, "
-               f"{bw['samples']} samples; read + written, a numba row loop on {args.threads} threads copying "
-               f"{probe.src.nbytes >> 20} MB; `CopyProbe`).", "",
-               traffic_table(r["stages"], traffic_bytes(cfg, *r["native"], u8_head), bw["median"] * 1e9)[0], "",
-               "The bound is a model, not a floor: the probe writes as many bytes as it reads, and a write costs "
-               "more than a read (the cache line is read for ownership first), so a step that mostly reads can "
-               "beat it (the composite reads 3 bytes per byte it writes).", ""]
+        md += [
+            "## The filter stage against its memory-traffic bound "
+            f"({big_label} → {r['target'][0]}x{r['target'][1]}, int8 pipeline)",
+            "",
+            f"Bound = bytes a step must move (its inputs read once, its output written once, float32, the "
+            f"native kernels as {'bytes' if u8_head else 'float32'}; "
+            f"`traffic_bytes` says what is counted) ÷ the copy bandwidth measured between the frames of this "
+            f"run: median {bw['median']:.1f} GB/s (p10–p90 {bw['p10']:.1f}–{bw['p90']:.1f}, "
+            f"{bw['samples']} samples; read + written, a numba row loop on {args.threads} threads copying "
+            f"{probe.src.nbytes >> 20} MB; `CopyProbe`).",
+            "",
+            traffic_table(r["stages"], traffic_bytes(cfg, *r["native"], u8_head), bw["median"] * 1e9)[0],
+            "",
+            "The bound is a model, not a floor: the probe writes as many bytes as it reads, and a write costs "
+            "more than a read (the cache line is read for ownership first), so a step that mostly reads can "
+            "beat it (the composite reads 3 bytes per byte it writes).",
+            "",
+        ]
     if f"{big_label} int8" in report["results"]:
         nodes = report["results"][f"{big_label} int8"]["network_nodes"]
         total = sum(n["ms"] for n in nodes.values())
-        md += [f"## The network graph's largest nodes ({big_label}, int8)", "",
-               f"ONNX Runtime's profiler, median of 3 runs per node, in a session with the pipeline's graph "
-               f"optimizers; the medians add up to {total:.1f} ms (the table's input block to output block rows "
-               "also hold the time between nodes).", "",
-               "| node | operator | stage | ms | % of nodes |", "| --- | --- | --- | ---: | ---: |"]
+        md += [
+            f"## The network graph's largest nodes ({big_label}, int8)",
+            "",
+            f"ONNX Runtime's profiler, median of 3 runs per node, in a session with the pipeline's graph "
+            f"optimizers; the medians add up to {total:.1f} ms (the table's input block to output block rows "
+            "also hold the time between nodes).",
+            "",
+            "| node | operator | stage | ms | % of nodes |",
+            "| --- | --- | --- | ---: | ---: |",
+        ]
         for name, n in list(nodes.items())[:15]:
             md.append(f"| `{name}` | {n['op']} | {n['stage']} | {n['ms']:.1f} | {100 * n['ms'] / total:.1f} |")
         md.append("")
-    md += [("The model has no upsample graph: one learned 3x3 kernel for every target pixel "
-            "(`ModelConfig.upsample_width` 0), applied in the upsample filter." if cfg.fixed_upsample else
-            "The int8 pipeline keeps the upsample graph in fp32 (`PipelineConfig.fp32_graphs`): its int8 graph "
-            "is slower on this CPU (see `benchmarks/results/calibration.md`)."),
-           "The filter stage (filter paths, composite, upsample filter) and the reformatting are numba-fused "
-           "float32 loops; before them (commit cc5865c) the table had filter_diffuse 303.0, filter_specular "
-           "291.3, filter_auxiliary 305.5, upsample_filter 344.6, reformat 201.7 ms (int8, 1280x720; total "
-           "2554.7 ms against OIDN balanced 1416.3 ms in that run).", ""]
+    md += [
+        (
+            "The model has no upsample graph: one learned 3x3 kernel for every target pixel "
+            "(`ModelConfig.upsample_width` 0), applied in the upsample filter."
+            if cfg.fixed_upsample
+            else "The int8 pipeline keeps the upsample graph in fp32 (`PipelineConfig.fp32_graphs`): its int8 graph "
+            "is slower on this CPU (see `benchmarks/results/calibration.md`)."
+        ),
+        "The filter stage (filter paths, composite, upsample filter) and the reformatting are numba-fused "
+        "float32 loops; before them (commit cc5865c) the table had filter_diffuse 303.0, filter_specular "
+        "291.3, filter_auxiliary 305.5, upsample_filter 344.6, reformat 201.7 ms (int8, 1280x720; total "
+        "2554.7 ms against OIDN balanced 1416.3 ms in that run).",
+        "",
+    ]
     packing = {name: r["input_packing_ms"] for name, r in report["results"].items() if r["input_packing_ms"]}
     glue = {name: sum(r["block_glue_ms"].values()) for name, r in report["results"].items() if r["block_glue_ms"]}
-    md += ["The input block / feature extractor / output block rows split the measured network time by the "
-           "shares ONNX Runtime's profiler gives those stages on the same inputs. An int8 graph takes its "
-           "input packed (`runtime.reformat.pack_inputs`: the input block's tonemap, quantization and channels-"
-           "last layout, a numba loop, which the fp32 graph runs inside the input block): that time, measured "
-           "apart on the same frame (median of 7), is taken out before the split and counted in the input block "
-           "row (" + "; ".join(f"{name}: {ms:.1f} ms" for name, ms in packing.items()) + "). Where the int8 "
-           "graph is cut at its upsamplings and concatenations (`calibration.block`), their numba passes between "
-           "the graph's runs (`runtime.reformat.block_input`) are measured apart likewise and counted in the rows "
-           "of their stages, the feature extractor's and the output block's (" + "; ".join(
-               f"{name}: {ms:.1f} ms in all" for name, ms in glue.items()) + ").", ""]
+    md += [
+        "The input block / feature extractor / output block rows split the measured network time by the "
+        "shares ONNX Runtime's profiler gives those stages on the same inputs. An int8 graph takes its "
+        "input packed (`runtime.reformat.pack_inputs`: the input block's tonemap, quantization and channels-"
+        "last layout, a numba loop, which the fp32 graph runs inside the input block): that time, measured "
+        "apart on the same frame (median of 7), is taken out before the split and counted in the input block "
+        "row (" + "; ".join(f"{name}: {ms:.1f} ms" for name, ms in packing.items()) + "). Where the int8 "
+        "graph is cut at its upsamplings and concatenations (`calibration.block`), their numba passes between "
+        "the graph's runs (`runtime.reformat.block_input`) are measured apart likewise and counted in the rows "
+        "of their stages, the feature extractor's and the output block's ("
+        + "; ".join(f"{name}: {ms:.1f} ms in all" for name, ms in glue.items())
+        + ").",
+        "",
+    ]
     write_report(out, report, "\n".join(md))
     print("\n".join(md))
     return 0

@@ -17,6 +17,7 @@ of the noisy composite; OIDN fast / balanced / high at native resolution + bicub
 at native resolution + bicubic. Writes benchmarks/results/tradeoff.md, tradeoff.json and
 tradeoff.png (ms/frame against FLIP, Pareto front marked).
 """
+
 from __future__ import annotations
 
 import json
@@ -25,8 +26,20 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import (RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse, pipeline,
-                               run_frames, spread, tune_process, write_report)
+from benchmarks.common import (
+    RESULTS,
+    ROOT,
+    arguments,
+    command_line,
+    cpu_line,
+    machine_info,
+    parse,
+    pipeline,
+    run_frames,
+    spread,
+    tune_process,
+    write_report,
+)
 from jnds_deploy import baselines
 from jnds_deploy.artifacts import Manifest
 from jnds_deploy.io import expand_sequences, open_sequence
@@ -63,7 +76,7 @@ class TorchPipeline:
             out = self.model(cur, mv, self.history)
         self.history = out.history()
         s = self.model.cfg.scale
-        return out.output[0, :, :h * s, :w * s].permute(1, 2, 0).numpy()
+        return out.output[0, :, : h * s, : w * s].permute(1, 2, 0).numpy()
 
 
 def methods(artifacts: Path, threads: int) -> dict:
@@ -73,33 +86,34 @@ def methods(artifacts: Path, threads: int) -> dict:
     manifest = Manifest.load(artifacts)
     scale = manifest.scale
     out = {
-        "bicubic (noisy)": lambda: lambda l, c: baselines.bicubic(baselines.noisy_composite(l), scale),
-        **{f"OIDN {q} + bicubic": (lambda q=q: lambda l, c: baselines.oidn_bicubic(l, scale, quality=q))
-           for q in ("fast", "balanced", "high")},
+        "bicubic (noisy)": lambda: lambda layers, c: baselines.bicubic(baselines.noisy_composite(layers), scale),
+        **{
+            f"OIDN {q} + bicubic": (lambda q=q: lambda layers, c: baselines.oidn_bicubic(layers, scale, quality=q))
+            for q in ("fast", "balanced", "high")
+        },
     }
 
     def svgf():
         s = SVGF()
-        return lambda l, c: baselines.bicubic(s(l, c), scale)
+        return lambda layers, c: baselines.bicubic(s(layers, c), scale)
 
     out["SVGF + bicubic"] = svgf
     out["JNDS PyTorch fp32 (eager)"] = lambda: TorchPipeline(manifest.checkpoint["path"], threads)
 
     def onnx(precision, dtype, method=None):
-        return lambda: pipeline(artifacts, precision=precision, filter_dtype=dtype, threads=threads,
-                                int8_method=method)
+        return lambda: pipeline(artifacts, precision=precision, filter_dtype=dtype, threads=threads, int8_method=method)
 
     def first(p):
-        return lambda l, c: p(l, c).output
+        return lambda layers, c: p(layers, c).output
 
     for dtype in ("float32", "float16"):
-        out[f"JNDS ONNX fp32, filter {dtype}"] = (lambda f=onnx("fp32", dtype): first(f()))
+        out[f"JNDS ONNX fp32, filter {dtype}"] = lambda f=onnx("fp32", dtype): first(f())
     int8 = manifest.graphs["network"].int8
     for method in int8:
-        out[f"JNDS ONNX int8 {method}, filter float32"] = (lambda f=onnx("int8", "float32", method): first(f()))
+        out[f"JNDS ONNX int8 {method}, filter float32"] = lambda f=onnx("int8", "float32", method): first(f())
     if int8:
         default = manifest.int8_method
-        out[f"JNDS ONNX int8 {default}, filter float16"] = (lambda f=onnx("int8", "float16", default): first(f()))
+        out[f"JNDS ONNX int8 {default}, filter float16"] = lambda f=onnx("int8", "float16", default): first(f())
     return out
 
 
@@ -128,8 +142,14 @@ def plot(report: dict, path: Path) -> None:
         ax.scatter(t, f, c="C3" if name.startswith("JNDS") else "C0", marker="o" if on else "x", s=40)
         if name in jnds:
             k = jnds.index(name)
-            ax.annotate(name.replace("JNDS ", ""), (t, f), fontsize=6.5, xytext=(t * 1.15, f + 0.012 + 0.0055 * k),
-                        textcoords="data", arrowprops=dict(arrowstyle="-", lw=0.3, color="0.6"))
+            ax.annotate(
+                name.replace("JNDS ", ""),
+                (t, f),
+                fontsize=6.5,
+                xytext=(t * 1.15, f + 0.012 + 0.0055 * k),
+                textcoords="data",
+                arrowprops=dict(arrowstyle="-", lw=0.3, color="0.6"),
+            )
         else:
             ax.annotate(name, (t, f), fontsize=7, xytext=(4, -10 if "high" in name else 3), textcoords="offset points")
     fr = sorted(pts[n] for n in front)
@@ -162,11 +182,18 @@ def main() -> int:
     truth = {p: tuple(t[first] for t in ground_truth(p)) for p in seqs}
     opened = {p: open_sequence(p) for p in seqs}
     inputs = {p: [(s.inputs(i), f.camera_cut) for i, f in enumerate(s.frames)][first] for p, s in opened.items()}
-    report = {"command": command_line(), "threads": args.threads,
-              "size": "x".join(map(str, opened[seqs[0]].native_size)) + " native",
-              "sequences": [p.name for p in seqs], "methods": {}}
-    factories = {name: f for name, f in methods(Path(args.artifacts), args.threads).items()
-                 if not args.only or any(s in name for s in args.only)}
+    report = {
+        "command": command_line(),
+        "threads": args.threads,
+        "size": "x".join(map(str, opened[seqs[0]].native_size)) + " native",
+        "sequences": [p.name for p in seqs],
+        "methods": {},
+    }
+    factories = {
+        name: f
+        for name, f in methods(Path(args.artifacts), args.threads).items()
+        if not args.only or any(s in name for s in args.only)
+    }
     # interleaved: every method runs frame t before any runs frame t + 1 (each with its own
     # history), so that all see the same machine state (common.run_frames)
     ms = {name: [] for name in factories}
@@ -180,34 +207,55 @@ def main() -> int:
             per_seq[name][p.name] = score_frames([out for out, _ in frames], *truth[p][:3], masks=truth[p][3])
         print(f"{p.name}: done", flush=True)
     for name in factories:
-        report["methods"][name] = {"mean": mean_over_sequences(per_seq[name]), "ms_per_frame": float(np.median(ms[name])),
-                                   "ms_p90": float(np.percentile(ms[name], 90)), "sequences": per_seq[name]}
+        report["methods"][name] = {
+            "mean": mean_over_sequences(per_seq[name]),
+            "ms_per_frame": float(np.median(ms[name])),
+            "ms_p90": float(np.percentile(ms[name], 90)),
+            "sequences": per_seq[name],
+        }
         m = report["methods"][name]
-        print(f"{name}: {m['ms_per_frame']:.1f} ms, PSNR {m['mean']['psnr']:.2f}, FLIP {m['mean']['flip']:.4f}, "
-              f"temporal {m['mean']['temporal']:.5f}", flush=True)
+        print(
+            f"{name}: {m['ms_per_frame']:.1f} ms, PSNR {m['mean']['psnr']:.2f}, FLIP {m['mean']['flip']:.4f}, "
+            f"temporal {m['mean']['temporal']:.5f}",
+            flush=True,
+        )
     # the closest peer in time: the default int8 pipeline against OIDN fast, frame by frame
     default = f"JNDS ONNX int8 {Manifest.load(args.artifacts).int8_method or ''}, filter float32"
     if default in ms and "OIDN fast + bicubic" in ms:
         r = np.array(ms[default]) / np.array(ms["OIDN fast + bicubic"])
-        report["head_to_head"] = {"method": default, "peer": "OIDN fast + bicubic", "frames": int(r.size),
-                                  **spread(r, "ratio_")}
+        report["head_to_head"] = {
+            "method": default,
+            "peer": "OIDN fast + bicubic",
+            "frames": int(r.size),
+            **spread(r, "ratio_"),
+        }
     front = pareto({k: (v["ms_per_frame"], v["mean"]["flip"]) for k, v in report["methods"].items()})
     out = Path(args.out)
-    lines = ["# Run time against error (validation set)", "", f"Command: `{report['command']}`  ",
-             f"Machine: {cpu_line(machine_info())}.  ",
-             f"{len(seqs)} sequences, {report['size']} → 2×, {args.threads} threads; ms per frame is the "
-             "median over all frames (inputs in memory), all methods in one process, interleaved frame by "
-             "frame (each with its own history).", "",
-             "| method | ms/frame | PSNR dB ↑ | SSIM ↑ | FLIP ↓ | temporal error ↓ | Pareto |",
-             "| --- | ---: | ---: | ---: | ---: | ---: | :---: |"]
+    lines = [
+        "# Run time against error (validation set)",
+        "",
+        f"Command: `{report['command']}`  ",
+        f"Machine: {cpu_line(machine_info())}.  ",
+        f"{len(seqs)} sequences, {report['size']} → 2×, {args.threads} threads; ms per frame is the "
+        "median over all frames (inputs in memory), all methods in one process, interleaved frame by "
+        "frame (each with its own history).",
+        "",
+        "| method | ms/frame | PSNR dB ↑ | SSIM ↑ | FLIP ↓ | temporal error ↓ | Pareto |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | :---: |",
+    ]
     for name, v in sorted(report["methods"].items(), key=lambda kv: kv[1]["ms_per_frame"]):
         m = v["mean"]
-        lines.append(f"| {name} | {v['ms_per_frame']:.1f} | {m['psnr']:.2f} | {m['ssim']:.4f} | {m['flip']:.4f} | "
-                     f"{m['temporal']:.5f} | {'●' if name in front else ''} |")
+        lines.append(
+            f"| {name} | {v['ms_per_frame']:.1f} | {m['psnr']:.2f} | {m['ssim']:.4f} | {m['flip']:.4f} | "
+            f"{m['temporal']:.5f} | {'●' if name in front else ''} |"
+        )
     if "head_to_head" in report:
         h = report["head_to_head"]
-        lines += ["", f"Per frame, {h['method']} took {h['ratio_median']:.2f}× the time of {h['peer']} (median "
-                      f"of {h['frames']} frames, p10–p90 {h['ratio_p10']:.2f}–{h['ratio_p90']:.2f})."]
+        lines += [
+            "",
+            f"Per frame, {h['method']} took {h['ratio_median']:.2f}× the time of {h['peer']} (median "
+            f"of {h['frames']} frames, p10–p90 {h['ratio_p10']:.2f}–{h['ratio_p90']:.2f}).",
+        ]
     lines += ["", f"![ms/frame against FLIP]({out.with_suffix('.png').name})", ""]
     write_report(out, report, "\n".join(lines))
     plot(report, out.with_suffix(".png"))

@@ -18,6 +18,7 @@ adjoint (`filters._WarpCPU`, since). Medians over --steps steps after 2 warm-up
 steps (none with --smoke). A patch is one native patch of one frame, so a step trains batch x unroll patches.
 Writes benchmarks/results/train_throughput.md and .json.
 """
+
 from __future__ import annotations
 
 import time
@@ -62,16 +63,30 @@ def random_feature_net(path: Path) -> str:
 
 
 def main() -> None:
-    ap = arguments(__doc__, RESULTS / "train_throughput",
-                   smoke={"data": str(ROOT), "split": "samples", "sequences": 1, "steps": 1, "feature_net": None,
-                          "patch": 16, "unroll": 2, "batch": 1})
+    ap = arguments(
+        __doc__,
+        RESULTS / "train_throughput",
+        smoke={
+            "data": str(ROOT),
+            "split": "samples",
+            "sequences": 1,
+            "steps": 1,
+            "feature_net": None,
+            "patch": 16,
+            "unroll": 2,
+            "batch": 1,
+        },
+    )
     ap.add_argument("--data", default=str(ROOT / "data" / "spp8"))
     ap.add_argument("--split", default="train", help="the directory of --data whose sequences train")
     ap.add_argument("--sequences", type=int, default=12)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--steps", type=int, default=8)
-    ap.add_argument("--feature-net", default=str(ROOT / "runs" / "feature-spp8" / "feature_net.pt"),
-                    help="the feature-loss network (with --smoke: randomly initialized, beside --out)")
+    ap.add_argument(
+        "--feature-net",
+        default=str(ROOT / "runs" / "feature-spp8" / "feature_net.pt"),
+        help="the feature-loss network (with --smoke: randomly initialized, beside --out)",
+    )
     ap.add_argument("--clean-references", choices=("oidn",), default=None)
     ap.add_argument("--patch", type=int, default=None, help="native patch size (default: the recipe's)")
     ap.add_argument("--unroll", type=int, default=None, help="frames unrolled (default: the recipe's)")
@@ -82,7 +97,7 @@ def main() -> None:
     feature_net = args.feature_net or random_feature_net(Path(f"{args.out}-feature_net.pt"))
 
     every = find_sequences(Path(args.data) / args.split)
-    paths = every[:: max(1, len(every) // args.sequences)][:args.sequences]
+    paths = every[:: max(1, len(every) // args.sequences)][: args.sequences]
     t0 = time.perf_counter()
     seqs = [load_sequence(p, args.clean_references) for p in paths]
     load_s = (time.perf_counter() - t0) / len(seqs)
@@ -101,9 +116,15 @@ def main() -> None:
     model.train()
     start = {k: v.clone() for k, v in model.state_dict().items()}
     opt = torch.optim.AdamW(model.parameters(), lr=1e-5, weight_decay=0.0)
-    sampler = PatchSampler(seqs, cfg.patch, cfg.unroll, np.random.default_rng(0),
-                           Augment(cfg.exposure, cfg.rotate_normals, cfg.flips, cfg.colours),
-                           cross_cuts=cfg.cross_cuts, balance_renderers=cfg.balance_renderers)
+    sampler = PatchSampler(
+        seqs,
+        cfg.patch,
+        cfg.unroll,
+        np.random.default_rng(0),
+        Augment(cfg.exposure, cfg.rotate_normals, cfg.flips, cfg.colours),
+        cross_cuts=cfg.cross_cuts,
+        balance_renderers=cfg.balance_renderers,
+    )
     rows = {name: [] for name in VARIANTS}
     warmup = 0 if args.smoke else 2
     for step in range(args.steps + warmup):
@@ -132,29 +153,46 @@ def main() -> None:
     step_s = {n: float(np.median([sum(r.values()) for r in rs])) for n, rs in rows.items()}
     patches = cfg.batch * cfg.unroll
     info = machine_info()
-    md = ["# Training throughput\n", f"`{command_line()}`\n",
-          f"Machine: {cpu_line(info)}, {args.threads} torch threads. The shipped checkpoint's recipe "
-          f"(`{recipe.get('run')}`: `{recipe.get('preset')}` preset, patch {cfg.patch}x{cfg.patch} native, "
-          f"unroll {cfg.unroll}, batch {cfg.batch}, {patches} patches a step, loss {cfg.spatial_loss} with the "
-          f"low-frequency term at {cfg.lowfreq_loss}, augmentations as trained) on {len(seqs)} sequences of "
-          f"`{args.data}` (references {args.clean_references or 'as rendered'}); medians of {args.steps} steps. "
-          "Two variants train on the same batches from the same weights, one after the other in each step: "
-          "`grid_sample`, the warps' input gradient by autograd through PyTorch's bicubic `grid_sample` (jnds "
-          "train before commit 6e76537); `own`, by `filters.warp`'s own adjoint (since).\n",
-          "| phase | " + " | ".join(f"{n} s per step | share" for n in VARIANTS) + " |",
-          "| --- |" + " ---: | ---: |" * len(VARIANTS)]
+    md = [
+        "# Training throughput\n",
+        f"`{command_line()}`\n",
+        f"Machine: {cpu_line(info)}, {args.threads} torch threads. The shipped checkpoint's recipe "
+        f"(`{recipe.get('run')}`: `{recipe.get('preset')}` preset, patch {cfg.patch}x{cfg.patch} native, "
+        f"unroll {cfg.unroll}, batch {cfg.batch}, {patches} patches a step, loss {cfg.spatial_loss} with the "
+        f"low-frequency term at {cfg.lowfreq_loss}, augmentations as trained) on {len(seqs)} sequences of "
+        f"`{args.data}` (references {args.clean_references or 'as rendered'}); medians of {args.steps} steps. "
+        "Two variants train on the same batches from the same weights, one after the other in each step: "
+        "`grid_sample`, the warps' input gradient by autograd through PyTorch's bicubic `grid_sample` (jnds "
+        "train before commit 6e76537); `own`, by `filters.warp`'s own adjoint (since).\n",
+        "| phase | " + " | ".join(f"{n} s per step | share" for n in VARIANTS) + " |",
+        "| --- |" + " ---: | ---: |" * len(VARIANTS),
+    ]
     for p in PHASES:
-        md.append(f"| {p} | " + " | ".join(f"{med[n][p]:.3f} | {100 * med[n][p] / step_s[n]:.1f} %"
-                                         for n in VARIANTS) + " |")
+        md.append(
+            f"| {p} | " + " | ".join(f"{med[n][p]:.3f} | {100 * med[n][p] / step_s[n]:.1f} %" for n in VARIANTS) + " |"
+        )
     md += ["| **step** | " + " | ".join(f"**{step_s[n]:.3f}** | " for n in VARIANTS) + "|", ""]
-    md += [f"- {n}: {patches / step_s[n]:.1f} patches per second ({1 / step_s[n]:.3f} steps per second)."
-           for n in VARIANTS]
-    md += [f"- own over grid_sample: {step_s['grid_sample'] / step_s['own']:.2f}x.",
-           f"- Decoding a training sequence into memory (once per run): {load_s:.2f} s."]
-    write_report(Path(args.out), {"machine": info, "command": command_line(), "recipe": recipe,
-                                  "phases_s": med, "step_s": step_s,
-                                  "patches_per_s": {n: patches / s for n, s in step_s.items()},
-                                  "load_s_per_sequence": load_s, "steps": rows}, "\n".join(md) + "\n")
+    md += [
+        f"- {n}: {patches / step_s[n]:.1f} patches per second ({1 / step_s[n]:.3f} steps per second)." for n in VARIANTS
+    ]
+    md += [
+        f"- own over grid_sample: {step_s['grid_sample'] / step_s['own']:.2f}x.",
+        f"- Decoding a training sequence into memory (once per run): {load_s:.2f} s.",
+    ]
+    write_report(
+        Path(args.out),
+        {
+            "machine": info,
+            "command": command_line(),
+            "recipe": recipe,
+            "phases_s": med,
+            "step_s": step_s,
+            "patches_per_s": {n: patches / s for n, s in step_s.items()},
+            "load_s_per_sequence": load_s,
+            "steps": rows,
+        },
+        "\n".join(md) + "\n",
+    )
     print("\n".join(md))
 
 

@@ -5,6 +5,7 @@ upscaling.
 Array contract: HWC float32 linear HDR, inputs at native resolution as read by
 ``jnds_deploy.io``; outputs at ``scale`` x native.
 """
+
 from __future__ import annotations
 
 import cv2

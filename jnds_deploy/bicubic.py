@@ -4,6 +4,7 @@ the history warp's taps alike: the runtime's warp (``runtime.filters``) and the 
 specification's adjoint of ``grid_sample`` (``filters.warp``'s backward). Below both, so
 that neither imports the other.
 """
+
 from __future__ import annotations
 
 import numpy as np

@@ -6,6 +6,7 @@ A checkpoint is a ``torch.save`` dict: ``model`` (state dict), ``model_config``
 quantization on), ``quant_ranges`` (the learned activation ranges), ``state`` (step,
 phase), ``train_sequences``; a training checkpoint adds ``optimizer`` and ``rng``.
 """
+
 from __future__ import annotations
 
 from pathlib import Path

@@ -12,6 +12,7 @@ and heavy imports (mitsuba, torch, onnxruntime) happen inside the command that n
 them, so ``jnds --help`` stays instant and ``jnds run`` imports no torch. Library errors
 (``JndsError``) become a one-line message and exit code 2.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -65,7 +66,7 @@ EXTRA_KIND_HELP = {
     "interior": "closed rooms lit mostly by bounced light",
     "detail": "bump-mapped surfaces, dense and curved shapes",
     "layers": "sheen, coat, subsurface, anisotropic, thin-film and frosted materials on smooth shapes, meshes of "
-              "thin struts",
+    "thin struts",
     "glass": "thin-walled, solid, frosted and tinted glass, water, caustics",
     "print": "lettering and signs of every size",
     "media": "participating media: haze, drifting mist, smoke, glowing clouds",
@@ -76,29 +77,53 @@ def _extra_sequences(args) -> dict[str, int]:
     """{kind: N} of the training-only Cycles kinds from --<kind>-sequences."""
     from .blender.scenes import CYCLES_EXTRA_KINDS
 
-    return {kind: getattr(args, f"{kind}_sequences") for kind in CYCLES_EXTRA_KINDS
-            if getattr(args, f"{kind}_sequences")}
+    return {
+        kind: getattr(args, f"{kind}_sequences") for kind in CYCLES_EXTRA_KINDS if getattr(args, f"{kind}_sequences")
+    }
 
 
 def cmd_dataset(args) -> int:
     from .render.dataset import dataset_specs, render_dataset
 
     if args.list:
-        for rel, cfg in dataset_specs(args.split, args.train_sequences, args.engine, args.moving_sequences,
-                                      _extra_sequences(args)):
-            print(rel, json.dumps({"scene": cfg.scene, "seed": cfg.seed, "camera": cfg.camera,
-                                   "frames": cfg.frames, "size": cfg.size, "spp": cfg.spp}))
+        for rel, cfg in dataset_specs(
+            args.split, args.train_sequences, args.engine, args.moving_sequences, _extra_sequences(args)
+        ):
+            print(
+                rel,
+                json.dumps(
+                    {
+                        "scene": cfg.scene,
+                        "seed": cfg.seed,
+                        "camera": cfg.camera,
+                        "frames": cfg.frames,
+                        "size": cfg.size,
+                        "spp": cfg.spp,
+                    }
+                ),
+            )
         return 0
     t0 = time.perf_counter()
-    done = render_dataset(args.out, args.split, args.limit, variant=args.variant,
-                          train_sequences=args.train_sequences, jobs=args.jobs, engine=args.engine,
-                          address=args.address, progress=not args.quiet, moving_sequences=args.moving_sequences,
-                          extra_sequences=_extra_sequences(args), reference=not args.no_reference,
-                          reference_spp=args.reference_spp)
+    done = render_dataset(
+        args.out,
+        args.split,
+        args.limit,
+        variant=args.variant,
+        train_sequences=args.train_sequences,
+        jobs=args.jobs,
+        engine=args.engine,
+        address=args.address,
+        progress=not args.quiet,
+        moving_sequences=args.moving_sequences,
+        extra_sequences=_extra_sequences(args),
+        reference=not args.no_reference,
+        reference_spp=args.reference_spp,
+    )
     for path, times in done:
         # None: every frame of that kind was rendered before a resume (the medians are of this run's)
-        rates = ", ".join(f"{k} " + ("none rendered in this run" if v is None else f"{v:.2f} s/frame")
-                          for k, v in times.items())
+        rates = ", ".join(
+            f"{k} " + ("none rendered in this run" if v is None else f"{v:.2f} s/frame") for k, v in times.items()
+        )
         print(f"{path}: {rates}")
     print(f"{len(done)} sequence(s) rendered in {time.perf_counter() - t0:.0f} s")
     return 0
@@ -182,12 +207,21 @@ def cmd_run(args) -> int:
         gc.enable()
     cfg = PipelineConfig(**given(args, PipelineConfig))
     exr_threads(cfg.threads)
-    report = run_sequence(cfg, args.input, args.output, progress=not args.quiet, output_format=args.output_format,
-                          video=args.video, png=args.png)
+    report = run_sequence(
+        cfg,
+        args.input,
+        args.output,
+        progress=not args.quiet,
+        output_format=args.output_format,
+        video=args.video,
+        png=args.png,
+    )
     med = report["median_ms"]
-    print(f"{report['frames']} frames -> {args.output}: median {med['total']:.1f} ms/frame "
-          f"({report['native_size'][0]}x{report['native_size'][1]} -> "
-          f"{report['output_size'][0]}x{report['output_size'][1]}, {cfg.precision})")
+    print(
+        f"{report['frames']} frames -> {args.output}: median {med['total']:.1f} ms/frame "
+        f"({report['native_size'][0]}x{report['native_size'][1]} -> "
+        f"{report['output_size'][0]}x{report['output_size'][1]}, {cfg.precision})"
+    )
     for line in score_lines(report):
         print(line)
     print(stage_table(report))
@@ -203,9 +237,11 @@ def cmd_batch(args) -> int:
     cfg = BatchConfig(**given(args, BatchConfig))
     summary = batch(cfg, progress=not args.quiet)
     c = summary["counts"]
-    print(f"{c['done']} sequence(s) done, {c['skipped']} already complete, {c['failed']} failed: "
-          f"{summary['frames_processed']} frames in {summary['wall_s']:.1f} s "
-          f"({summary['workers']} worker(s) x {cfg.threads} thread(s)); summary: {cfg.output}/batch.json")
+    print(
+        f"{c['done']} sequence(s) done, {c['skipped']} already complete, {c['failed']} failed: "
+        f"{summary['frames_processed']} frames in {summary['wall_s']:.1f} s "
+        f"({summary['workers']} worker(s) x {cfg.threads} thread(s)); summary: {cfg.output}/batch.json"
+    )
     for name, rec in summary["sequences"].items():
         if rec["status"] == "failed":
             print(f"failed: {name}: {rec['error']}", file=sys.stderr)
@@ -275,12 +311,18 @@ def _validate_options(p: argparse.ArgumentParser) -> None:
 
 def _import_options(p: argparse.ArgumentParser) -> None:
     sources = p.add_subparsers(dest="source", required=True)
-    ic = sources.add_parser("cycles", help="Blender Cycles frames rendered after jnds_deploy.blender.configure",
-                            formatter_class=HelpFormatter)
+    ic = sources.add_parser(
+        "cycles",
+        help="Blender Cycles frames rendered after jnds_deploy.blender.configure",
+        formatter_class=HelpFormatter,
+    )
     ic.add_argument("raw", help="directory of Blender's <prefix>NNNN.exr multilayer frames (and jnds.json)")
     ic.add_argument("--out", required=True, help="the sequence directory to write")
-    ic.add_argument("--reference", default=None,
-                    help="directory of the same frames rendered by jnds_deploy.blender.configure_reference")
+    ic.add_argument(
+        "--reference",
+        default=None,
+        help="directory of the same frames rendered by jnds_deploy.blender.configure_reference",
+    )
     _quiet(ic)
     ic.set_defaults(func=cmd_import_cycles)
 
@@ -290,8 +332,11 @@ def _split(name: str) -> str:
     from .render.dataset import OLD_SPLIT_NAMES
 
     if name in OLD_SPLIT_NAMES:
-        print(f"jnds dataset: split {name} is now called {OLD_SPLIT_NAMES[name]} and renders into a directory "
-              f"of that name; the old name will go", file=sys.stderr)
+        print(
+            f"jnds dataset: split {name} is now called {OLD_SPLIT_NAMES[name]} and renders into a directory "
+            f"of that name; the old name will go",
+            file=sys.stderr,
+        )
     return OLD_SPLIT_NAMES.get(name, name)
 
 
@@ -300,33 +345,65 @@ def _dataset_options(d: argparse.ArgumentParser) -> None:
     from .render.sequence import ENGINES
 
     d.add_argument("--out", default="data", help="the directory the splits go to")
-    d.add_argument("--split", default="all", choices=SPLITS, type=_split,
-                   help="all = train + val; test (seeds never trained or selected on); Cycles only: the held-out "
-                        "splits of kinds no training set has, each written after the one before had been looked "
-                        "at (holdout, street-studio, grove-haze, bathroom-fur; docs/dataset.md, \"Splits\"), and "
-                        "media (unseen seeds of the media training kind)")
+    d.add_argument(
+        "--split",
+        default="all",
+        choices=SPLITS,
+        type=_split,
+        help="all = train + val; test (seeds never trained or selected on); Cycles only: the held-out "
+        "splits of kinds no training set has, each written after the one before had been looked "
+        'at (holdout, street-studio, grove-haze, bathroom-fur; docs/dataset.md, "Splits"), and '
+        "media (unseen seeds of the media training kind)",
+    )
     d.add_argument("--limit", type=int, default=None, help="only the first N sequences")
     d.add_argument("--list", action="store_true", help="print the sequences and exit")
-    d.add_argument("--train-sequences", type=int, default=TRAIN_SEQUENCES,
-                   help="training sequences (seeds 1000, 1001, ...; the first 24 are the default set)")
-    d.add_argument("--moving-sequences", type=int, default=0,
-                   help="Mitsuba training sequences whose objects move (scene kind moving, seeds 4000, ...)")
+    d.add_argument(
+        "--train-sequences",
+        type=int,
+        default=TRAIN_SEQUENCES,
+        help="training sequences (seeds 1000, 1001, ...; the first 24 are the default set)",
+    )
+    d.add_argument(
+        "--moving-sequences",
+        type=int,
+        default=0,
+        help="Mitsuba training sequences whose objects move (scene kind moving, seeds 4000, ...)",
+    )
     for kind, what in EXTRA_KIND_HELP.items():
-        d.add_argument(f"--{kind}-sequences", type=int, default=0,
-                       help=f"Cycles training sequences of scene kind {kind} ({what}; seeds {EXTRA_SEEDS[kind]}, ...)")
+        d.add_argument(
+            f"--{kind}-sequences",
+            type=int,
+            default=0,
+            help=f"Cycles training sequences of scene kind {kind} ({what}; seeds {EXTRA_SEEDS[kind]}, ...)",
+        )
     d.add_argument("--jobs", type=int, default=1, help="sequences rendered at once, in separate processes")
     d.add_argument("--variant", default=None, help="Mitsuba variant, e.g. cuda_ad_rgb on a GPU machine")
-    d.add_argument("--engine", default="mitsuba", choices=ENGINES,
-                   help="cycles: the Blender Cycles sets (seeds 5000+ / 6000+, train/cycles-*, val/cycles-*)")
-    d.add_argument("--address", default=None,
-                   help="render the sequences as Ray tasks on this cluster ('local': an embedded Ray here); "
-                        "RAY_ADDRESS also selects a cluster")
-    d.add_argument("--no-reference", action="store_true",
-                   help="inputs only (no reference frames): training data for jnds train --teacher, in a "
-                        "directory of its own (--out)")
-    d.add_argument("--reference-spp", type=int, default=None, metavar="N",
-                   help="references at N samples per target pixel instead of the split's (training: 64): "
-                        "cheap references for jnds train --clean-references oidn, in a directory of their own (--out)")
+    d.add_argument(
+        "--engine",
+        default="mitsuba",
+        choices=ENGINES,
+        help="cycles: the Blender Cycles sets (seeds 5000+ / 6000+, train/cycles-*, val/cycles-*)",
+    )
+    d.add_argument(
+        "--address",
+        default=None,
+        help="render the sequences as Ray tasks on this cluster ('local': an embedded Ray here); "
+        "RAY_ADDRESS also selects a cluster",
+    )
+    d.add_argument(
+        "--no-reference",
+        action="store_true",
+        help="inputs only (no reference frames): training data for jnds train --teacher, in a "
+        "directory of its own (--out)",
+    )
+    d.add_argument(
+        "--reference-spp",
+        type=int,
+        default=None,
+        metavar="N",
+        help="references at N samples per target pixel instead of the split's (training: 64): "
+        "cheap references for jnds train --clean-references oidn, in a directory of their own (--out)",
+    )
     _quiet(d)
 
 
@@ -378,23 +455,38 @@ def _run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--output", required=True, help="the directory to write the frames and run.json to")
     add_options(p, PipelineConfig)
     # the output formats of `jnds batch`, the same default
-    p.add_argument("--output-format", default=BatchConfig.output_format, choices=tuple(OUTPUT_FORMATS),
-                   help=OUTPUT_FORMAT_HELP)
-    p.add_argument("--video", action="store_true",
-                   help="also OUTPUT/output.mp4: the output frames, tonemapped (needs the video extra)")
+    p.add_argument(
+        "--output-format", default=BatchConfig.output_format, choices=tuple(OUTPUT_FORMATS), help=OUTPUT_FORMAT_HELP
+    )
+    p.add_argument(
+        "--video",
+        action="store_true",
+        help="also OUTPUT/output.mp4: the output frames, tonemapped (needs the video extra)",
+    )
     p.add_argument("--png", default=None, metavar="DIR", help="also each output frame tonemapped, as DIR/NNNN.png")
     _quiet(p)
 
 
 def _evaluate_options(e: argparse.ArgumentParser) -> None:
     e.add_argument("--checkpoint", nargs="*", default=[], help="model checkpoints to score")
-    e.add_argument("--data", nargs="+", default=["data/val"],
-                   help="sets, each a sequence or a directory of sequences (e.g. data/val data/test): "
-                        "reported side by side")
-    e.add_argument("--sheet", default=None, help="write a contact sheet here, a JPEG if the name ends in .jpg or "
-                                                 ".jpeg, else a PNG (middle frame of every sequence)")
-    e.add_argument("--baselines", nargs="*", default=["bicubic", "oidn-balanced"],
-                   help="bicubic, oidn-fast, oidn-balanced, oidn-high")
+    e.add_argument(
+        "--data",
+        nargs="+",
+        default=["data/val"],
+        help="sets, each a sequence or a directory of sequences (e.g. data/val data/test): reported side by side",
+    )
+    e.add_argument(
+        "--sheet",
+        default=None,
+        help="write a contact sheet here, a JPEG if the name ends in .jpg or "
+        ".jpeg, else a PNG (middle frame of every sequence)",
+    )
+    e.add_argument(
+        "--baselines",
+        nargs="*",
+        default=["bicubic", "oidn-balanced"],
+        help="bicubic, oidn-fast, oidn-balanced, oidn-high",
+    )
     e.add_argument("--out", default=None, help="write the report as JSON")
     e.add_argument("--threads", type=int, default=2, help="torch threads")
 
@@ -406,13 +498,19 @@ COMMANDS = {
     "import": ("convert another renderer's frames into jnds-sequence/1", _import_options, None),
     "dataset": ("render (or resume) the training and validation sets", _dataset_options, cmd_dataset),
     "train": ("train the network (fp32, then QAT); resumes from <run>/checkpoint.pt", _train_options, cmd_train),
-    "train-feature-net": ("train the feature-loss network on rendered data", _train_feature_net_options,
-                          cmd_train_feature_net),
+    "train-feature-net": (
+        "train the feature-loss network on rendered data",
+        _train_feature_net_options,
+        cmd_train_feature_net,
+    ),
     "export": ("write the ONNX graphs and manifest.json, validated against PyTorch", _export_options, cmd_export),
     "calibrate": ("write int8 QDQ graphs next to the fp32 ones", _calibrate_options, cmd_calibrate),
     "serve": ("serve frame streams over HTTP (protocol: jnds_deploy/serve/server.py)", _serve_options, cmd_serve),
-    "batch": ("every sequence under a directory through the pipeline, on Ray (embedded locally, or a cluster)",
-              _batch_options, cmd_batch),
+    "batch": (
+        "every sequence under a directory through the pipeline, on Ray (embedded locally, or a cluster)",
+        _batch_options,
+        cmd_batch,
+    ),
     "run": ("denoise and upsample a sequence with the exported pipeline", _run_options, cmd_run),
     "evaluate": ("PSNR/SSIM/FLIP/temporal error of checkpoints and baselines", _evaluate_options, cmd_evaluate),
 }

@@ -9,6 +9,7 @@ and ``run.json`` last, so an output directory with ``run.json`` is complete; a s
 whose worker died (killed, out of memory, node lost) is retried from its first frame on a
 new worker, its partial output removed first; a re-run skips complete sequences.
 """
+
 from __future__ import annotations
 
 import json
@@ -24,8 +25,14 @@ from typing import Callable
 from .errors import ConfigError, JndsError
 from .io import OUTPUT_FORMATS
 from .options import option
-from .runtime.config import (ARTIFACTS_HELP, DEFAULT_PRECISION, FILTER_DTYPE_HELP, FILTER_DTYPES, PRECISION_HELP,
-                             PRECISIONS)
+from .runtime.config import (
+    ARTIFACTS_HELP,
+    DEFAULT_PRECISION,
+    FILTER_DTYPE_HELP,
+    FILTER_DTYPES,
+    PRECISION_HELP,
+    PRECISIONS,
+)
 
 SUMMARY = "batch.json"
 OUTPUT_FORMAT_HELP = "output frames: float (32-bit, uncompressed) or half (16-bit, PIZ: a quarter of the size)"
@@ -52,6 +59,7 @@ def connect(address: str | None = None, cpus: int | None = None) -> dict:
 
 # --- jnds batch ------------------------------------------------------------------------
 
+
 @dataclass
 class BatchConfig:
     artifacts: str = option(help=ARTIFACTS_HELP)
@@ -62,8 +70,9 @@ class BatchConfig:
     adaptive: bool = option(True, "skip the work a frame does not need where the result is the same")
     threads: int = option(1, "ONNX Runtime and numba threads per worker (and the Ray CPUs it reserves)")
     workers: int | None = option(None, "default: the cluster's CPUs / --threads")
-    address: str | None = option(None, "a Ray cluster (ray start --head prints it; default RAY_ADDRESS, else a "
-                                       "local Ray)")
+    address: str | None = option(
+        None, "a Ray cluster (ray start --head prints it; default RAY_ADDRESS, else a local Ray)"
+    )
     retries: int = option(2, "further attempts of a sequence whose worker died")
     output_format: str = option("float", OUTPUT_FORMAT_HELP, choices=tuple(OUTPUT_FORMATS))
 
@@ -112,9 +121,12 @@ def is_complete(out: Path, frames: int, checkpoint_sha256: str, precision: str) 
         report = json.loads((out / "run.json").read_text())
     except (OSError, ValueError):
         return False
-    return (report.get("frames") == frames and report.get("checkpoint_sha256") == checkpoint_sha256
-            and report.get("precision") == precision
-            and all((out / f"{i:04d}.exr").is_file() for i in range(frames)))
+    return (
+        report.get("frames") == frames
+        and report.get("checkpoint_sha256") == checkpoint_sha256
+        and report.get("precision") == precision
+        and all((out / f"{i:04d}.exr").is_file() for i in range(frames))
+    )
 
 
 class SequenceWorker:
@@ -133,14 +145,23 @@ class SequenceWorker:
         exr_threads(cfg.threads)
         # the filter stage's parallel loops on the worker's own CPUs, not on every core
         numba.set_num_threads(min(cfg.threads, numba.config.NUMBA_NUM_THREADS))
-        self.pipe = Pipeline(PipelineConfig(artifacts=cfg.artifacts, precision=cfg.precision,
-                                            filter_dtype=cfg.filter_dtype, threads=cfg.threads,
-                                            adaptive=cfg.adaptive))
+        self.pipe = Pipeline(
+            PipelineConfig(
+                artifacts=cfg.artifacts,
+                precision=cfg.precision,
+                filter_dtype=cfg.filter_dtype,
+                threads=cfg.threads,
+                adaptive=cfg.adaptive,
+            )
+        )
         import ray
 
         self.output_format = cfg.output_format
-        self.where = {"node": socket.gethostname(), "node_id": ray.get_runtime_context().get_node_id(),
-                      "pid": os.getpid()}
+        self.where = {
+            "node": socket.gethostname(),
+            "node_id": ray.get_runtime_context().get_node_id(),
+            "pid": os.getpid(),
+        }
 
     def run(self, seq: str, out: str):
         """Yields {"frame": i, "node", "pid"} per frame written, then {"report": run.json's}
@@ -168,8 +189,7 @@ class _Attempt:
     reported: int = 0
 
 
-def batch(cfg: BatchConfig, progress: bool = True,
-          on_frame: Callable[[str, dict], None] | None = None) -> dict:
+def batch(cfg: BatchConfig, progress: bool = True, on_frame: Callable[[str, dict], None] | None = None) -> dict:
     """Every sequence under ``cfg.input`` through the pipeline on Ray; returns the summary
     (also written to ``OUT/batch.json``). ``on_frame(sequence, item)`` is called for each
     frame a worker reports (``item``: frame index, node, pid)."""
@@ -206,12 +226,21 @@ def batch(cfg: BatchConfig, progress: bool = True,
         done = [r for r in records.values() if r["status"] == "done"]
         frames = sum(r["frames"] for r in done)
         wall = time.perf_counter() - t0
-        summary = {"input": str(cfg.input), "output": str(cfg.output), "config": asdict(cfg), "workers": workers,
-                   "cluster_cpus": resources.get("CPU"), "finished": final, "wall_s": wall,
-                   "frames_processed": frames, "frames_per_s": frames / wall if wall > 0 else None,
-                   "counts": {s: sum(r["status"] == s for r in records.values())
-                              for s in ("done", "skipped", "failed", "pending")},
-                   "sequences": records}
+        summary = {
+            "input": str(cfg.input),
+            "output": str(cfg.output),
+            "config": asdict(cfg),
+            "workers": workers,
+            "cluster_cpus": resources.get("CPU"),
+            "finished": final,
+            "wall_s": wall,
+            "frames_processed": frames,
+            "frames_per_s": frames / wall if wall > 0 else None,
+            "counts": {
+                s: sum(r["status"] == s for r in records.values()) for s in ("done", "skipped", "failed", "pending")
+            },
+            "sequences": records,
+        }
         tmp = out_root / f".{SUMMARY}.tmp"
         tmp.write_text(json.dumps(summary, indent=1))
         os.replace(tmp, out_root / SUMMARY)
@@ -260,9 +289,13 @@ def batch(cfg: BatchConfig, progress: bool = True,
                 write_summary(False)
             elif "report" in item:
                 report = item["report"]
-                records[key].update(status="done", node=item["node"], node_id=item["node_id"],
-                                    median_ms=report["median_ms"]["total"],
-                                    **({"psnr": report["metrics"]["psnr"]} if "metrics" in report else {}))
+                records[key].update(
+                    status="done",
+                    node=item["node"],
+                    node_id=item["node_id"],
+                    median_ms=report["median_ms"]["total"],
+                    **({"psnr": report["metrics"]["psnr"]} if "metrics" in report else {}),
+                )
                 write_summary(False)
             else:
                 attempt.reported += 1
@@ -283,6 +316,7 @@ def _task_error(e) -> str:
 
 
 # --- jnds dataset --address ----------------------------------------------------------------
+
 
 def render_on_ray(render_one: Callable, todo: list, address: str | None, progress: bool = True) -> list:
     """``render_one(job)`` for every job of ``todo`` ((RenderConfig, path) pairs, from

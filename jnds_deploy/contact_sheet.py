@@ -7,6 +7,7 @@ the input's aliasing stays visible).
 
 Array contract: HWC float32 linear HDR; the PNG is 8-bit sRGB-ish, written atomically.
 """
+
 from __future__ import annotations
 
 import os

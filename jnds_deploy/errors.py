@@ -1,6 +1,7 @@
 """Every typed exception of jnds_deploy, in one place. The library raises them with a
 message naming the bad file, layer, channel or value; only the CLI turns them into a
 one-line message and exit code 2."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -79,10 +80,16 @@ class ValidationError(JndsError):
 
     def __init__(self, failures: list[dict]):
         self.failures = failures
-        lines = [f"{f['graph']}:{f['output']} " + (f["why"] if "why" in f else
-                 f"max |diff| {f['max_abs']:.3g} (atol {f['atol']:.3g}), mean {f['mean_abs']:.3g}"
-                 + (f" (mean tol {f['mean_tol']:.3g})" if f.get("mean_tol") is not None else ""))
-                 for f in failures]
+        lines = [
+            f"{f['graph']}:{f['output']} "
+            + (
+                f["why"]
+                if "why" in f
+                else f"max |diff| {f['max_abs']:.3g} (atol {f['atol']:.3g}), mean {f['mean_abs']:.3g}"
+                + (f" (mean tol {f['mean_tol']:.3g})" if f.get("mean_tol") is not None else "")
+            )
+            for f in failures
+        ]
         super().__init__(f"{len(failures)} output(s) failed validation: " + "; ".join(lines))
 
 

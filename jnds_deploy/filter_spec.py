@@ -6,6 +6,7 @@ holds the two equal. Array contract: NCHW float tensors; radiance linear HDR >= 
 stated; kernels are (N, 9, H, W) in row-major 3x3 order (dy, dx) = (-1,-1), (-1,0), ...
 Borders replicate the edge pixel everywhere (padding, warping, upsampling).
 """
+
 from __future__ import annotations
 
 import functools
@@ -13,11 +14,20 @@ import functools
 import torch
 import torch.nn.functional as F
 
-from .layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_ALBEDO, REJECT_COS,
-                     RING_MIN,
-                     SCATTERED_CHANGES, SCATTERED_SHARE,
-                     ROOT_FLOOR, TONEMAP_FLOOR)
-
+from .layout import (
+    BACKGROUND,
+    DIFFUSE_FILL_MIN,
+    DIFFUSE_FILL_TAPS,
+    HDR_MAX,
+    LUMINANCE,
+    REJECT_ALBEDO,
+    REJECT_COS,
+    RING_MIN,
+    ROOT_FLOOR,
+    SCATTERED_CHANGES,
+    SCATTERED_SHARE,
+    TONEMAP_FLOOR,
+)
 
 
 def tonemap(x: torch.Tensor) -> torch.Tensor:
@@ -40,7 +50,7 @@ def apply_kernel(x: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
     out = p[:, :, :h, :w] * kernel[:, 0:1]
     for i in range(1, 9):  # shifted views, no im2col copy (faster than unfold, docs/architecture.md)
         dy, dx = divmod(i, 3)
-        out = out + p[:, :, dy:dy + h, dx:dx + w] * kernel[:, i:i + 1]
+        out = out + p[:, :, dy : dy + h, dx : dx + w] * kernel[:, i : i + 1]
     return out
 
 
@@ -48,8 +58,9 @@ def warp(x: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
     """Bicubic resampling of ``x`` (previous frame) along motion vectors (N, 2, H, W) in
     pixels: out(x, y) = x_prev(x + 0.5 + mx, y + 0.5 + my) in continuous coordinates."""
     n, _, h, w = x.shape
-    ys, xs = torch.meshgrid(torch.arange(h, dtype=x.dtype, device=x.device),
-                            torch.arange(w, dtype=x.dtype, device=x.device), indexing="ij")
+    ys, xs = torch.meshgrid(
+        torch.arange(h, dtype=x.dtype, device=x.device), torch.arange(w, dtype=x.dtype, device=x.device), indexing="ij"
+    )
     px = xs + 0.5 + motion[:, 0]
     py = ys + 0.5 + motion[:, 1]
     grid = torch.stack([2 * px / w - 1, 2 * py / h - 1], dim=-1)
@@ -64,8 +75,11 @@ def offscreen(motion: torch.Tensor) -> torch.Tensor:
     the view, and ``warp``'s border replication would give them the edge's history, a smear
     across a fast pan (docs/ghosting.md)."""
     h, w = motion.shape[-2:]
-    ys, xs = torch.meshgrid(torch.arange(h, dtype=motion.dtype, device=motion.device),
-                            torch.arange(w, dtype=motion.dtype, device=motion.device), indexing="ij")
+    ys, xs = torch.meshgrid(
+        torch.arange(h, dtype=motion.dtype, device=motion.device),
+        torch.arange(w, dtype=motion.dtype, device=motion.device),
+        indexing="ij",
+    )
     px, py = xs + motion[:, 0], ys + motion[:, 1]
     return ((px < -0.5) | (px > w - 0.5) | (py < -0.5) | (py > h - 0.5)).unsqueeze(1)
 
@@ -147,8 +161,9 @@ def _warp_input_grad():
 # 2017) with a 3x3 tolerance. Without it the shipped model pulled an area light's
 # radiance across the black background next to it and kept the ghost frame after frame,
 # and history cost more than no history at all (commit 8f1dc31: benchmarks/results/history_gain.md).
-def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor, albedo: torch.Tensor,
-                warped_albedo: torch.Tensor) -> torch.Tensor:
+def disoccluded(
+    normal: torch.Tensor, warped_normal: torch.Tensor, albedo: torch.Tensor, warped_albedo: torch.Tensor
+) -> torch.Tensor:
     """(N, 1, H, W) bool: where the warped history must not be used, from the current
     normals and albedo and the warped history's (N, 3, H, W; background normal 0).
 
@@ -171,8 +186,8 @@ def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor, albedo: torch
     best = lo = hi = None
     for i in range(9):
         dy, dx = divmod(i, 3)
-        d = (p[:, :, dy:dy + h, dx:dx + w] * warped_normal).sum(1, keepdim=True)
-        n = a[:, :, dy:dy + h, dx:dx + w]
+        d = (p[:, :, dy : dy + h, dx : dx + w] * warped_normal).sum(1, keepdim=True)
+        n = a[:, :, dy : dy + h, dx : dx + w]
         best = d if best is None else torch.maximum(best, d)
         lo = n if lo is None else torch.minimum(lo, n)
         hi = n if hi is None else torch.maximum(hi, n)
@@ -181,8 +196,13 @@ def disoccluded(normal: torch.Tensor, warped_normal: torch.Tensor, albedo: torch
     return background | (surface & (best < REJECT_COS * length)) | outside
 
 
-def history_rejected(normal: torch.Tensor, warped_normal: torch.Tensor, albedo: torch.Tensor,
-                     warped_albedo: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
+def history_rejected(
+    normal: torch.Tensor,
+    warped_normal: torch.Tensor,
+    albedo: torch.Tensor,
+    warped_albedo: torch.Tensor,
+    motion: torch.Tensor,
+) -> torch.Tensor:
     """(N, 1, H, W) bool: where the current inputs replace the warped history: ``disoccluded``
     or ``offscreen``, and a ring around trails. The ring: a pixel beside another surface's
     trail takes its temporal kernel's taps from that trail's neighbourhood, and the warp's
@@ -251,8 +271,9 @@ def scattered_holes(hole: torch.Tensor) -> torch.Tensor:
     from pixel to pixel above ``SCATTERED_CHANGES`` (hair, a medium over a floor; the edge of
     a solid metal object changes once, and its neighbours keep their albedo)."""
     h = hole.float()
-    changes = (F.pad((h[..., :, 1:] - h[..., :, :-1]).abs(), (0, 1))
-               + F.pad((h[..., 1:, :] - h[..., :-1, :]).abs(), (0, 0, 0, 1)))
+    changes = F.pad((h[..., :, 1:] - h[..., :, :-1]).abs(), (0, 1)) + F.pad(
+        (h[..., 1:, :] - h[..., :-1, :]).abs(), (0, 0, 0, 1)
+    )
     share, moves = _binomial(torch.cat([h, changes], 1)).split(1, 1)
     lo, hi = SCATTERED_SHARE
     return (share > lo) & (share < hi) & (moves > SCATTERED_CHANGES)
@@ -293,9 +314,9 @@ def clamp_fireflies(x: torch.Tensor, history: torch.Tensor, k: float) -> torch.T
     bound = None
     for i in range(9):
         dy, dx = divmod(i, 3)
-        m = hist[:, :, dy:dy + h, dx:dx + w]
+        m = hist[:, :, dy : dy + h, dx : dx + w]
         if i != 4:
-            m = torch.maximum(m, cur[:, :, dy:dy + h, dx:dx + w])
+            m = torch.maximum(m, cur[:, :, dy : dy + h, dx : dx + w])
         bound = m if bound is None else torch.maximum(bound, m)
     bound = bound * k
     # lum > bound >= 0 where the ratio is taken; the floor keeps 0 / 0 out of the other branch
@@ -312,8 +333,9 @@ def upsample(x: torch.Tensor, factor: int = 2) -> torch.Tensor:
     return F.interpolate(x, scale_factor=factor, mode="bilinear", align_corners=False)
 
 
-def spatiotemporal(x: torch.Tensor, history: torch.Tensor, k_spatial: torch.Tensor,
-                   k_temporal: torch.Tensor, blend: torch.Tensor) -> torch.Tensor:
+def spatiotemporal(
+    x: torch.Tensor, history: torch.Tensor, k_spatial: torch.Tensor, k_temporal: torch.Tensor, blend: torch.Tensor
+) -> torch.Tensor:
     """Separate 3x3 kernels on the current frame and on the warped history, blended
     linearly with the per-pixel weight ``blend`` in [0, 1] (1 = all history); ReLU."""
     return F.relu(torch.lerp(apply_kernel(x, k_spatial), apply_kernel(history, k_temporal), blend))

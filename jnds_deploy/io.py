@@ -7,6 +7,7 @@ frame files' presence; each frame's pixels are read (and checked) when asked for
 Array contract: every layer is a float32 HWC array, linear values as stored, pixel
 (0, 0) top-left. Single-channel layers keep a trailing axis of 1.
 """
+
 from __future__ import annotations
 
 import json
@@ -49,7 +50,10 @@ OUTPUT_LAYERS = REFERENCE_LAYERS
 # compression)}. float: 32-bit, uncompressed (ZIP took several times as long to write and
 # saved little on a denoised frame: benchmarks/results/exr_write.md); half: 16-bit, PIZ
 # (lossless for half data), a quarter of float ZIP's size
-OUTPUT_FORMATS = {"float": (frozenset(), OpenEXR.NO_COMPRESSION), "half": (frozenset({"color"}), OpenEXR.PIZ_COMPRESSION)}
+OUTPUT_FORMATS = {
+    "float": (frozenset(), OpenEXR.NO_COMPRESSION),
+    "half": (frozenset({"color"}), OpenEXR.PIZ_COMPRESSION),
+}
 
 _FRAME_RE = re.compile(r"^(\d{4,})\.exr$")
 
@@ -91,16 +95,15 @@ def _read_exr(source, name) -> dict[str, np.ndarray]:
             source.seek(0)
         declared = len(OpenEXR.File(source, header_only=True).parts)
         if len(exr.parts) < max(declared, 1):
-            raise ExrReadError(name, f"unreadable or truncated OpenEXR file ({len(exr.parts)} of {declared} "
-                                     "parts readable)")
+            raise ExrReadError(
+                name, f"unreadable or truncated OpenEXR file ({len(exr.parts)} of {declared} parts readable)"
+            )
         channels = {c: ch for part in exr.parts for c, ch in part.channels.items()}
         out = {}
         for cname, ch in channels.items():
             px = ch.pixels
             if px.dtype not in (np.float16, np.float32):
-                raise ExrReadError(
-                    name, f"channel {cname!r} is stored as {px.dtype}, expected half or float"
-                )
+                raise ExrReadError(name, f"channel {cname!r} is stored as {px.dtype}, expected half or float")
             out[cname] = px.astype(np.float32, copy=False)
     except ExrReadError:
         raise
@@ -109,8 +112,12 @@ def _read_exr(source, name) -> dict[str, np.ndarray]:
     return out
 
 
-def exr_bytes(layers: Mapping[str, np.ndarray], suffixes: Mapping[str, tuple[str, ...]],
-              half: set[str] = frozenset(), compression=None) -> bytes:
+def exr_bytes(
+    layers: Mapping[str, np.ndarray],
+    suffixes: Mapping[str, tuple[str, ...]],
+    half: set[str] = frozenset(),
+    compression=None,
+) -> bytes:
     """``write_exr`` into memory; ``compression`` an ``OpenEXR`` constant (default ZIP)."""
     import io
 
@@ -138,9 +145,7 @@ def channels_to_layers(
 ) -> Layers:
     """EXR channels into named HWC layers, checking channels and size (W, H); ``size``
     None takes the size of the first required channel. ``path`` names the file in errors."""
-    missing = [
-        c for layer, sfx in required.items() for c in channel_names(layer, sfx) if c not in raw
-    ]
+    missing = [c for layer, sfx in required.items() for c in channel_names(layer, sfx) if c not in raw]
     if missing:
         raise ChannelError(path, f"missing channel(s) {', '.join(missing)}")
     if size is None:
@@ -155,15 +160,18 @@ def channels_to_layers(
         for n in names:
             if raw[n].shape != (h, w):
                 got = raw[n].shape
-                raise ImageSizeError(
-                    path, f"channel {n!r} is {got[1]}x{got[0]}, expected {w}x{h}"
-                )
+                raise ImageSizeError(path, f"channel {n!r} is {got[1]}x{got[0]}, expected {w}x{h}")
         layers[layer] = np.stack([raw[n] for n in names], axis=-1)
     return layers
 
 
-def write_exr(path: str | Path, layers: Mapping[str, np.ndarray],
-              suffixes: Mapping[str, tuple[str, ...]], half: set[str] = frozenset(), compression=None) -> None:
+def write_exr(
+    path: str | Path,
+    layers: Mapping[str, np.ndarray],
+    suffixes: Mapping[str, tuple[str, ...]],
+    half: set[str] = frozenset(),
+    compression=None,
+) -> None:
     """Write HWC layers as an EXR file, atomically (temp file, then rename).
 
     Layers named in ``half`` are stored as 16-bit half (values clamped to the half
@@ -208,8 +216,10 @@ def _exr_file(layers, suffixes, half, compression=None) -> OpenEXR.File:
             else:
                 c = c.astype(np.float32)
             channels[n] = np.ascontiguousarray(c)
-    header = {"compression": OpenEXR.ZIP_COMPRESSION if compression is None else compression,
-              "type": OpenEXR.scanlineimage}
+    header = {
+        "compression": OpenEXR.ZIP_COMPRESSION if compression is None else compression,
+        "type": OpenEXR.scanlineimage,
+    }
     return OpenEXR.File(header, channels)
 
 
@@ -249,8 +259,7 @@ class Sequence:
         roughness (H, W, 1), motion (H, W, 2); depth (H, W, 1) and denoising_albedo
         (H, W, 3) if present."""
         self._check_index(i)
-        return read_layers(self.input_path(i), self.native_size, INPUT_LAYERS,
-                           OPTIONAL_INPUT_LAYERS)
+        return read_layers(self.input_path(i), self.native_size, INPUT_LAYERS, OPTIONAL_INPUT_LAYERS)
 
     def reference(self, i: int) -> Layers:
         """Layers of reference frame ``i`` at target size: color, and the optional
@@ -258,8 +267,7 @@ class Sequence:
         self._check_index(i)
         if not self.has_reference:
             raise FrameCountError(self.path / "reference", "sequence has no reference frames")
-        return read_layers(self.reference_path(i), self.target_size, REFERENCE_LAYERS,
-                           OPTIONAL_REFERENCE_LAYERS)
+        return read_layers(self.reference_path(i), self.target_size, REFERENCE_LAYERS, OPTIONAL_REFERENCE_LAYERS)
 
     def __iter__(self) -> Iterator[Layers]:
         for i in range(len(self)):
@@ -274,8 +282,11 @@ def _size(path: Path, meta: dict, key: str) -> tuple[int, int] | None:
     v = meta.get(key)
     if v is None:
         return None
-    if (not isinstance(v, list) or len(v) != 2
-            or not all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in v)):
+    if (
+        not isinstance(v, list)
+        or len(v) != 2
+        or not all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in v)
+    ):
         raise SequenceFormatError(path, f"{key!r} must be [W, H] with positive integers, got {v!r}")
     return (v[0], v[1])
 
@@ -367,8 +378,11 @@ def _parse_frames(meta_path: Path, frames, count: int) -> list[FrameInfo]:
         if not isinstance(f, dict) or f.get("index", i) != i:
             raise SequenceFormatError(meta_path, f"frames[{i}] must be an object with index {i}")
         jitter = f.get("jitter", [0.0, 0.0])
-        if (not isinstance(jitter, list) or len(jitter) != 2
-                or not all(isinstance(j, (int, float)) and -0.5 <= j <= 0.5 for j in jitter)):
+        if (
+            not isinstance(jitter, list)
+            or len(jitter) != 2
+            or not all(isinstance(j, (int, float)) and -0.5 <= j <= 0.5 for j in jitter)
+        ):
             raise SequenceFormatError(meta_path, f"frames[{i}].jitter must be [jx, jy] in [-0.5, 0.5], got {jitter!r}")
         cut = f.get("camera_cut", False)
         if not isinstance(cut, bool):
@@ -469,8 +483,7 @@ class SequenceWriter:
     HALF_INPUTS = {"albedo", "normal", "roughness", "denoising_albedo"}
     HALF_REFERENCE = {"color", "diffuse", "specular", "albedo"}
 
-    def __init__(self, path: str | Path, native_size: tuple[int, int],
-                 target_size: tuple[int, int] | None = None):
+    def __init__(self, path: str | Path, native_size: tuple[int, int], target_size: tuple[int, int] | None = None):
         self.path = Path(path)
         self.native_size = tuple(native_size)
         self.target_size = tuple(target_size) if target_size else None
@@ -480,13 +493,18 @@ class SequenceWriter:
 
     def write_inputs(self, i: int, layers: Layers) -> None:
         self._check(layers, self.native_size, "inputs")
-        write_exr(self.path / "inputs" / f"{i:04d}.exr", layers,
-                  {**INPUT_LAYERS, **OPTIONAL_INPUT_LAYERS}, self.HALF_INPUTS)
+        write_exr(
+            self.path / "inputs" / f"{i:04d}.exr", layers, {**INPUT_LAYERS, **OPTIONAL_INPUT_LAYERS}, self.HALF_INPUTS
+        )
 
     def write_reference(self, i: int, layers: Layers) -> None:
         self._check(layers, self.target_size, "reference")
-        write_exr(self.path / "reference" / f"{i:04d}.exr", layers,
-                  {**REFERENCE_LAYERS, **OPTIONAL_REFERENCE_LAYERS}, self.HALF_REFERENCE)
+        write_exr(
+            self.path / "reference" / f"{i:04d}.exr",
+            layers,
+            {**REFERENCE_LAYERS, **OPTIONAL_REFERENCE_LAYERS},
+            self.HALF_REFERENCE,
+        )
 
     def close(self, frames: list[FrameInfo], extra: dict | None = None) -> Path:
         meta = {"format": FORMAT, "native_size": list(self.native_size)}
@@ -494,8 +512,8 @@ class SequenceWriter:
             meta["target_size"] = list(self.target_size)
         meta["frame_count"] = len(frames)
         meta["frames"] = [
-            {"index": f.index, "jitter": [float(f.jitter[0]), float(f.jitter[1])],
-             "camera_cut": bool(f.camera_cut)} for f in frames
+            {"index": f.index, "jitter": [float(f.jitter[0]), float(f.jitter[1])], "camera_cut": bool(f.camera_cut)}
+            for f in frames
         ]
         meta.update(extra or {})
         out = self.path / "sequence.json"

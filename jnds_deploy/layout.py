@@ -3,6 +3,7 @@ suffixes in ``jnds-sequence/1`` and the range the runtime clamps them into. Shar
 the sequence I/O, the model (torch) and the runtime (numpy, no torch), so that deploying
 the ONNX pipeline does not need torch, and every channel index is derived from here.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -8,6 +8,7 @@ The temporal error is Eq. 5 of the paper against the reference: the mean absolut
 difference between the output's and the reference's temporal gradients after warping
 the previous frame along the motion vectors, in LDR.
 """
+
 from __future__ import annotations
 
 import cv2
@@ -45,12 +46,12 @@ def warp_previous(prev: np.ndarray, motion: np.ndarray) -> np.ndarray:
     if s != 1:
         motion = cv2.resize(motion, (w, h), interpolation=cv2.INTER_NEAREST) * s
     y, x = np.mgrid[0:h, 0:w].astype(np.float32)
-    return cv2.remap(prev, x + motion[..., 0], y + motion[..., 1], cv2.INTER_CUBIC,
-                     borderMode=cv2.BORDER_REPLICATE)
+    return cv2.remap(prev, x + motion[..., 0], y + motion[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
 
 
-def temporal_error(outs: list[np.ndarray], refs: list[np.ndarray], motions: list[np.ndarray],
-                   cuts: list[bool] | None = None) -> float:
+def temporal_error(
+    outs: list[np.ndarray], refs: list[np.ndarray], motions: list[np.ndarray], cuts: list[bool] | None = None
+) -> float:
     """Eq. 5 of the paper, averaged over frames 1..N-1 (frames after a cut skipped)."""
     errs = []
     for t in range(1, len(outs)):
@@ -111,8 +112,7 @@ def changed_mask(cur: dict, prev: dict, scale: int = 1) -> np.ndarray:
             ok = inside & (qx >= 0) & (qx < w) & (qy >= 0) & (qy < h)
             qx, qy = np.clip(qx, 0, w - 1), np.clip(qy, 0, h - 1)
             a, n = prev["albedo"][qy, qx], prev["normal"][qy, qx]
-            match = (np.abs(a - cur["albedo"]).max(-1) <= CHANGED_ALBEDO) & (
-                (n * cur["normal"]).sum(-1) >= CHANGED_COS)
+            match = (np.abs(a - cur["albedo"]).max(-1) <= CHANGED_ALBEDO) & ((n * cur["normal"]).sum(-1) >= CHANGED_COS)
             if depth:
                 d, d0 = prev["depth"][qy, qx, 0], cur["depth"][..., 0]
                 match &= np.abs(d - d0) <= CHANGED_DEPTH * np.maximum(d0, 1e-6)
@@ -171,10 +171,15 @@ def motion_warp_error(seq, t: int, layer: str = "albedo") -> dict[str, float]:
     s = w / seq.native_size[0]
     mv = cv2.resize(inputs["motion"], (w, h), interpolation=cv2.INTER_NEAREST) * s
     y, x = np.mgrid[0:h, 0:w].astype(np.float32)
-    warped = cv2.remap(prev, x + mv[..., 0], y + mv[..., 1], cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    edges = cv2.resize(disocclusion_mask(inputs["depth"]).astype(np.uint8), (w, h),
-                       interpolation=cv2.INTER_NEAREST).astype(bool)
+    warped = cv2.remap(
+        prev, x + mv[..., 0], y + mv[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
+    )
+    edges = cv2.resize(
+        disocclusion_mask(inputs["depth"]).astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST
+    ).astype(bool)
     valid = np.isfinite(warped).all(-1) & ~edges
-    return {"warped": float(np.abs(warped - cur)[valid].mean()),
-            "unwarped": float(np.abs(prev - cur)[valid].mean()), "valid": float(valid.mean())}
+    return {
+        "warped": float(np.abs(warped - cur)[valid].mean()),
+        "unwarped": float(np.abs(prev - cur)[valid].mean()),
+        "valid": float(valid.mean()),
+    }

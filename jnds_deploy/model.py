@@ -24,6 +24,7 @@ activation per tensor, affine (uint8), with a trained range [lo, hi] (straight-t
 estimator). A concatenation of skip tensors is quantized once, as one tensor, so both
 parts share one range. Filter paths stay float.
 """
+
 from __future__ import annotations
 
 import math
@@ -36,7 +37,6 @@ import torch.nn.functional as F
 from . import filter_spec as filters
 from .errors import ConfigError
 from .layout import CURRENT, HISTORY, INPUT_BLOCKS, N_CURRENT, N_GUIDE, N_HISTORY, RADIANCE, UPSAMPLE_ROOTS, head_kind  # noqa: F401 (re-exported)
-
 
 
 @dataclass(frozen=True)
@@ -91,8 +91,9 @@ class ModelConfig:
         if depth < 1:
             raise ConfigError("encoder_widths needs at least one U-Net level")
         if not 0 <= self.filter_levels <= depth + 1:
-            raise ConfigError(f"filter_levels must be in [0, {depth + 1}] for U-Net depth {depth}, "
-                             f"got {self.filter_levels}")
+            raise ConfigError(
+                f"filter_levels must be in [0, {depth + 1}] for U-Net depth {depth}, got {self.filter_levels}"
+            )
         if self.input_block not in INPUT_BLOCKS:
             raise ConfigError(f"input_block must be one of {', '.join(INPUT_BLOCKS)}, got {self.input_block!r}")
         if self.upsample_root not in UPSAMPLE_ROOTS:
@@ -105,8 +106,10 @@ class ModelConfig:
             if name != "encoder_widths" and isinstance(v, int) and v < 0:
                 raise ConfigError(f"{name} must be >= 0, got {v}")
         if self.upsample_width == 0 and self.upsample_features:
-            raise ConfigError(f"upsample_width 0 (one fixed kernel) reads no features: upsample_features "
-                              f"must be 0, got {self.upsample_features}")
+            raise ConfigError(
+                f"upsample_width 0 (one fixed kernel) reads no features: upsample_features "
+                f"must be 0, got {self.upsample_features}"
+            )
 
     @property
     def fixed_upsample(self) -> bool:
@@ -153,11 +156,25 @@ class ModelConfig:
             "wide": dict(encoder_widths=(48, 96), bottleneck_width=192, output_width=24),
             # deeper and wider, closer to the paper's network (whose exact widths are in its
             # Fig. 3, not in the text we have): for GPUs and quality comparisons
-            "paper": dict(input_width=32, encoder_widths=(48, 64, 80), bottleneck_width=96,
-                          output_width=32, upsample_features=8, upsample_width=16, filter_levels=4),
+            "paper": dict(
+                input_width=32,
+                encoder_widths=(48, 64, 80),
+                bottleneck_width=96,
+                output_width=32,
+                upsample_features=8,
+                upsample_width=16,
+                filter_levels=4,
+            ),
             # for tests: tiny and fast
-            "tiny": dict(input_width=4, encoder_widths=(6,), bottleneck_width=8, output_width=4,
-                         upsample_features=2, upsample_width=4, filter_levels=2),
+            "tiny": dict(
+                input_width=4,
+                encoder_widths=(6,),
+                bottleneck_width=8,
+                output_width=4,
+                upsample_features=2,
+                upsample_width=4,
+                filter_levels=2,
+            ),
         }
         if name not in presets:
             raise ConfigError(f"unknown preset {name!r}, expected one of {', '.join(presets)}")
@@ -306,8 +323,8 @@ def init_identity(head: nn.Conv2d, sizes: list[tuple[str, int]]) -> None:
             elif name == "features":
                 # features pass a ReLU: near-zero weights and bias left them dead in the
                 # first trained checkpoint (all zero on every input); keep PyTorch's init
-                head.weight[i:i + n] = default[i:i + n]
-                head.bias[i:i + n] = 0.01
+                head.weight[i : i + n] = default[i : i + n]
+                head.bias[i : i + n] = 0.01
             i += n
 
 
@@ -326,7 +343,7 @@ class PhaseMean(nn.Module):
         super().__init__()
         mean = torch.zeros(width, 4 * width, 1, 1)
         for c in range(width):
-            mean[c, 4 * c:4 * c + 4] = 0.25
+            mean[c, 4 * c : 4 * c + 4] = 0.25
         self.register_buffer("weight", mean, persistent=False)
 
     def forward(self, f: torch.Tensor) -> torch.Tensor:
@@ -350,8 +367,9 @@ class InputBlock(nn.Module):
             self.project = QConv(channels, cfg.input_width, 1)
             self.conv = QConv(cfg.input_width, cfg.input_width, 3)
 
-    def forward(self, current: torch.Tensor, history: torch.Tensor,
-                guide: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(
+        self, current: torch.Tensor, history: torch.Tensor, guide: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """current (N, 13, H, W), history (N, 12, H, W): linear, as stored; guide (N, 3, H, W)
         the guide albedo, with ``guide_albedo`` (else None). Returns (native features for
         the output block, pooled features for the U-Net)."""
@@ -369,7 +387,7 @@ def tonemap_inputs(x: torch.Tensor, layout) -> torch.Tensor:
     """Radiance layers through Eq. 1; albedo, roughness as is; normals to [0, 1]."""
     parts, i = [], 0
     for name, c in layout:
-        p = x[:, i:i + c]
+        p = x[:, i : i + c]
         if name in RADIANCE:
             p = filters.tonemap(p)
         elif name == "normal":
@@ -404,7 +422,8 @@ class FeatureExtractor(nn.Module):
         self.bottleneck = DoubleConv(widths[-1], cfg.bottleneck_width)
         dec_out = list(reversed(cfg.encoder_widths))
         self.decoders = nn.ModuleList(
-            DoubleConv(cfg.decoder_inputs[i] + dec_out[i], dec_out[i]) for i in range(cfg.depth))
+            DoubleConv(cfg.decoder_inputs[i] + dec_out[i], dec_out[i]) for i in range(cfg.depth)
+        )
         # level k (1-based, resolution native / 2^k) is predicted by the decoder block at
         # that resolution, the coarsest possible level (depth + 1) by the bottleneck
         self.heads = nn.ModuleDict()
@@ -444,9 +463,11 @@ class OutputBlock(nn.Module):
         self.path_sizes = [("spatial", 9), ("temporal", 9), ("blend", 1)]
         if cfg.filter_levels > 0:
             self.path_sizes += [("up", 9), ("up_blend", 1)]
-        self.sizes = ([(f"diffuse.{n}", s) for n, s in self.path_sizes]
-                      + [(f"specular.{n}", s) for n, s in self.path_sizes]
-                      + [("aux.spatial", 9), ("aux.temporal", 9), ("aux.blend", 1)])
+        self.sizes = (
+            [(f"diffuse.{n}", s) for n, s in self.path_sizes]
+            + [(f"specular.{n}", s) for n, s in self.path_sizes]
+            + [("aux.spatial", 9), ("aux.temporal", 9), ("aux.blend", 1)]
+        )
         if cfg.scale > 1 and cfg.upsample_features:
             self.sizes.append(("features", cfg.upsample_features))
         self.head = QConv(cfg.output_width, sum(s for _, s in self.sizes), 1)
@@ -475,8 +496,9 @@ class JNDSNetwork(nn.Module):
         self.feature_extractor = FeatureExtractor(cfg)
         self.output_block = OutputBlock(cfg)
 
-    def forward(self, current: torch.Tensor, history: torch.Tensor,
-                guide: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def forward(
+        self, current: torch.Tensor, history: torch.Tensor, guide: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
         if (guide is not None) != self.cfg.guide_albedo:
             raise ConfigError(f"the network {'reads' if self.cfg.guide_albedo else 'has no'} guide albedo input")
         native, pooled = self.input_block(current, history, guide)
@@ -614,9 +636,14 @@ class JNDS(nn.Module):
         self.network = JNDSNetwork(cfg)
         self.upsample_block = UpsampleBlock(cfg) if cfg.scale > 1 else None
 
-    def forward(self, current: torch.Tensor, motion: torch.Tensor,
-                history: torch.Tensor | None, reset: torch.Tensor | None = None,
-                guide: torch.Tensor | None = None) -> FrameOutput:
+    def forward(
+        self,
+        current: torch.Tensor,
+        motion: torch.Tensor,
+        history: torch.Tensor | None,
+        reset: torch.Tensor | None = None,
+        guide: torch.Tensor | None = None,
+    ) -> FrameOutput:
         """One frame. ``current`` (N, 13, H, W) linear inputs; ``motion`` (N, 2, H, W);
         ``history`` the previous frame's ``FrameOutput.history()`` or None (first frame,
         camera cut): then the current inputs stand in for the history. ``reset`` (N,) bool:
@@ -639,12 +666,20 @@ class JNDS(nn.Module):
             warped = filters.warp(history, motion)
             # bicubic overshoot: radiance and albedo stay >= 0, normals in [-1, 1]
             w = split_history(warped)
-            warped = torch.cat([w["diffuse"].clamp_min(0), w["specular"].clamp_min(0),
-                                w["albedo"].clamp(0, 1), w["normal"].clamp(-1, 1)], 1)
+            warped = torch.cat(
+                [
+                    w["diffuse"].clamp_min(0),
+                    w["specular"].clamp_min(0),
+                    w["albedo"].clamp(0, 1),
+                    w["normal"].clamp(-1, 1),
+                ],
+                1,
+            )
             # where the history shows another surface, or the pixel sees background, the
             # current inputs stand in for it, as in the first frame
-            rejected = filters.history_rejected(cur["normal"], w["normal"].clamp(-1, 1), cur["albedo"],
-                                                w["albedo"].clamp(0, 1), motion)
+            rejected = filters.history_rejected(
+                cur["normal"], w["normal"].clamp(-1, 1), cur["albedo"], w["albedo"].clamp(0, 1), motion
+            )
             warped = torch.where(rejected, cur_hist, warped)
             if reset is not None:
                 warped = torch.where(reset.view(-1, 1, 1, 1), cur_hist, warped)
@@ -657,20 +692,25 @@ class JNDS(nn.Module):
         hist = split_history(warped)
         paths = {}
         for p in ("diffuse", "specular"):
-            native = {k: net[f"{p}.{k}"] for k in ("spatial", "temporal", "blend", "up", "up_blend")
-                      if f"{p}.{k}" in net}
+            native = {
+                k: net[f"{p}.{k}"] for k in ("spatial", "temporal", "blend", "up", "up_blend") if f"{p}.{k}" in net
+            }
             levels = []
             for k in range(1, self.cfg.filter_levels + 1):
-                levels.append({n: net[f"{p}.level{k}.{n}"] for n in ("down", "up", "up_blend")
-                               if f"{p}.level{k}.{n}" in net})
+                levels.append(
+                    {n: net[f"{p}.level{k}.{n}"] for n in ("down", "up", "up_blend") if f"{p}.level{k}.{n}" in net}
+                )
             paths[p] = filters.filter_path(cur[p], hist[p], native, levels)
-        aux = [filters.spatiotemporal(x, h, net["aux.spatial"], net["aux.temporal"], net["aux.blend"])
-               for x, h in ((cur["albedo"], hist["albedo"]), (cur["normal"] * 0.5 + 0.5, hist["normal"] * 0.5 + 0.5))]
+        aux = [
+            filters.spatiotemporal(x, h, net["aux.spatial"], net["aux.temporal"], net["aux.blend"])
+            for x, h in ((cur["albedo"], hist["albedo"]), (cur["normal"] * 0.5 + 0.5, hist["normal"] * 0.5 + 0.5))
+        ]
         albedo, normal = aux[0], aux[1] * 2.0 - 1.0
         lit = filters.albedo_at_holes(albedo, filters.scattered_holes(holes)) if holes is not None else albedo
         comp = filters.composite(lit, paths["diffuse"], paths["specular"])
-        return FrameOutput(paths["diffuse"], paths["specular"], albedo, normal, comp,
-                           self.upsample(comp, net.get("features")))
+        return FrameOutput(
+            paths["diffuse"], paths["specular"], albedo, normal, comp, self.upsample(comp, net.get("features"))
+        )
 
     def upsample(self, composite: torch.Tensor, features: torch.Tensor | None) -> torch.Tensor:
         """The upsample block and its filter: the target-resolution output of a native
@@ -700,14 +740,22 @@ def count_macs(cfg: ModelConfig, width: int = 1280, height: int = 720) -> dict[s
         def f(mod, inp, out):
             k = mod.kernel_size[0] * mod.kernel_size[1] * mod.in_channels // mod.groups
             counts[name] = counts.get(name, 0.0) + out.numel() * k / 1e9
+
         return f
 
-    stages = {"input_block": model.network.input_block, "feature_extractor": model.network.feature_extractor,
-              "output_block": model.network.output_block}
+    stages = {
+        "input_block": model.network.input_block,
+        "feature_extractor": model.network.feature_extractor,
+        "output_block": model.network.output_block,
+    }
     if model.upsample_block is not None:
         stages["upsample_block"] = model.upsample_block
-    handles = [m.register_forward_hook(hook(stage)) for stage, block in stages.items()
-               for m in block.modules() if isinstance(m, nn.Conv2d)]
+    handles = [
+        m.register_forward_hook(hook(stage))
+        for stage, block in stages.items()
+        for m in block.modules()
+        if isinstance(m, nn.Conv2d)
+    ]
     x, _ = pad_to_multiple(torch.zeros(1, N_CURRENT, height, width), cfg.pad_multiple)
     with torch.no_grad():
         model(x, torch.zeros(1, 2, *x.shape[-2:]), None)

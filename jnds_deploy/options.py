@@ -16,6 +16,7 @@ keywords of ``ArgumentParser.add_argument``, and ``flag`` names the option.
 This module imports nothing heavy: the configuration modules that use it stay cheap to
 import, and so does ``jnds --help``.
 """
+
 from __future__ import annotations
 
 import argparse

@@ -25,6 +25,7 @@ pool), and `jnds run`'s ``gc.freeze`` (``cli``).
 This module imports only the standard library: each setting imports what it changes when
 it is made, so that `jnds run` can make them before numpy, numba and ONNX Runtime load.
 """
+
 from __future__ import annotations
 
 import ctypes

@@ -1,5 +1,6 @@
 """Sub-pixel jitter: the Halton (2, 3) sequence, in plain Python (the Mitsuba renderer and
 the Blender side, which has no numpy 2 and none of this package's dependencies, share it)."""
+
 from __future__ import annotations
 
 

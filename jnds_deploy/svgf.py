@@ -21,6 +21,7 @@ Then remodulation (albedo * diffuse + specular). The kernels are numba-compiled 
 (``numba``, in the ``bench`` extra): SVGF is a GPU algorithm, and a pure numpy version
 would be timed as slow for the wrong reason.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -48,13 +49,25 @@ def _pow128(x):
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def _reproject(color, prev_color, prev_moments, prev_len, motion, depth, prev_depth, normal, prev_normal,
-               out_color, out_moments, out_len):
+def _reproject(
+    color,
+    prev_color,
+    prev_moments,
+    prev_len,
+    motion,
+    depth,
+    prev_depth,
+    normal,
+    prev_normal,
+    out_color,
+    out_moments,
+    out_len,
+):
     h, w = depth.shape
     for y in prange(h):
         for x in range(w):
             c = color[y, x]
-            l = _lum(c[0], c[1], c[2])
+            lum = _lum(c[0], c[1], c[2])
             # where this pixel's surface point was in the previous frame (sequence format)
             px = x + motion[y, x, 0]
             py = y + motion[y, x, 1]
@@ -73,8 +86,11 @@ def _reproject(color, prev_color, prev_moments, prev_len, motion, depth, prev_de
                     # consistency: relative depth and normal agreement
                     if abs(prev_depth[yy, xx] - depth[y, x]) > 0.1 * max(depth[y, x], 1e-3):
                         continue
-                    nd = (normal[y, x, 0] * prev_normal[yy, xx, 0] + normal[y, x, 1] * prev_normal[yy, xx, 1]
-                          + normal[y, x, 2] * prev_normal[yy, xx, 2])
+                    nd = (
+                        normal[y, x, 0] * prev_normal[yy, xx, 0]
+                        + normal[y, x, 1] * prev_normal[yy, xx, 1]
+                        + normal[y, x, 2] * prev_normal[yy, xx, 2]
+                    )
                     if nd < 0.9:
                         continue
                     wt = (fx if i else 1 - fx) * (fy if j else 1 - fy)
@@ -92,14 +108,14 @@ def _reproject(color, prev_color, prev_moments, prev_len, motion, depth, prev_de
                 am = max(ALPHA_MOMENTS, 1.0 / n)
                 for k in range(3):
                     out_color[y, x, k] = (1 - a) * acc[k] / wsum + a * c[k]
-                out_moments[y, x, 0] = (1 - am) * m1 / wsum + am * l
-                out_moments[y, x, 1] = (1 - am) * m2 / wsum + am * l * l
+                out_moments[y, x, 0] = (1 - am) * m1 / wsum + am * lum
+                out_moments[y, x, 1] = (1 - am) * m2 / wsum + am * lum * lum
                 out_len[y, x] = n
             else:
                 for k in range(3):
                     out_color[y, x, k] = c[k]
-                out_moments[y, x, 0] = l
-                out_moments[y, x, 1] = l * l
+                out_moments[y, x, 0] = lum
+                out_moments[y, x, 1] = lum * lum
                 out_len[y, x] = 1.0
 
 
@@ -121,8 +137,11 @@ def _variance(color, moments, hist_len, depth, normal, out_var):
                     yy, xx = y + dy, x + dx
                     if xx < 0 or yy < 0 or xx >= w or yy >= h:
                         continue
-                    nd = (normal[y, x, 0] * normal[yy, xx, 0] + normal[y, x, 1] * normal[yy, xx, 1]
-                          + normal[y, x, 2] * normal[yy, xx, 2])
+                    nd = (
+                        normal[y, x, 0] * normal[yy, xx, 0]
+                        + normal[y, x, 1] * normal[yy, xx, 1]
+                        + normal[y, x, 2] * normal[yy, xx, 2]
+                    )
                     wn = _pow128(nd)
                     wz = np.exp(-abs(depth[y, x] - depth[yy, xx]) / (SIGMA_Z * max(depth[y, x], 1e-3) * 0.05 + 1e-6))
                     lq = _lum(color[yy, xx, 0], color[yy, xx, 1], color[yy, xx, 2])
@@ -164,8 +183,11 @@ def _atrous(color, var, depth, dgrad, normal, step, out_color, out_var):
                     if dx == 0 and dy == 0:
                         wt = 1.0
                     else:
-                        nd = (normal[y, x, 0] * normal[yy, xx, 0] + normal[y, x, 1] * normal[yy, xx, 1]
-                              + normal[y, x, 2] * normal[yy, xx, 2])
+                        nd = (
+                            normal[y, x, 0] * normal[yy, xx, 0]
+                            + normal[y, x, 1] * normal[yy, xx, 1]
+                            + normal[y, x, 2] * normal[yy, xx, 2]
+                        )
                         wn = _pow128(nd)
                         dist = np.sqrt(float(dx * dx + dy * dy))
                         wz = -abs(depth[y, x] - depth[yy, xx]) / (SIGMA_Z * dgrad[y, x] * dist + 1e-6)
@@ -203,8 +225,20 @@ class SVGF:
             lum = 0.2126 * color[..., 0] + 0.7152 * color[..., 1] + 0.0722 * color[..., 2]
             col[:], mom[..., 0], mom[..., 1], hl[:] = color, lum, lum * lum, 1.0
         else:
-            _reproject(color, prev[name]["color"], prev[name]["moments"], prev[name]["len"], self.motion, depth,
-                       prev["depth"], normal, prev["normal"], col, mom, hl)
+            _reproject(
+                color,
+                prev[name]["color"],
+                prev[name]["moments"],
+                prev[name]["len"],
+                self.motion,
+                depth,
+                prev["depth"],
+                normal,
+                prev["normal"],
+                col,
+                mom,
+                hl,
+            )
         var = np.empty((h, w), np.float32)
         _variance(col, mom, hl, depth, normal, var)
         history = col

@@ -7,6 +7,7 @@ wheel (H.264, yuv420p: what browsers and players take); ``display`` maps a frame
 
 Array contract: frames HWC float32 linear HDR in, uint8 RGB to the encoder.
 """
+
 from __future__ import annotations
 
 import os
@@ -59,13 +60,21 @@ class Mp4Writer:
         frame = np.pad(frame, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
         if self._gen is None:
             self.size = frame.shape[1], frame.shape[0]
-            self._gen = self._ffmpeg.write_frames(str(self._tmp), self.size, fps=self.fps, codec="libx264",
-                                                  quality=QUALITY, pix_fmt_out="yuv420p", macro_block_size=1,
-                                                  output_params=["-movflags", "+faststart"])
+            self._gen = self._ffmpeg.write_frames(
+                str(self._tmp),
+                self.size,
+                fps=self.fps,
+                codec="libx264",
+                quality=QUALITY,
+                pix_fmt_out="yuv420p",
+                macro_block_size=1,
+                output_params=["-movflags", "+faststart"],
+            )
             self._gen.send(None)
         elif (frame.shape[1], frame.shape[0]) != self.size:
-            raise ValueError(f"{self.path}: frame of {frame.shape[1]}x{frame.shape[0]} in a video of "
-                             f"{self.size[0]}x{self.size[1]}")
+            raise ValueError(
+                f"{self.path}: frame of {frame.shape[1]}x{frame.shape[0]} in a video of {self.size[0]}x{self.size[1]}"
+            )
         self._gen.send(np.ascontiguousarray(frame))
         self.frames += 1
 

@@ -42,8 +42,7 @@ def random_inputs(rng: np.random.Generator, w: int, h: int) -> dict:
 
 
 def random_reference(rng: np.random.Generator, w: int, h: int) -> dict:
-    return {"color": rng.random((h, w, 3)).astype(np.float32) * 4,
-            "albedo": rng.random((h, w, 3)).astype(np.float32)}
+    return {"color": rng.random((h, w, 3)).astype(np.float32) * 4, "albedo": rng.random((h, w, 3)).astype(np.float32)}
 
 
 @pytest.fixture
@@ -82,8 +81,17 @@ def _tiny_artifacts(tmp_path_factory, **config):
         if "head" in name or name == "upsample_block.fixed":
             p.data += 0.3 * torch.randn_like(p)
     ckpt = d / "tiny.pt"
-    torch.save({"model": model.state_dict(), "model_config": model.cfg.__dict__, "train_config": {},
-                "quantized": False, "quant_ranges": None, "state": {}}, ckpt)
+    torch.save(
+        {
+            "model": model.state_dict(),
+            "model_config": model.cfg.__dict__,
+            "train_config": {},
+            "quantized": False,
+            "quant_ranges": None,
+            "state": {},
+        },
+        ckpt,
+    )
     export(ExportConfig(checkpoint=str(ckpt), out=str(d / "a")), log=lambda s: None)
     return d / "a", model
 

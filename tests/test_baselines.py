@@ -1,4 +1,5 @@
 """The baselines of ``jnds evaluate``: OIDN takes the guide albedo a renderer's user gives it."""
+
 import numpy as np
 import pytest
 

@@ -1,6 +1,7 @@
 """Every benchmark imports and runs: ``python -m benchmarks.<name> --smoke`` (a tiny input,
 seconds) exits 0 and writes its report, with the keys the committed reports have, into the
 --out given here (never benchmarks/results)."""
+
 import importlib.util
 import json
 import os
@@ -11,7 +12,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from .conftest import ROOT, SAMPLE
+from .conftest import ROOT
 
 
 @dataclass(frozen=True)
@@ -30,28 +31,49 @@ def _keys(*names: str) -> frozenset[str]:
 
 
 SMOKES = {
-    "adaptive": Smoke(_keys("command", "sequences", "native_720p", "size"), out="adaptive", json="adaptive/adaptive.json",
-                      needs=("flip_evaluator", "skimage"), slow=True),
+    "adaptive": Smoke(
+        _keys("command", "sequences", "native_720p", "size"),
+        out="adaptive",
+        json="adaptive/adaptive.json",
+        needs=("flip_evaluator", "skimage"),
+        slow=True,
+    ),
     "batch_throughput": Smoke(_keys("command", "results", "runs", "size"), needs=("ray",)),
-    "calibration": Smoke(_keys("command", "timing", "accuracy", "profiles"), artifacts=False,
-                         needs=("flip_evaluator", "skimage"), slow=True),
-    "dataset_report": Smoke(_keys("command", "totals", "warped_mean"), out="dataset.md", json="dataset.json",
-                            artifacts=False),
+    "calibration": Smoke(
+        _keys("command", "timing", "accuracy", "profiles"),
+        artifacts=False,
+        needs=("flip_evaluator", "skimage"),
+        slow=True,
+    ),
+    "dataset_report": Smoke(
+        _keys("command", "totals", "warped_mean"), out="dataset.md", json="dataset.json", artifacts=False
+    ),
     "exposure_sweep": Smoke(_keys("command", "rows", "worst_int8_minus_fp32_db"), needs=("flip_evaluator",)),
     "exr_write": Smoke(_keys("command", "median_ms", "bytes", "exact")),
     "firefly_clamp": Smoke(_keys("command", "factors", "report"), needs=("flip_evaluator", "skimage")),
-    "ghosting": Smoke(_keys("command", "mean", "sequences", "sheet", "video"),
-                      needs=("pyoidn", "flip_evaluator", "skimage", "imageio_ffmpeg")),
+    "ghosting": Smoke(
+        _keys("command", "mean", "sequences", "sheet", "video"),
+        needs=("pyoidn", "flip_evaluator", "skimage", "imageio_ffmpeg"),
+    ),
     "memory": Smoke(_keys("command", "sizes", "peak_mib_per_megapixel", "oidn_balanced_ms"), needs=("pyoidn",)),
-    "render_timing": Smoke(_keys("command", "size", "spp2", "variant"), out="render_timing.json",
-                           json="render_timing.json", markdown=False, artifacts=False, needs=("mitsuba",)),
+    "render_timing": Smoke(
+        _keys("command", "size", "spp2", "variant"),
+        out="render_timing.json",
+        json="render_timing.json",
+        markdown=False,
+        artifacts=False,
+        needs=("mitsuba",),
+    ),
     "serve_fuzz": Smoke(_keys("command", "statuses", "server_alive", "slow_clients")),
     "serve_load": Smoke(_keys("command", "results", "long", "server_metrics")),
     "serve_warmup": Smoke(_keys("command", "median", "runs")),
     "stability": Smoke(_keys("command", "long", "int8_range", "nan_floods", "fp16", "fuzz_frames", "fuzz_exr")),
     "timing": Smoke(_keys("command", "results", "cpu_peaks", "gemm_throughput", "copy_bandwidth_gb_s"), slow=True),
-    "tradeoff": Smoke(_keys("command", "methods", "head_to_head"),
-                      needs=("pyoidn", "flip_evaluator", "skimage", "matplotlib"), slow=True),
+    "tradeoff": Smoke(
+        _keys("command", "methods", "head_to_head"),
+        needs=("pyoidn", "flip_evaluator", "skimage", "matplotlib"),
+        slow=True,
+    ),
     "train_throughput": Smoke(_keys("command", "phases_s", "step_s", "patches_per_s"), artifacts=False, slow=True),
 }
 
@@ -66,7 +88,9 @@ def _env() -> dict[str, str]:
     return {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
 
 
-@pytest.mark.parametrize("name", [pytest.param(n, marks=[pytest.mark.slow] if s.slow else []) for n, s in SMOKES.items()])
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=[pytest.mark.slow] if s.slow else []) for n, s in SMOKES.items()]
+)
 def test_smoke(name, tmp_path, request):
     smoke = SMOKES[name]
     for module in smoke.needs:
@@ -89,6 +113,11 @@ def test_smoke(name, tmp_path, request):
 
 
 def test_smoke_refuses_to_write_into_the_results():
-    proc = subprocess.run([sys.executable, "-m", "benchmarks.dataset_report", "--smoke"], cwd=ROOT, env=_env(),
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "benchmarks.dataset_report", "--smoke"],
+        cwd=ROOT,
+        env=_env(),
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2 and "outside benchmarks/results" in proc.stderr

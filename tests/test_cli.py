@@ -1,6 +1,7 @@
 """The ``jnds`` command line. Every error a user can make with a path -- missing data,
 checkpoint, artifacts, sequence -- is one line on stderr naming the path, and exit code 2.
 Each option is written once, on its configuration dataclass, its default included."""
+
 import pytest
 
 from jnds_deploy.cli import main
@@ -8,22 +9,31 @@ from jnds_deploy.cli import main
 from .conftest import SAMPLE
 
 
-@pytest.mark.parametrize("argv, names", [
-    (["train", "--data", "{tmp}/nodata", "--run", "{tmp}/run", "--quiet"], "{tmp}/nodata/train"),
-    (["train-feature-net", "--data", "{tmp}/nodata", "--out", "{tmp}/f.pt", "--quiet"], "{tmp}/nodata/train"),
-    (["evaluate", "--checkpoint", "{tmp}/none.pt", "--data", str(SAMPLE), "--baselines"], "{tmp}/none.pt"),
-    (["evaluate", "--data", "{tmp}/noseq", "--baselines", "bicubic"], "{tmp}/noseq"),
-    (["export", "--checkpoint", "{tmp}/none.pt", "--out", "{tmp}/art"], "{tmp}/none.pt"),
-    (["calibrate", "--artifacts", "{tmp}/noart", "--data", str(SAMPLE)], "{tmp}/noart/manifest.json"),
-    (["run", "--artifacts", "{tmp}/noart", "--input", str(SAMPLE), "--output", "{tmp}/o", "--quiet"],
-     "{tmp}/noart/manifest.json"),
-    (["run", "--artifacts", "{tmp}/noart", "--input", "{tmp}/noseq", "--output", "{tmp}/o", "--quiet"],
-     "{tmp}/noseq"),
-    (["validate", "{tmp}/noseq"], "{tmp}/noseq"),
-    (["serve", "--artifacts", "{tmp}/noart"], "{tmp}/noart/manifest.json"),
-    (["batch", "--artifacts", "{tmp}/noart", "--input", str(SAMPLE), "--output", "{tmp}/o", "--quiet"],
-     "{tmp}/noart/manifest.json"),
-])
+@pytest.mark.parametrize(
+    "argv, names",
+    [
+        (["train", "--data", "{tmp}/nodata", "--run", "{tmp}/run", "--quiet"], "{tmp}/nodata/train"),
+        (["train-feature-net", "--data", "{tmp}/nodata", "--out", "{tmp}/f.pt", "--quiet"], "{tmp}/nodata/train"),
+        (["evaluate", "--checkpoint", "{tmp}/none.pt", "--data", str(SAMPLE), "--baselines"], "{tmp}/none.pt"),
+        (["evaluate", "--data", "{tmp}/noseq", "--baselines", "bicubic"], "{tmp}/noseq"),
+        (["export", "--checkpoint", "{tmp}/none.pt", "--out", "{tmp}/art"], "{tmp}/none.pt"),
+        (["calibrate", "--artifacts", "{tmp}/noart", "--data", str(SAMPLE)], "{tmp}/noart/manifest.json"),
+        (
+            ["run", "--artifacts", "{tmp}/noart", "--input", str(SAMPLE), "--output", "{tmp}/o", "--quiet"],
+            "{tmp}/noart/manifest.json",
+        ),
+        (
+            ["run", "--artifacts", "{tmp}/noart", "--input", "{tmp}/noseq", "--output", "{tmp}/o", "--quiet"],
+            "{tmp}/noseq",
+        ),
+        (["validate", "{tmp}/noseq"], "{tmp}/noseq"),
+        (["serve", "--artifacts", "{tmp}/noart"], "{tmp}/noart/manifest.json"),
+        (
+            ["batch", "--artifacts", "{tmp}/noart", "--input", str(SAMPLE), "--output", "{tmp}/o", "--quiet"],
+            "{tmp}/noart/manifest.json",
+        ),
+    ],
+)
 def test_missing_paths_are_one_line_errors(argv, names, tmp_path, capsys):
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
     assert main(argv) == 2
@@ -43,8 +53,21 @@ def test_a_file_that_is_not_a_checkpoint_is_named(tmp_path, capsys):
 def test_batch_without_sequences_is_a_one_line_error(tiny_artifacts, tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     for root in ("empty", "missing"):
-        assert main(["batch", "--artifacts", str(tiny_artifacts[0]), "--input", str(tmp_path / root),
-                     "--output", str(tmp_path / "o"), "--quiet"]) == 2
+        assert (
+            main(
+                [
+                    "batch",
+                    "--artifacts",
+                    str(tiny_artifacts[0]),
+                    "--input",
+                    str(tmp_path / root),
+                    "--output",
+                    str(tmp_path / "o"),
+                    "--quiet",
+                ]
+            )
+            == 2
+        )
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("jnds batch: error: ") and str(tmp_path / root) in err[0], err
 
@@ -55,8 +78,7 @@ def test_dataset_reports_a_resumed_sequence(tmp_path, capsys, monkeypatch):
     import jnds_deploy.render.dataset as dataset
 
     seq = tmp_path / "train" / "a"
-    monkeypatch.setattr(dataset, "render_dataset",
-                        lambda *a, **k: [(seq, {"inputs": None, "reference": 12.5})])
+    monkeypatch.setattr(dataset, "render_dataset", lambda *a, **k: [(seq, {"inputs": None, "reference": 12.5})])
     assert main(["dataset", "--out", str(tmp_path), "--split", "train", "--quiet"]) == 0
     out = capsys.readouterr().out
     assert f"{seq}: inputs none rendered in this run, reference 12.50 s/frame" in out
@@ -68,10 +90,28 @@ def test_int8_by_default_needs_calibrated_artifacts(tiny_artifacts, tmp_path, ca
     from jnds_deploy.cluster import BatchConfig
     from jnds_deploy.runtime import PipelineConfig
     from jnds_deploy.serve import ServeConfig
-    assert PipelineConfig(artifacts="a").precision == BatchConfig("a", "b", "c").precision == \
-        ServeConfig(artifacts="a").precision == "int8"
-    assert main(["run", "--artifacts", str(tiny_artifacts[0]), "--input", str(SAMPLE), "--output",
-                 str(tmp_path / "o"), "--quiet"]) == 2
+
+    assert (
+        PipelineConfig(artifacts="a").precision
+        == BatchConfig("a", "b", "c").precision
+        == ServeConfig(artifacts="a").precision
+        == "int8"
+    )
+    assert (
+        main(
+            [
+                "run",
+                "--artifacts",
+                str(tiny_artifacts[0]),
+                "--input",
+                str(SAMPLE),
+                "--output",
+                str(tmp_path / "o"),
+                "--quiet",
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no int8 graphs" in err[0], err
     assert "`jnds calibrate" in err[0] and "--precision fp32" in err[0]
@@ -87,8 +127,16 @@ def test_train_init_carries_the_checkpoints_model_settings_unless_given(tmp_path
     from jnds_deploy.model import ModelConfig
     from jnds_deploy.training.config import TrainConfig
 
-    model = ModelConfig.preset("tiny", output_width=2, upsample_root=4, firefly_clamp=16.0, diffuse_fill=True,
-                               albedo_at_holes=True, upsample_width=0, upsample_features=0)
+    model = ModelConfig.preset(
+        "tiny",
+        output_width=2,
+        upsample_root=4,
+        firefly_clamp=16.0,
+        diffuse_fill=True,
+        albedo_at_holes=True,
+        upsample_width=0,
+        upsample_features=0,
+    )
     ckpt = tmp_path / "init.pt"
     torch.save({"model": {}, "model_config": model.__dict__, "train_config": {"preset": "tiny"}}, ckpt)
     seen = []
@@ -109,11 +157,16 @@ def test_train_init_carries_the_checkpoints_model_settings_unless_given(tmp_path
 
 
 # the commands whose options are derived from a configuration dataclass (options.add_options)
-CONFIGS = {"render": "jnds_deploy.render.RenderConfig", "train": "jnds_deploy.training.config.TrainConfig",
-           "train-feature-net": "jnds_deploy.training.feature_loss.FeatureNetConfig",
-           "export": "jnds_deploy.export.ExportConfig", "calibrate": "jnds_deploy.calibration.CalibrateConfig",
-           "serve": "jnds_deploy.serve.ServeConfig", "batch": "jnds_deploy.cluster.BatchConfig",
-           "run": "jnds_deploy.runtime.PipelineConfig"}
+CONFIGS = {
+    "render": "jnds_deploy.render.RenderConfig",
+    "train": "jnds_deploy.training.config.TrainConfig",
+    "train-feature-net": "jnds_deploy.training.feature_loss.FeatureNetConfig",
+    "export": "jnds_deploy.export.ExportConfig",
+    "calibrate": "jnds_deploy.calibration.CalibrateConfig",
+    "serve": "jnds_deploy.serve.ServeConfig",
+    "batch": "jnds_deploy.cluster.BatchConfig",
+    "run": "jnds_deploy.runtime.PipelineConfig",
+}
 
 
 @pytest.mark.parametrize("command", sorted(CONFIGS))
@@ -151,8 +204,7 @@ def test_every_flags_default_is_its_dataclass_fields(command, monkeypatch):
     required = [a for a in parser._actions if a.required and a.option_strings]
     argv = [command] + [v for a in required for v in (a.option_strings[0], "x")]
     args = build_parser().parse_args(argv)
-    assert given(args, cls) == {a.dest: ("x",) if a.nargs == "+" else "x" for a in required
-                                if a.dest in fields}
+    assert given(args, cls) == {a.dest: ("x",) if a.nargs == "+" else "x" for a in required if a.dest in fields}
     assert set(COMMANDS) >= set(CONFIGS)
 
 
@@ -175,14 +227,17 @@ def test_the_parser_imports_no_torch():
     --help, numpy): a command's options load with the command."""
     import subprocess
     import sys
-    code = ("import sys; sys.modules['torch'] = None\n"
-            "from jnds_deploy.cli import build_parser\n"
-            "for argv in (['--help'], ['run', '--help'], ['batch', '--help'], ['train', '--help']):\n"
-            "    try:\n"
-            "        build_parser().parse_args(argv)\n"
-            "    except SystemExit as e:\n"
-            "        assert e.code == 0, argv\n"
-            "    if argv == ['--help']:\n"
-            "        assert 'numpy' not in sys.modules, 'numpy was imported'\n")
+
+    code = (
+        "import sys; sys.modules['torch'] = None\n"
+        "from jnds_deploy.cli import build_parser\n"
+        "for argv in (['--help'], ['run', '--help'], ['batch', '--help'], ['train', '--help']):\n"
+        "    try:\n"
+        "        build_parser().parse_args(argv)\n"
+        "    except SystemExit as e:\n"
+        "        assert e.code == 0, argv\n"
+        "    if argv == ['--help']:\n"
+        "        assert 'numpy' not in sys.modules, 'numpy was imported'\n"
+    )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]

@@ -1,6 +1,7 @@
 """``jnds batch`` and ``jnds dataset --address`` on a real local Ray (two CPUs): outputs equal
 to ``jnds run``'s, nothing lost when a worker is SIGKILLed mid-sequence, complete sequences
 skipped on a re-run, a bad sequence failing alone."""
+
 import json
 import os
 import shutil
@@ -21,6 +22,7 @@ ray = pytest.importorskip("ray")
 @pytest.fixture(scope="module")
 def local_ray():
     from jnds_deploy.cluster import connect
+
     connect(cpus=2)
     yield
     ray.shutdown()
@@ -48,8 +50,13 @@ def _frames(path, n):
 
 def _assert_same_as_run(artifacts, seq, out, tmp_path, precision="fp32"):
     ref = tmp_path / ("run-" + seq.name)
-    run_sequence(PipelineConfig(artifacts=str(artifacts), precision=precision, threads=1), seq, ref,
-                 progress=False, metrics=False)
+    run_sequence(
+        PipelineConfig(artifacts=str(artifacts), precision=precision, threads=1),
+        seq,
+        ref,
+        progress=False,
+        metrics=False,
+    )
     n = len(open_sequence(seq))
     for i, (a, b) in enumerate(zip(_frames(out, n), _frames(ref, n))):
         for k in b:
@@ -58,8 +65,15 @@ def _assert_same_as_run(artifacts, seq, out, tmp_path, precision="fp32"):
 
 def test_batch_writes_what_run_writes_and_a_rerun_skips(local_ray, tiny_artifacts, shots, tmp_path):
     from jnds_deploy.cluster import SUMMARY, BatchConfig, batch
-    cfg = BatchConfig(artifacts=str(tiny_artifacts[0]), precision="fp32", input=str(shots),
-                      output=str(tmp_path / "out"), workers=2, threads=1)
+
+    cfg = BatchConfig(
+        artifacts=str(tiny_artifacts[0]),
+        precision="fp32",
+        input=str(shots),
+        output=str(tmp_path / "out"),
+        workers=2,
+        threads=1,
+    )
     summary = batch(cfg, progress=False)
     assert summary["counts"] == {"done": 3, "skipped": 0, "failed": 0, "pending": 0}
     assert summary["frames_processed"] == 8 + 8 + 4
@@ -78,6 +92,7 @@ def test_batch_writes_what_run_writes_and_a_rerun_skips(local_ray, tiny_artifact
 
 def test_a_worker_killed_mid_sequence_loses_nothing(local_ray, tiny_artifacts, shots, tmp_path):
     from jnds_deploy.cluster import BatchConfig, batch
+
     killed = []
 
     def kill_once(sequence, item):
@@ -86,8 +101,14 @@ def test_a_worker_killed_mid_sequence_loses_nothing(local_ray, tiny_artifacts, s
             killed.append(item["pid"])
             os.kill(item["pid"], signal.SIGKILL)
 
-    cfg = BatchConfig(artifacts=str(tiny_artifacts[0]), precision="fp32", input=str(shots),
-                      output=str(tmp_path / "out"), workers=2, threads=1)
+    cfg = BatchConfig(
+        artifacts=str(tiny_artifacts[0]),
+        precision="fp32",
+        input=str(shots),
+        output=str(tmp_path / "out"),
+        workers=2,
+        threads=1,
+    )
     summary = batch(cfg, progress=False, on_frame=kill_once)
     assert killed
     assert summary["counts"] == {"done": 3, "skipped": 0, "failed": 0, "pending": 0}
@@ -99,14 +120,24 @@ def test_a_worker_killed_mid_sequence_loses_nothing(local_ray, tiny_artifacts, s
 
 def test_a_bad_sequence_fails_alone_with_its_error(local_ray, tiny_artifacts, shots, tmp_path):
     from jnds_deploy.cluster import BatchConfig, batch
+
     root = tmp_path / "in"
     shutil.copytree(shots / "c", root / "good")
     shutil.copytree(shots / "c", root / "bad")
     (root / "bad" / "inputs" / "0001.exr").write_bytes(b"not an EXR")
     shutil.copytree(shots / "c", root / "nometa")
     (root / "nometa" / "sequence.json").write_text("{")
-    summary = batch(BatchConfig(artifacts=str(tiny_artifacts[0]), precision="fp32", input=str(root),
-                                output=str(tmp_path / "out"), workers=1, threads=1), progress=False)
+    summary = batch(
+        BatchConfig(
+            artifacts=str(tiny_artifacts[0]),
+            precision="fp32",
+            input=str(root),
+            output=str(tmp_path / "out"),
+            workers=1,
+            threads=1,
+        ),
+        progress=False,
+    )
     assert summary["sequences"]["good"]["status"] == "done"
     bad = summary["sequences"]["bad"]
     assert bad["status"] == "failed" and "0001.exr" in bad["error"]
@@ -118,10 +149,18 @@ def test_a_bad_sequence_fails_alone_with_its_error(local_ray, tiny_artifacts, sh
 def test_batch_errors_name_the_bad_argument(tmp_path, tiny_artifacts):
     from jnds_deploy.cluster import BatchConfig, batch
     from jnds_deploy.errors import ConfigError
+
     (tmp_path / "empty").mkdir()
     with pytest.raises(ConfigError, match="no sequence"):
-        batch(BatchConfig(artifacts=str(tiny_artifacts[0]), precision="fp32", input=str(tmp_path / "empty"),
-                          output=str(tmp_path / "o")), progress=False)
+        batch(
+            BatchConfig(
+                artifacts=str(tiny_artifacts[0]),
+                precision="fp32",
+                input=str(tmp_path / "empty"),
+                output=str(tmp_path / "o"),
+            ),
+            progress=False,
+        )
     with pytest.raises(ConfigError, match="threads"):
         BatchConfig(artifacts="a", input="b", output="c", threads=0)
 
@@ -129,8 +168,11 @@ def test_batch_errors_name_the_bad_argument(tmp_path, tiny_artifacts):
 def test_dataset_on_ray_renders_what_one_process_renders(local_ray, tmp_path, monkeypatch):
     pytest.importorskip("mitsuba")
     from jnds_deploy.render import RenderConfig, dataset
-    specs = [(f"train/s{i}", RenderConfig(scene="procedural", seed=30 + i, camera="orbit", frames=2,
-                                          size=(32, 18), spp=4)) for i in range(2)]
+
+    specs = [
+        (f"train/s{i}", RenderConfig(scene="procedural", seed=30 + i, camera="orbit", frames=2, size=(32, 18), spp=4))
+        for i in range(2)
+    ]
     monkeypatch.setattr(dataset, "dataset_specs", lambda split, n, engine="mitsuba", moving=0, mixed=0, lights=0: specs)
     one = dataset.render_dataset(tmp_path / "one", jobs=1, progress=False)
     on_ray = dataset.render_dataset(tmp_path / "ray", address="local", progress=False)

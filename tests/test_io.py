@@ -31,8 +31,7 @@ def _rewrite_exr(path, drop=(), resize=None, dtype=None):
         chans = {k: np.zeros((resize[1], resize[0]), np.float32) for k in chans}
     if dtype:
         chans = {k: v.astype(dtype) for k, v in chans.items()}
-    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
-                 chans).write(str(path))
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, chans).write(str(path))
 
 
 def test_round_trip(make_sequence):
@@ -77,8 +76,9 @@ def test_reads_tiled_half_piz(make_sequence):
     chans = {k: v.astype(np.float16) for k, v in read_exr(path / "inputs/0000.exr").items()}
     tiles = OpenEXR.TileDescription()
     tiles.xSize = tiles.ySize = 4
-    OpenEXR.File({"compression": OpenEXR.PIZ_COMPRESSION, "type": OpenEXR.tiledimage,
-                  "tiles": tiles}, chans).write(str(path / "inputs/0000.exr"))
+    OpenEXR.File({"compression": OpenEXR.PIZ_COMPRESSION, "type": OpenEXR.tiledimage, "tiles": tiles}, chans).write(
+        str(path / "inputs/0000.exr")
+    )
     got = open_sequence(path).inputs(0)
     np.testing.assert_allclose(got["diffuse"], ins[0]["diffuse"], rtol=1e-3)
 
@@ -93,14 +93,17 @@ def test_frames_key_is_optional(make_sequence):
     assert seq.frames[0].jitter == (0.0, 0.0) and not seq.frames[2].camera_cut
 
 
-@pytest.mark.parametrize("changes, match", [
-    ({"format": "jnds-sequence/2"}, "format is 'jnds-sequence/2'"),
-    ({"native_size": [7]}, "'native_size' must be"),
-    ({"native_size": [7, -5]}, "'native_size' must be"),
-    ({"frame_count": 0}, "'frame_count' must be a positive integer"),
-    ({"frames": [{"index": 0, "jitter": [0.7, 0.0]}] * 3}, r"frames\[0\].jitter"),
-    ({"frames": [{"index": 0}]}, "'frames' must list 3 entries"),
-])
+@pytest.mark.parametrize(
+    "changes, match",
+    [
+        ({"format": "jnds-sequence/2"}, "format is 'jnds-sequence/2'"),
+        ({"native_size": [7]}, "'native_size' must be"),
+        ({"native_size": [7, -5]}, "'native_size' must be"),
+        ({"frame_count": 0}, "'frame_count' must be a positive integer"),
+        ({"frames": [{"index": 0, "jitter": [0.7, 0.0]}] * 3}, r"frames\[0\].jitter"),
+        ({"frames": [{"index": 0}]}, "'frames' must list 3 entries"),
+    ],
+)
 def test_bad_sequence_json(make_sequence, changes, match):
     path, _, _ = make_sequence()
     _rewrite_json(path, **changes)
@@ -163,8 +166,7 @@ def test_unreadable_exr(make_sequence, damage):
     path, _, _ = make_sequence()
     f = path / "inputs/0002.exr"
     data = f.read_bytes()
-    f.write_bytes({"truncate": data[: len(data) // 2], "garbage": b"this is not an EXR",
-                   "empty": b""}[damage])
+    f.write_bytes({"truncate": data[: len(data) // 2], "garbage": b"this is not an EXR", "empty": b""}[damage])
     with pytest.raises(ExrReadError, match="0002.exr: unreadable or truncated"):
         open_sequence(path).inputs(2)
 
@@ -182,8 +184,7 @@ def test_nonfinite_counted_per_channel(make_sequence):
     chans = read_exr(f)
     chans["specular.G"][0, :3] = np.nan
     chans["motion.X"][2, 2] = np.inf
-    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
-                 chans).write(str(f))
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, chans).write(str(f))
     report = validate(path)
     assert not report.clean
     assert report.nonfinite["inputs"] == {"specular.G": {1: 3}, "motion.X": {1: 1}}
@@ -193,8 +194,7 @@ def test_nonfinite_counted_per_channel(make_sequence):
 def test_cli_reports_one_line_error(make_sequence):
     path, _, _ = make_sequence()
     (path / "inputs/0000.exr").write_bytes(b"junk")
-    proc = subprocess.run([sys.executable, "-m", "jnds_deploy", "validate", str(path)],
-                          capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "jnds_deploy", "validate", str(path)], capture_output=True, text=True)
     assert proc.returncode == 2
     assert proc.stderr.strip().startswith("jnds validate: error:")
     assert "0000.exr" in proc.stderr and "Traceback" not in proc.stderr

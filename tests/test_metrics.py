@@ -1,5 +1,6 @@
 """The changed-pixel measure (metrics.changed_mask / changed_psnr): where the previous frame
 showed another surface."""
+
 import numpy as np
 import pytest
 
@@ -8,12 +9,16 @@ from jnds_deploy.metrics import changed_mask, changed_psnr, masked_squared_error
 
 def _frame(h=12, w=16, ball_x=None):
     """A floor (albedo 0.5, normal up) with a green 3x3 'ball' facing up too at ball_x."""
-    f = {"albedo": np.full((h, w, 3), 0.5, np.float32), "normal": np.zeros((h, w, 3), np.float32),
-         "motion": np.zeros((h, w, 2), np.float32), "depth": np.full((h, w, 1), 4.0, np.float32)}
+    f = {
+        "albedo": np.full((h, w, 3), 0.5, np.float32),
+        "normal": np.zeros((h, w, 3), np.float32),
+        "motion": np.zeros((h, w, 2), np.float32),
+        "depth": np.full((h, w, 1), 4.0, np.float32),
+    }
     f["normal"][..., 1] = 1.0
     if ball_x is not None:
-        f["albedo"][4:7, ball_x:ball_x + 3] = (0.1, 0.8, 0.1)
-        f["depth"][4:7, ball_x:ball_x + 3] = 3.0
+        f["albedo"][4:7, ball_x : ball_x + 3] = (0.1, 0.8, 0.1)
+        f["depth"][4:7, ball_x : ball_x + 3] = 3.0
     return f
 
 

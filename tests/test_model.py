@@ -6,8 +6,17 @@ import pytest
 import torch
 
 from jnds_deploy import filter_spec as filters
-from jnds_deploy.model import (JNDS, N_CURRENT, ActQuant, ModelConfig, UpsampleBlock, bilinear_taps,
-                               pad_to_multiple, quantize_weight, set_quantization)
+from jnds_deploy.model import (
+    JNDS,
+    N_CURRENT,
+    ActQuant,
+    ModelConfig,
+    UpsampleBlock,
+    bilinear_taps,
+    pad_to_multiple,
+    quantize_weight,
+    set_quantization,
+)
 
 
 def _data_dir(tmp_path, seq):
@@ -41,7 +50,7 @@ def test_shapes(scale, size):
     assert out.output.shape == (2, 3, H * scale, W * scale)
     assert out.diffuse.shape == out.specular.shape == out.albedo.shape == (2, 3, H, W)
     assert out.history().shape == (2, 12, H, W)
-    assert out.output[..., :h0 * scale, :w0 * scale].shape[-2:] == (h * scale, w * scale)
+    assert out.output[..., : h0 * scale, : w0 * scale].shape[-2:] == (h * scale, w * scale)
     assert (out.output >= 0).all() and torch.isfinite(out.output).all()
 
 
@@ -108,10 +117,14 @@ def test_identity_filter_path_preserves_constants_through_all_levels():
     n, h, w = 1, 16, 16
     ident = lambda hh, ww: torch.nn.functional.one_hot(torch.tensor(4), 9).float().view(1, 9, 1, 1).expand(n, 9, hh, ww)  # noqa: E731
     x = torch.full((n, 3, h, w), 2.5)
-    native = {"spatial": ident(h, w), "temporal": ident(h, w), "blend": torch.rand(n, 1, h, w),
-              "up": ident(h, w), "up_blend": torch.rand(n, 1, h, w)}
-    levels = [{"down": ident(8, 8), "up": ident(8, 8), "up_blend": torch.rand(n, 1, 8, 8)},
-              {"down": ident(4, 4)}]
+    native = {
+        "spatial": ident(h, w),
+        "temporal": ident(h, w),
+        "blend": torch.rand(n, 1, h, w),
+        "up": ident(h, w),
+        "up_blend": torch.rand(n, 1, h, w),
+    }
+    levels = [{"down": ident(8, 8), "up": ident(8, 8), "up_blend": torch.rand(n, 1, 8, 8)}, {"down": ident(4, 4)}]
     torch.testing.assert_close(filters.filter_path(x, x, native, levels), x)
 
 
@@ -152,8 +165,12 @@ def test_tonemap_matches_eq1_and_clamps():
     y = filters.tonemap(x)
     ref = np.log(np.array([0.0, 1.0, 100.0, 65535.0, 0.0]) + 1) ** (1 / 2.2)
     np.testing.assert_allclose(y.numpy(), ref, atol=1e-4)
-    torch.testing.assert_close(filters.inverse_tonemap(filters.tonemap(torch.tensor([3.0, 40.0]))),
-                               torch.tensor([3.0, 40.0]), rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(
+        filters.inverse_tonemap(filters.tonemap(torch.tensor([3.0, 40.0]))),
+        torch.tensor([3.0, 40.0]),
+        rtol=1e-4,
+        atol=1e-4,
+    )
 
 
 def test_weight_fake_quant_round_trip():
@@ -192,6 +209,7 @@ def test_quantized_model_stays_close_to_float():
     model = JNDS(cfg)
     x, mv = _inputs(1, 16, 16)
     from jnds_deploy.model import set_observing
+
     set_observing(model, True)
     with torch.no_grad():
         ref = model(x, mv, None).output
@@ -208,7 +226,9 @@ def test_one_training_step_decreases_loss(tmp_path):
     from jnds_deploy.training.data import PatchSampler, load_sequence
     from jnds_deploy.training.losses import Loss
     from jnds_deploy.training.train import run_unroll
+
     from .conftest import SAMPLE
+
     torch.manual_seed(0)
     seq = load_sequence(SAMPLE)
     sampler = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0))
@@ -230,12 +250,15 @@ def test_one_training_step_decreases_loss(tmp_path):
 
 def test_feature_loss_network_trains_and_scores(tmp_path):
     from jnds_deploy.training.feature_loss import FeatureNetConfig, load_feature_net, train_feature_net
+
     data = tmp_path / "data"
     (data / "train").mkdir(parents=True)
     from .conftest import SAMPLE
+
     (data / "train" / "sample").symlink_to(SAMPLE)
-    path = train_feature_net(FeatureNetConfig(data=str(data), out=str(tmp_path / "f.pt"), steps=3, batch=2),
-                             progress=False)
+    path = train_feature_net(
+        FeatureNetConfig(data=str(data), out=str(tmp_path / "f.pt"), steps=3, batch=2), progress=False
+    )
     net = load_feature_net(path)
     a = torch.rand(1, 3, 32, 32)
     assert float(net.loss(a, a)) == 0.0
@@ -245,8 +268,11 @@ def test_feature_loss_network_trains_and_scores(tmp_path):
 
 def test_feature_loss_network_reads_cleaned_references_when_asked(tmp_path):
     import shutil
+
     from jnds_deploy.training.feature_loss import _examples
+
     from .conftest import SAMPLE
+
     shutil.copytree(SAMPLE, tmp_path / "train" / "sample")  # a copy: cleaning caches beside the frames
     (x, y), (xc, yc) = _examples(str(tmp_path)), _examples(str(tmp_path), clean="oidn")
     np.testing.assert_array_equal(yc, y)  # the G-buffer targets are the inputs'
@@ -256,54 +282,76 @@ def test_feature_loss_network_reads_cleaned_references_when_asked(tmp_path):
 def test_training_resumes_from_an_init_checkpoint(tmp_path):
     from jnds_deploy.training.config import TrainConfig
     from jnds_deploy.training.train import train
+
     from .conftest import SAMPLE
+
     data = _data_dir(tmp_path, SAMPLE)
-    common = dict(data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1,
-                  val_every=10 ** 6, threads=1)
+    common = dict(
+        data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1, val_every=10**6, threads=1
+    )
     first = train(TrainConfig(run=str(tmp_path / "a"), fp32_steps=2, qat_steps=1, **common), progress=False)
     a = torch.load(first, weights_only=False)
     assert a["quantized"] and a["quant_ranges"]
     assert a["train_sequences"] == [SAMPLE.name]
     from jnds_deploy.checkpoint import ship_checkpoint
+
     slim = torch.load(ship_checkpoint(first, tmp_path / "slim.pt"), weights_only=False)
     assert slim["train_sequences"] == [SAMPLE.name] and "optimizer" not in slim
 
     # no steps: the new run's checkpoint is the init's weights and ranges, in the QAT phase
-    same = train(TrainConfig(run=str(tmp_path / "b"), fp32_steps=0, qat_steps=0, init=str(first), **common),
-                 progress=False)
+    same = train(
+        TrainConfig(run=str(tmp_path / "b"), fp32_steps=0, qat_steps=0, init=str(first), **common), progress=False
+    )
     b = torch.load(same, weights_only=False)
     assert b["quantized"] and b["quant_ranges"] == a["quant_ranges"]
     assert all(torch.equal(a["model"][k], b["model"][k]) for k in a["model"])
 
     # the firefly clamp changes no weight: a checkpoint with one (as the shipped one) starts
     # a run with another, and each run records its own
-    clamped = train(TrainConfig(run=str(tmp_path / "f"), fp32_steps=0, qat_steps=0, init=str(same),
-                                firefly_clamp=16.0, **common), progress=False)
+    clamped = train(
+        TrainConfig(run=str(tmp_path / "f"), fp32_steps=0, qat_steps=0, init=str(same), firefly_clamp=16.0, **common),
+        progress=False,
+    )
     assert torch.load(clamped, weights_only=False)["model_config"]["firefly_clamp"] == 16.0
-    plain = train(TrainConfig(run=str(tmp_path / "g"), fp32_steps=0, qat_steps=0, init=str(clamped), **common),
-                  progress=False)
+    plain = train(
+        TrainConfig(run=str(tmp_path / "g"), fp32_steps=0, qat_steps=0, init=str(clamped), **common), progress=False
+    )
     assert torch.load(plain, weights_only=False)["model_config"]["firefly_clamp"] == 0.0
 
     # one QAT step (with burn-in frames) moves the weights a little, from the init's, not
     # from a fresh model
-    tuned = torch.load(train(TrainConfig(run=str(tmp_path / "c"), fp32_steps=0, qat_steps=1, lr=1e-4, burn_in=2,
-                                         init=str(first), **common), progress=False), weights_only=False)
+    tuned = torch.load(
+        train(
+            TrainConfig(
+                run=str(tmp_path / "c"), fp32_steps=0, qat_steps=1, lr=1e-4, burn_in=2, init=str(first), **common
+            ),
+            progress=False,
+        ),
+        weights_only=False,
+    )
     assert tuned["state"]["step"] == 1
     w = "network.output_block.head.weight"
     assert 0 < (tuned["model"][w] - a["model"][w]).abs().max() < 1e-2
 
     with pytest.raises(ValueError, match="is not preset"):
-        train(TrainConfig(run=str(tmp_path / "d"), init=str(first), **{**common, "preset": "small"}),
-              progress=False)
+        train(TrainConfig(run=str(tmp_path / "d"), init=str(first), **{**common, "preset": "small"}), progress=False)
 
     # a fixed-kernel run from a predicting checkpoint: the same network outputs but the
     # features (dropped), the identity kernel, and a frame as the identity-kernel block gives it
-    fixed = torch.load(train(TrainConfig(run=str(tmp_path / "e"), fp32_steps=0, qat_steps=0, init=str(first),
-                                         fixed_upsample=True, **common), progress=False), weights_only=False)
+    fixed = torch.load(
+        train(
+            TrainConfig(
+                run=str(tmp_path / "e"), fp32_steps=0, qat_steps=0, init=str(first), fixed_upsample=True, **common
+            ),
+            progress=False,
+        ),
+        weights_only=False,
+    )
     assert fixed["model_config"]["upsample_width"] == 0 and fixed["model_config"]["upsample_features"] == 0
     assert not any(k.startswith("upsample_block.") and k != "upsample_block.fixed" for k in fixed["model"])
     from jnds_deploy.checkpoint import load_model
     from jnds_deploy.model import ModelConfig
+
     pred, fix = load_model(first), load_model(tmp_path / "e" / "checkpoint.pt")
     x, h = torch.rand(1, 13, 32, 32), torch.rand(1, 12, 32, 32)
     with torch.no_grad():
@@ -324,20 +372,39 @@ def test_init_with_the_other_input_block_fits_it_to_the_old_features(tmp_path):
     from jnds_deploy.checkpoint import load_model
     from jnds_deploy.training.config import TrainConfig
     from jnds_deploy.training.train import train
+
     from .conftest import SAMPLE
+
     data = _data_dir(tmp_path, SAMPLE)
-    common = dict(data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1,
-                  val_every=10 ** 6, threads=1)
+    common = dict(
+        data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1, val_every=10**6, threads=1
+    )
     first = train(TrainConfig(run=str(tmp_path / "a"), fp32_steps=2, qat_steps=1, **common), progress=False)
-    runs = {n: train(TrainConfig(run=str(tmp_path / n), fp32_steps=0, qat_steps=0, init=str(first),
-                                 input_block="space_to_depth", input_hidden=8, input_fit_steps=steps, **common),
-                     progress=False) for n, steps in (("fresh", 0), ("fitted", 200))}
+    runs = {
+        n: train(
+            TrainConfig(
+                run=str(tmp_path / n),
+                fp32_steps=0,
+                qat_steps=0,
+                init=str(first),
+                input_block="space_to_depth",
+                input_hidden=8,
+                input_fit_steps=steps,
+                **common,
+            ),
+            progress=False,
+        )
+        for n, steps in (("fresh", 0), ("fitted", 200))
+    }
     a, b = torch.load(first, weights_only=False), torch.load(runs["fitted"], weights_only=False)
     assert b["model_config"]["input_block"] == "space_to_depth" and b["quantized"]
-    assert all(torch.equal(a["model"][k], b["model"][k]) for k in a["model"] if not k.startswith("network.input_block."))
+    assert all(
+        torch.equal(a["model"][k], b["model"][k]) for k in a["model"] if not k.startswith("network.input_block.")
+    )
     assert all(r["hi"] > 1e-2 for k, r in b["quant_ranges"].items() if k.startswith("network.input_block."))
     from jnds_deploy.io import open_sequence
     from jnds_deploy.layout import CURRENT, HISTORY, channels
+
     old, fresh, fitted = load_model(first), load_model(runs["fresh"]), load_model(runs["fitted"])
     for m in (old, fresh, fitted):
         set_quantization(m, False)
@@ -346,15 +413,20 @@ def test_init_with_the_other_input_block_fits_it_to_the_old_features(tmp_path):
     hist = torch.cat([cur[:, channels(n)] for n, _ in HISTORY], 1)
     with torch.no_grad():
         want = old.network.input_block(cur, hist)[0]
-        err = {n: (m.network.input_block(cur, hist)[0] - want).pow(2).mean().sqrt() / want.pow(2).mean().sqrt()
-               for n, m in (("fresh", fresh), ("fitted", fitted))}
+        err = {
+            n: (m.network.input_block(cur, hist)[0] - want).pow(2).mean().sqrt() / want.pow(2).mean().sqrt()
+            for n, m in (("fresh", fresh), ("fitted", fitted))
+        }
     assert err["fitted"] < 0.5 * err["fresh"]  # measured 0.57 against 1.86
 
 
-@pytest.mark.parametrize("fixed,narrow,wide", [(True, "small", "medium"), (False, "small", "medium"),
-                                                (True, "medium", "large"), (True, "large", "wide")])
+@pytest.mark.parametrize(
+    "fixed,narrow,wide",
+    [(True, "small", "medium"), (False, "small", "medium"), (True, "medium", "large"), (True, "large", "wide")],
+)
 def test_init_widens_a_checkpoint_to_a_wider_preset_computing_the_same(fixed, narrow, wide):
     from jnds_deploy.training.surgery import widened, widens
+
     up = dict(upsample_width=0, upsample_features=0) if fixed else {}
     lo, hi = ModelConfig.preset(narrow, **up), ModelConfig.preset(wide, **up)
     assert widens(lo, hi) and not widens(hi, lo)
@@ -378,11 +450,12 @@ def test_init_widens_a_checkpoint_to_a_wider_preset_computing_the_same(fixed, na
             assert torch.allclose(a[k], b[k], rtol=0, atol=1e-12), k
         assert torch.allclose(old(x, mv, None).output, new(x, mv, None).output, rtol=0, atol=1e-10)
         # the new channels are live: they compute features the old channels may learn to read
-        assert new.network.feature_extractor.bottleneck.a.weight[lo.bottleneck_width:].abs().sum() > 0
+        assert new.network.feature_extractor.bottleneck.a.weight[lo.bottleneck_width :].abs().sum() > 0
 
 
 def test_init_narrows_the_output_block_keeping_the_channels_that_matter():
     from jnds_deploy.training.surgery import narrowed, narrows
+
     up = dict(upsample_width=0, upsample_features=0)
     wide, narrow = ModelConfig.preset("large", **up), ModelConfig.preset("large", output_width=16, **up)
     assert narrows(wide, narrow) and not narrows(narrow, wide)
@@ -409,6 +482,7 @@ def test_init_narrows_the_output_block_keeping_the_channels_that_matter():
 @pytest.mark.parametrize("fixed", [True, False])
 def test_init_deepens_a_checkpoint_by_one_unet_level_computing_nearly_the_same(fixed):
     from jnds_deploy.training import surgery
+
     up = dict(upsample_width=0, upsample_features=0) if fixed else {}
     lo = ModelConfig.preset("small", **up)
     hi = ModelConfig.preset("small", encoder_widths=(24, 32, 48), bottleneck_width=64, filter_levels=4, **up)
@@ -428,8 +502,9 @@ def test_init_deepens_a_checkpoint_by_one_unet_level_computing_nearly_the_same(f
         exact = JNDS(hi)
         exact.load_state_dict(surgery.deepened(lo, old.state_dict(), exact, blend=-40.0))
         b = exact.network(x, h)
-        assert set(b) - set(a) == {f"{p}.{n}" for p in ("diffuse", "specular")
-                                   for n in ("level4.down", "level3.up", "level3.up_blend")}
+        assert set(b) - set(a) == {
+            f"{p}.{n}" for p in ("diffuse", "specular") for n in ("level4.down", "level3.up", "level3.up_blend")
+        }
         for k in a:
             assert torch.allclose(a[k], b[k], atol=1e-5), k
         assert torch.allclose(old(x, mv, None).output, exact(x, mv, None).output, atol=1e-4)
@@ -454,7 +529,9 @@ def test_init_deepens_a_checkpoint_by_one_unet_level_computing_nearly_the_same(f
 
 def test_evaluate_names_training_checkpoints_by_run_and_scores_them(tmp_path):
     from jnds_deploy.training.evaluate import method_name, run_evaluation
+
     from .conftest import SAMPLE
+
     assert method_name("runs/ft-l1/checkpoint.pt") == "ft-l1"
     assert method_name("jnds_deploy/checkpoints/jnds.pt") == "jnds"
     torch.manual_seed(0)
@@ -482,7 +559,9 @@ def test_channels_last_training_step_equals_the_contiguous_one(tmp_path):
     from jnds_deploy.training.data import PatchSampler, load_sequence
     from jnds_deploy.training.losses import Loss
     from jnds_deploy.training.train import run_unroll
+
     from .conftest import SAMPLE
+
     torch.manual_seed(0)
     feat = str(tmp_path / "feature_net.pt")
     torch.save({"model": feature_loss.FeatureNet().state_dict(), "widths": (16, 32, 64)}, feat)
@@ -496,8 +575,10 @@ def test_channels_last_training_step_equals_the_contiguous_one(tmp_path):
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        for layout, l1 in ((torch.contiguous_format, lambda a, b: (a - b).abs().mean()),
-                           (torch.channels_last, feature_loss.l1)):
+        for layout, l1 in (
+            (torch.contiguous_format, lambda a, b: (a - b).abs().mean()),
+            (torch.channels_last, feature_loss.l1),
+        ):
             m, loss_fn = copy.deepcopy(model).to(memory_format=layout), Loss(cfg, scale=2).to(memory_format=layout)
             with pytest.MonkeyPatch.context() as mp:
                 mp.setattr("jnds_deploy.training.losses.l1", l1)
@@ -518,13 +599,16 @@ def test_l1_plus_feature_spatial_loss_is_the_sum_of_both(tmp_path):
     from jnds_deploy.training.config import TrainConfig
     from jnds_deploy.training.feature_loss import FeatureNet
     from jnds_deploy.training.losses import Loss
+
     torch.manual_seed(0)  # a feature-loss network with random weights: training runs are not in git
     net = FeatureNet()
     feat = str(tmp_path / "feature_net.pt")
     torch.save({"model": net.state_dict(), "widths": (16, 32, 64)}, feat)
     o, r = torch.rand(2, 3, 32, 32), torch.rand(2, 3, 32, 32)
-    parts = {k: Loss(TrainConfig(spatial_loss=k, feature_net=None if k == "l1" else feat), scale=2).spatial(o, r)
-             for k in ("l1", "feature", "l1+feature")}
+    parts = {
+        k: Loss(TrainConfig(spatial_loss=k, feature_net=None if k == "l1" else feat), scale=2).spatial(o, r)
+        for k in ("l1", "feature", "l1+feature")
+    }
     assert float(parts["l1"]) > 0 and float(parts["feature"]) > 0
     torch.testing.assert_close(parts["l1+feature"], parts["l1"] + parts["feature"])
     with pytest.raises(ValueError, match="needs feature_net"):
@@ -538,6 +622,7 @@ def test_lowfreq_loss_sees_a_level_shift_more_than_noise():
     it, a level shift of the same per-pixel L1 does not; native tasks box in native pixels."""
     from jnds_deploy.training.config import TrainConfig
     from jnds_deploy.training.losses import LOWFREQ_SCALES, lowfreq
+
     torch.manual_seed(0)
     o = torch.rand(2, 3, 32, 32)
     noisy = o + 0.1 * torch.sign(torch.randn_like(o))  # per-pixel L1 0.1
@@ -559,10 +644,26 @@ def test_checkpoints_hold_host_tensors_and_load_on_the_cpu(tmp_path):
     from jnds_deploy.checkpoint import load_model
     from jnds_deploy.training.config import TrainConfig
     from jnds_deploy.training.train import train
+
     from .conftest import SAMPLE
+
     data = _data_dir(tmp_path, SAMPLE)
-    ckpt = train(TrainConfig(data=str(data), run=str(tmp_path / "r"), preset="tiny", patch=32, unroll=2, batch=1,
-                             fp32_steps=1, qat_steps=0, val_every=10 ** 6, threads=1, device="cpu"), progress=False)
+    ckpt = train(
+        TrainConfig(
+            data=str(data),
+            run=str(tmp_path / "r"),
+            preset="tiny",
+            patch=32,
+            unroll=2,
+            batch=1,
+            fp32_steps=1,
+            qat_steps=0,
+            val_every=10**6,
+            threads=1,
+            device="cpu",
+        ),
+        progress=False,
+    )
     saved = torch.load(ckpt, weights_only=False)
     assert all(v.device.type == "cpu" for v in saved["model"].values())
     assert all(v.device.type == "cpu" for st in saved["optimizer"]["state"].values() for v in st.values())
@@ -572,6 +673,7 @@ def test_checkpoints_hold_host_tensors_and_load_on_the_cpu(tmp_path):
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the error where no GPU is")
 def test_train_on_a_missing_gpu_is_a_one_line_error(tmp_path):
     from jnds_deploy.cli import main
+
     rc = main(["train", "--data", str(tmp_path), "--run", str(tmp_path / "r"), "--device", "cuda", "--quiet"])
     assert rc == 2 and not (tmp_path / "r").exists()
 
@@ -580,14 +682,22 @@ def test_evaluate_reports_sets_side_by_side_with_a_contact_sheet(tmp_path, make_
     import cv2
 
     from jnds_deploy.training.evaluate import evaluate_sets, markdown_sets
+
     from .conftest import SAMPLE
+
     torch.manual_seed(0)
     model = JNDS(ModelConfig.preset("tiny"))
     ckpt = tmp_path / "tiny.pt"
     torch.save({"model": model.state_dict(), "model_config": asdict(model.cfg), "quantized": False}, ckpt)
     other, _, _ = make_sequence(frames=3, size=(16, 12), name="test-set/seq-a")
-    reports = evaluate_sets([str(ckpt)], [str(SAMPLE), str(other.parent)], ["bicubic"], str(tmp_path / "e.json"),
-                            threads=1, sheet=str(tmp_path / "sheet.png"))
+    reports = evaluate_sets(
+        [str(ckpt)],
+        [str(SAMPLE), str(other.parent)],
+        ["bicubic"],
+        str(tmp_path / "e.json"),
+        threads=1,
+        sheet=str(tmp_path / "sheet.png"),
+    )
     assert list(reports) == [SAMPLE.name, "test-set"]
     assert list(reports["test-set"]["tiny"]["sequences"]) == ["seq-a"]
     assert json.loads((tmp_path / "e.json").read_text()) == reports
@@ -601,6 +711,7 @@ def test_evaluate_reports_sets_side_by_side_with_a_contact_sheet(tmp_path, make_
 def test_contact_sheet_format_follows_its_name(tmp_path):
     """A sheet named .jpg is a JPEG (it was a PNG under that name), anything else a PNG."""
     from jnds_deploy import contact_sheet
+
     img = np.random.default_rng(0).random((12, 16, 3), dtype=np.float32)
     row = [("seq", {"input": img, "reference": img})]
     assert contact_sheet.write(tmp_path / "s.jpg", row).read_bytes()[:3] == b"\xff\xd8\xff"
@@ -613,14 +724,17 @@ def test_augmentations_keep_what_must_hold():
     turns them all by one rotation; a mirror flips the patch and negates the motion across it."""
     from jnds_deploy.layout import channels
     from jnds_deploy.training.data import Augment, random_rotation
+
     rng = np.random.default_rng(0)
     T, p = 3, 8
     n = rng.normal(size=(T, 3, p, p)).astype(np.float32)
     current = rng.random((T, 13, p, p)).astype(np.float32)
     current[:, channels("normal")] = n / np.linalg.norm(n, axis=1, keepdims=True)
-    sample = {"current": current, "motion": rng.normal(size=(T, 2, p, p)).astype(np.float32),
-              **{c: rng.random((T, 3, 2 * p, 2 * p)).astype(np.float32)
-                 for c in ("color", "diffuse", "specular", "albedo")}}
+    sample = {
+        "current": current,
+        "motion": rng.normal(size=(T, 2, p, p)).astype(np.float32),
+        **{c: rng.random((T, 3, 2 * p, 2 * p)).astype(np.float32) for c in ("color", "diffuse", "specular", "albedo")},
+    }
     before = {k: v.copy() for k, v in sample.items()}
 
     gains = set()
@@ -632,8 +746,9 @@ def test_augmentations_keep_what_must_hold():
         for c in ("color", "diffuse", "specular"):
             np.testing.assert_allclose(out[c], gain * sample[c], rtol=1e-6)
         for name in ("diffuse", "specular"):
-            np.testing.assert_allclose(out["current"][:, channels(name)],
-                                       gain * sample["current"][:, channels(name)], rtol=1e-6)
+            np.testing.assert_allclose(
+                out["current"][:, channels(name)], gain * sample["current"][:, channels(name)], rtol=1e-6
+            )
         for name in ("albedo", "normal", "roughness"):
             np.testing.assert_array_equal(out["current"][:, channels(name)], sample["current"][:, channels(name)])
         np.testing.assert_array_equal(out["albedo"], sample["albedo"])
@@ -645,8 +760,9 @@ def test_augmentations_keep_what_must_hold():
     assert np.linalg.det(r) == pytest.approx(1.0, abs=1e-5)
     rotated = out["current"][:, channels("normal")]
     np.testing.assert_allclose(np.linalg.norm(rotated, axis=1), 1.0, atol=1e-5)
-    np.testing.assert_allclose(rotated, np.einsum("ij,tjhw->tihw", r, sample["current"][:, channels("normal")]),
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        rotated, np.einsum("ij,tjhw->tihw", r, sample["current"][:, channels("normal")]), atol=1e-6
+    )
 
     def mirrored(a, fx, fy, motion=False):
         a = a.copy()
@@ -656,11 +772,16 @@ def test_augmentations_keep_what_must_hold():
                 if motion:
                     a[:, comp] *= -1
         return a
+
     seen = set()
     for s in range(16):
         out = Augment(flips=True)(sample, np.random.default_rng(s))
-        match = [(fx, fy) for fx in (False, True) for fy in (False, True)
-                 if np.array_equal(out["motion"], mirrored(sample["motion"], fx, fy, motion=True))]
+        match = [
+            (fx, fy)
+            for fx in (False, True)
+            for fy in (False, True)
+            if np.array_equal(out["motion"], mirrored(sample["motion"], fx, fy, motion=True))
+        ]
         assert len(match) == 1
         seen.add(match[0])
         for k in ("current", "color", "diffuse", "specular", "albedo"):
@@ -675,20 +796,25 @@ def test_augmentations_keep_what_must_hold():
         tinted += 1
         albedo = sample["current"][:, channels("albedo")]
         # the permutation: the channel of the original albedo each output channel holds
-        perm = [next(j for j in range(3) if np.array_equal(out["current"][:, channels("albedo")][:, i],
-                                                          albedo[:, j])) for i in range(3)]
+        perm = [
+            next(j for j in range(3) if np.array_equal(out["current"][:, channels("albedo")][:, i], albedo[:, j]))
+            for i in range(3)
+        ]
         np.testing.assert_array_equal(out["albedo"], sample["albedo"][:, perm])
         tint = out["diffuse"][:, :, :1, :1] / sample["diffuse"][:, perm][:, :, :1, :1]
-        assert np.all((2 ** -0.5 - 1e-6 <= tint) & (tint <= 2 ** 0.5 + 1e-6))
+        assert np.all((2**-0.5 - 1e-6 <= tint) & (tint <= 2**0.5 + 1e-6))
         for c in ("color", "diffuse", "specular"):  # one tint per channel, inputs and reference alike
             np.testing.assert_allclose(out[c], sample[c][:, perm] * tint[:1], rtol=1e-5)
         for name in ("diffuse", "specular"):
-            np.testing.assert_allclose(out["current"][:, channels(name)],
-                                       sample["current"][:, channels(name)][:, perm] * tint[:1], rtol=1e-5)
+            np.testing.assert_allclose(
+                out["current"][:, channels(name)], sample["current"][:, channels(name)][:, perm] * tint[:1], rtol=1e-5
+            )
         # colour = albedo x diffuse + specular still holds after the augmentation
-        np.testing.assert_allclose(out["albedo"] * out["diffuse"] + out["specular"],
-                                   (sample["albedo"] * sample["diffuse"] + sample["specular"])[:, perm] * tint[:1],
-                                   rtol=1e-5)
+        np.testing.assert_allclose(
+            out["albedo"] * out["diffuse"] + out["specular"],
+            (sample["albedo"] * sample["diffuse"] + sample["specular"])[:, perm] * tint[:1],
+            rtol=1e-5,
+        )
         for name in ("normal", "roughness"):
             np.testing.assert_array_equal(out["current"][:, channels(name)], sample["current"][:, channels(name)])
         np.testing.assert_array_equal(out["motion"], sample["motion"])
@@ -701,6 +827,7 @@ def test_warmup_raises_the_learning_rate_linearly_in_the_fp32_phase_only():
     from jnds_deploy.errors import ConfigError
     from jnds_deploy.training.config import TrainConfig
     from jnds_deploy.training.train import TrainState, _lr
+
     cfg = TrainConfig(data="d", run="r", fp32_steps=100, qat_steps=10, lr=1e-3, qat_lr=1e-4, warmup_steps=10)
     plain = TrainConfig(data="d", run="r", fp32_steps=100, qat_steps=10, lr=1e-3, qat_lr=1e-4)
     assert _lr(cfg, TrainState(step=0)) == pytest.approx(0.1 * _lr(plain, TrainState(step=0)))
@@ -714,21 +841,31 @@ def test_warmup_raises_the_learning_rate_linearly_in_the_fp32_phase_only():
 
 def test_sampler_without_augmentation_draws_what_it_drew_before(tmp_path):
     from jnds_deploy.training.data import Augment, PatchSampler, load_sequence
+
     from .conftest import SAMPLE
+
     seq = load_sequence(SAMPLE)
     a = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0)).batch(2)
     b = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0), augment=Augment()).batch(2)
     assert all(torch.equal(a[k], b[k]) for k in a)
-    c = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0),
-                     augment=Augment(exposure=(-4, 8), rotate_normals=True, flips=True, colours=True)).batch(2)
+    c = PatchSampler(
+        [seq],
+        patch=32,
+        unroll=3,
+        rng=np.random.default_rng(0),
+        augment=Augment(exposure=(-4, 8), rotate_normals=True, flips=True, colours=True),
+    ).batch(2)
     assert all(torch.isfinite(v).all() for v in c.values())
     assert not torch.equal(a["current"], c["current"])
 
 
 def test_balanced_renderers_are_drawn_equally_often():
     from dataclasses import replace
+
     from jnds_deploy.training.data import PatchSampler, load_sequence
+
     from .conftest import SAMPLE
+
     seq = load_sequence(SAMPLE)
     assert seq.renderer == "mitsuba"  # the sample's render.json
     seqs = [replace(seq, name=f"m{i}") for i in range(3)] + [replace(seq, name="c", renderer="cycles")]
@@ -746,21 +883,27 @@ def test_balanced_renderers_are_drawn_equally_often():
 def test_clean_references_denoise_recompose_and_cache(tmp_path, monkeypatch):
     import os
     import shutil
+
     import pyoidn
+
     from jnds_deploy.training.data import CLEAN_CACHE, load_sequence
+
     from .conftest import SAMPLE
+
     path = tmp_path / "seq"
     shutil.copytree(SAMPLE, path)
     raw, clean = load_sequence(path), load_sequence(path, clean="oidn")
     np.testing.assert_array_equal(clean.ref["albedo"], raw.ref["albedo"])
-    np.testing.assert_allclose(clean.ref["color"], raw.ref["albedo"] * clean.ref["diffuse"] + clean.ref["specular"],
-                               rtol=1e-6)
+    np.testing.assert_allclose(
+        clean.ref["color"], raw.ref["albedo"] * clean.ref["diffuse"] + clean.ref["specular"], rtol=1e-6
+    )
     for c in ("diffuse", "specular", "color"):
         assert clean.ref[c].shape == raw.ref[c].shape and clean.ref[c].dtype == np.float32
         assert np.isfinite(clean.ref[c]).all() and clean.ref[c].min() >= 0
 
     def grain(x):  # mean |x - its 3x3 box mean|: the noise a denoiser removes
         return float(np.abs(x - torch.nn.functional.avg_pool2d(torch.from_numpy(x), 3, 1, 1).numpy()).mean())
+
     assert grain(clean.ref["color"]) < 0.9 * grain(raw.ref["color"])  # 0.76 with OIDN 2.3
     assert abs(clean.ref["diffuse"].mean() / raw.ref["diffuse"].mean() - 1) < 0.05  # the level kept
     # a second load reads the cache, without OIDN; a newer reference frame invalidates it
@@ -786,8 +929,11 @@ def test_recomposed_reference_batches_equal_a_held_colour(tmp_path):
     memory): the batches, augmented, are bit-equal to those of the same reference with the
     colour held as one array."""
     from dataclasses import replace
+
     from jnds_deploy.training.data import Augment, PatchSampler, Recomposed, load_sequence
+
     from .conftest import SAMPLE
+
     raw = load_sequence(SAMPLE)
     lazy = replace(raw, ref=Recomposed(raw.ref["albedo"], raw.ref["diffuse"], raw.ref["specular"]))
     held = replace(raw, ref={**lazy.ref})  # the colour computed once, whole
@@ -795,8 +941,10 @@ def test_recomposed_reference_batches_equal_a_held_colour(tmp_path):
     assert lazy.scale == raw.scale == 2
     np.testing.assert_array_equal(held.ref["color"], raw.ref["albedo"] * raw.ref["diffuse"] + raw.ref["specular"])
     aug = Augment(exposure=(-4, 8), rotate_normals=True, flips=True, colours=True)
-    a, b = (PatchSampler([s], patch=32, unroll=3, rng=np.random.default_rng(5), augment=aug).batch(4, burn_in=1)
-            for s in (lazy, held))
+    a, b = (
+        PatchSampler([s], patch=32, unroll=3, rng=np.random.default_rng(5), augment=aug).batch(4, burn_in=1)
+        for s in (lazy, held)
+    )
     assert a.keys() == b.keys() and "color" in a
     for k in a:
         assert torch.equal(a[k], b[k]), k
@@ -805,6 +953,7 @@ def test_recomposed_reference_batches_equal_a_held_colour(tmp_path):
 def filters_upsampled(comp, cfg):
     """The upsample filter's bilinear upsampling alone (root ``cfg.upsample_root``)."""
     from jnds_deploy import filter_spec as filters
+
     r = cfg.upsample_root
     return filters.upsample(comp.clamp_min(filters.ROOT_FLOOR).pow(1 / r), cfg.scale).pow(r).clamp_min(0)
 
@@ -812,7 +961,9 @@ def filters_upsampled(comp, cfg):
 def test_windows_across_a_cut_restart_the_history_there():
     from jnds_deploy.training.data import PatchSampler, load_sequence
     from jnds_deploy.training.train import run_unroll
+
     from .conftest import SAMPLE
+
     seq = load_sequence(SAMPLE)
     seq.cuts = [t == 4 for t in range(len(seq.cuts))]  # a camera cut at frame 4 of 8
     kept = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0))
@@ -832,19 +983,23 @@ def test_windows_across_a_cut_restart_the_history_there():
         # the frame at the cut is a first frame: the same as with no history at all; the
         # other sample in the batch keeps its history
         for t, n in ((2, a), (1, b)):
-            fresh = model(batch["current"][t, n:n + 1], batch["motion"][t, n:n + 1], None)
-            assert torch.allclose(outs[t].output[n:n + 1], fresh.output, atol=1e-6)
-        carried = model(batch["current"][2, b:b + 1], batch["motion"][2, b:b + 1], outs[1].history()[b:b + 1])
-        assert torch.allclose(outs[2].output[b:b + 1], carried.output, atol=1e-6)
-        assert not torch.allclose(outs[2].output[a:a + 1],
-                                  model(batch["current"][2, a:a + 1], batch["motion"][2, a:a + 1],
-                                        outs[1].history()[a:a + 1]).output, atol=1e-6)
+            fresh = model(batch["current"][t, n : n + 1], batch["motion"][t, n : n + 1], None)
+            assert torch.allclose(outs[t].output[n : n + 1], fresh.output, atol=1e-6)
+        carried = model(batch["current"][2, b : b + 1], batch["motion"][2, b : b + 1], outs[1].history()[b : b + 1])
+        assert torch.allclose(outs[2].output[b : b + 1], carried.output, atol=1e-6)
+        assert not torch.allclose(
+            outs[2].output[a : a + 1],
+            model(batch["current"][2, a : a + 1], batch["motion"][2, a : a + 1], outs[1].history()[a : a + 1]).output,
+            atol=1e-6,
+        )
 
 
 def test_burn_in_frames_build_the_history_without_gradients():
     from jnds_deploy.training.data import PatchSampler, load_sequence
     from jnds_deploy.training.train import after_burn_in, run_unroll
+
     from .conftest import SAMPLE
+
     seq = load_sequence(SAMPLE)
     sampler = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0))
     sampler.windows = [(0, 1)]  # frames 1-3, and before them frame 0, then frame 0 repeated
@@ -916,8 +1071,9 @@ def test_fill_diffuse_holes():
     keep = ~hole
     assert torch.equal(out[:, :, keep], diffuse[:, :, keep])
     # the composite of a filled pixel is the same: its albedo is 0
-    assert torch.equal(filters.composite(albedo, out, torch.zeros_like(out))[:, :, hole],
-                       torch.zeros(1, 3, int(hole.sum())))
+    assert torch.equal(
+        filters.composite(albedo, out, torch.zeros_like(out))[:, :, hole], torch.zeros(1, 3, int(hole.sum()))
+    )
 
 
 def test_distillation_trains_only_the_named_block_on_inputs_only_toward_its_teacher(tmp_path, make_sequence):
@@ -927,14 +1083,27 @@ def test_distillation_trains_only_the_named_block_on_inputs_only_toward_its_teac
     from jnds_deploy.training.data import Augment, PatchSampler, load_sequence
     from jnds_deploy.training.losses import Loss
     from jnds_deploy.training.train import run_unroll, train
+
     from .conftest import SAMPLE
+
     data = tmp_path / "data"
     (data / "train").mkdir(parents=True)
     (data / "train" / "sample").symlink_to(SAMPLE)
-    common = dict(preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1, val_every=10 ** 6, threads=1,
-                  fixed_upsample=True, cross_cuts=True)
-    teacher = train(TrainConfig(data=str(data), run=str(tmp_path / "t"), fp32_steps=2, qat_steps=1, lr=1e-2,
-                                **common), progress=False)
+    common = dict(
+        preset="tiny",
+        patch=32,
+        unroll=3,
+        batch=1,
+        observe_batches=1,
+        val_every=10**6,
+        threads=1,
+        fixed_upsample=True,
+        cross_cuts=True,
+    )
+    teacher = train(
+        TrainConfig(data=str(data), run=str(tmp_path / "t"), fp32_steps=2, qat_steps=1, lr=1e-2, **common),
+        progress=False,
+    )
 
     # inputs only: no reference component, which a run against references refuses
     path, _, _ = make_sequence(frames=4, size=(32, 32), reference=False, name="inputs")
@@ -943,8 +1112,9 @@ def test_distillation_trains_only_the_named_block_on_inputs_only_toward_its_teac
     with pytest.raises(TrainError, match="reference has no"):
         PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0), cross_cuts=True)
     aug = Augment(exposure=(-4, 8), rotate_normals=True, flips=True, colours=True)
-    batch = PatchSampler([seq], patch=32, unroll=3, rng=np.random.default_rng(0), augment=aug,
-                         cross_cuts=True, references=False).batch(2)
+    batch = PatchSampler(
+        [seq], patch=32, unroll=3, rng=np.random.default_rng(0), augment=aug, cross_cuts=True, references=False
+    ).batch(2)
     assert set(batch) == {"current", "motion", "cut"}
 
     # a student equal to its teacher is at zero loss; one cut to fewer output-block channels is
@@ -957,11 +1127,20 @@ def test_distillation_trains_only_the_named_block_on_inputs_only_toward_its_teac
     dist = tmp_path / "distill"
     (dist / "train").mkdir(parents=True)
     (dist / "train" / "inputs").symlink_to(path)
-    args = dict(data=str(dist), fp32_steps=0, init=str(teacher), teacher=str(teacher), output_width=2,
-                train_only=("network.output_block",), **common)
+    args = dict(
+        data=str(dist),
+        fp32_steps=0,
+        init=str(teacher),
+        teacher=str(teacher),
+        output_width=2,
+        train_only=("network.output_block",),
+        **common,
+    )
     cut = load_model(train(TrainConfig(run=str(tmp_path / "cut"), qat_steps=0, **args), progress=False))
-    student = torch.load(train(TrainConfig(run=str(tmp_path / "s"), qat_steps=2, qat_lr=1e-3, **args),
-                               progress=False), weights_only=False)
+    student = torch.load(
+        train(TrainConfig(run=str(tmp_path / "s"), qat_steps=2, qat_lr=1e-3, **args), progress=False),
+        weights_only=False,
+    )
     assert student["quantized"] and student["model_config"]["output_width"] == 2
     moved = {k for k, v in cut.state_dict().items() if not torch.equal(v, student["model"][k])}
     assert moved and all(k.startswith("network.output_block.") for k in moved), moved
@@ -979,8 +1158,10 @@ def test_distillation_trains_only_the_named_block_on_inputs_only_toward_its_teac
     with pytest.raises(ConfigError, match="firefly_clamp"):
         train(TrainConfig(run=str(tmp_path / "x"), qat_steps=1, firefly_clamp=16.0, **args), progress=False)
     with pytest.raises(ConfigError, match="no parameter"):
-        train(TrainConfig(run=str(tmp_path / "y"), qat_steps=1, **{**args, "train_only": ("network.nothing",)}),
-              progress=False)
+        train(
+            TrainConfig(run=str(tmp_path / "y"), qat_steps=1, **{**args, "train_only": ("network.nothing",)}),
+            progress=False,
+        )
 
 
 def test_the_guide_albedo_input_starts_at_zero_from_a_checkpoint_without_it_and_trains(tmp_path, guided_sample):
@@ -994,13 +1175,18 @@ def test_the_guide_albedo_input_starts_at_zero_from_a_checkpoint_without_it_and_
     from jnds_deploy.training.evaluate import infer_sequence
     from jnds_deploy.training.surgery import GUIDED
     from jnds_deploy.training.train import train
+
     from .conftest import SAMPLE
+
     data = _data_dir(tmp_path, guided_sample)
-    common = dict(data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1,
-                  val_every=10 ** 6, threads=1)
+    common = dict(
+        data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1, val_every=10**6, threads=1
+    )
     first = train(TrainConfig(run=str(tmp_path / "a"), fp32_steps=1, qat_steps=1, **common), progress=False)
-    guided = train(TrainConfig(run=str(tmp_path / "b"), fp32_steps=0, qat_steps=0, init=str(first),
-                               guide_albedo=True, **common), progress=False)
+    guided = train(
+        TrainConfig(run=str(tmp_path / "b"), fp32_steps=0, qat_steps=0, init=str(first), guide_albedo=True, **common),
+        progress=False,
+    )
     a, b = (torch.load(p, weights_only=False) for p in (first, guided))
     assert b["model_config"]["guide_albedo"] and b["quantized"]
     assert b["model"][GUIDED].shape[1] == a["model"][GUIDED].shape[1] + 3
@@ -1020,9 +1206,21 @@ def test_the_guide_albedo_input_starts_at_zero_from_a_checkpoint_without_it_and_
     assert torch.equal(plain["guide"], plain["current"][:, :, 6:9])
     assert "guide" not in PatchSampler([seq], 32, 3, rng).batch(1)
 
-    tuned = torch.load(train(TrainConfig(run=str(tmp_path / "c"), fp32_steps=0, qat_steps=1, lr=1e-3,
-                                         init=str(guided), guide_albedo=True, **common), progress=False),
-                       weights_only=False)
+    tuned = torch.load(
+        train(
+            TrainConfig(
+                run=str(tmp_path / "c"),
+                fp32_steps=0,
+                qat_steps=1,
+                lr=1e-3,
+                init=str(guided),
+                guide_albedo=True,
+                **common,
+            ),
+            progress=False,
+        ),
+        weights_only=False,
+    )
     assert tuned["model"][GUIDED][:, 25:].abs().max() > 0
 
 
@@ -1039,13 +1237,26 @@ def test_the_guide_albedo_input_split_from_the_albedo_reads_both_and_agrees_wher
     from jnds_deploy.training.evaluate import infer_sequence
     from jnds_deploy.training.surgery import GUIDED
     from jnds_deploy.training.train import train
+
     from .conftest import SAMPLE
+
     data = _data_dir(tmp_path, guided_sample)
-    common = dict(data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1,
-                  val_every=10 ** 6, threads=1)
+    common = dict(
+        data=str(data), preset="tiny", patch=32, unroll=3, batch=1, observe_batches=1, val_every=10**6, threads=1
+    )
     first = train(TrainConfig(run=str(tmp_path / "a"), fp32_steps=1, qat_steps=1, **common), progress=False)
-    split = train(TrainConfig(run=str(tmp_path / "b"), fp32_steps=0, qat_steps=0, init=str(first),
-                              guide_albedo=True, guide_init="split", **common), progress=False)
+    split = train(
+        TrainConfig(
+            run=str(tmp_path / "b"),
+            fp32_steps=0,
+            qat_steps=0,
+            init=str(first),
+            guide_albedo=True,
+            guide_init="split",
+            **common,
+        ),
+        progress=False,
+    )
     a, b = (torch.load(p, weights_only=False)["model"][GUIDED] for p in (first, split))
     torch.testing.assert_close(b[:, 6:9], a[:, 6:9] / 2)  # layout.CURRENT: the albedo is 6:9
     torch.testing.assert_close(b[:, 25:], a[:, 6:9] / 2)

@@ -1,4 +1,5 @@
 """The package as a whole: imports flow one way, importing it changes nothing in the process."""
+
 import ast
 import os
 import subprocess
@@ -50,7 +51,7 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
         stack.append(n)
         for d in sorted(graph[n]):
             if state.get(d) == 1:
-                return stack[stack.index(d):] + [d]
+                return stack[stack.index(d) :] + [d]
             if d not in state and (found := visit(d)):
                 return found
         stack.pop()
@@ -76,11 +77,13 @@ def test_cycle_finder_finds_a_cycle():
 def test_import_has_no_process_wide_side_effects():
     """Importing the package and its runtime sets no environment variable and no logger level
     (the libraries it uses are imported first: opencv, for one, edits LD_LIBRARY_PATH)."""
-    code = ("import os, logging, json, cv2, numba, onnxruntime, OpenEXR; "
-            "before = dict(os.environ); lv = logging.getLogger().level; "
-            "import jnds_deploy, jnds_deploy.io, jnds_deploy.runtime.pipeline, jnds_deploy.runtime.filters; "
-            "print(json.dumps({'env': sorted(set(os.environ.items()) ^ set(before.items())), "
-            "'level': logging.getLogger().level == lv}))")
+    code = (
+        "import os, logging, json, cv2, numba, onnxruntime, OpenEXR; "
+        "before = dict(os.environ); lv = logging.getLogger().level; "
+        "import jnds_deploy, jnds_deploy.io, jnds_deploy.runtime.pipeline, jnds_deploy.runtime.filters; "
+        "print(json.dumps({'env': sorted(set(os.environ.items()) ^ set(before.items())), "
+        "'level': logging.getLogger().level == lv}))"
+    )
     env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
     assert out.stdout.strip() == '{"env": [], "level": true}'
@@ -103,5 +106,8 @@ def test_layers_import_downwards():
     for spec in ("jnds_deploy.model", "jnds_deploy.filter_spec"):
         assert not {m for m in reach(spec) if m.startswith("jnds_deploy.runtime")}, spec
     for fmt in ("jnds_deploy.artifacts", "jnds_deploy.artifacts.manifest", "jnds_deploy.artifacts.layouts"):
-        assert not {m for m in reach(fmt) if m.startswith(("jnds_deploy.runtime", "jnds_deploy.calibration",
-                                                           "jnds_deploy.export"))}, fmt
+        assert not {
+            m
+            for m in reach(fmt)
+            if m.startswith(("jnds_deploy.runtime", "jnds_deploy.calibration", "jnds_deploy.export"))
+        }, fmt

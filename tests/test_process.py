@@ -1,6 +1,7 @@
 """The process-wide settings (``jnds_deploy.process``): opt-in, what they set, and that a
 pipeline changes none unless asked. Each test runs in a fresh interpreter: the settings are
 process-wide."""
+
 import json
 import os
 import subprocess
@@ -54,10 +55,12 @@ def test_keep_freed_memory_turns_numpys_huge_page_advice_off_unless_the_user_set
     """``keep_freed_memory`` (what `jnds run` and `jnds serve` turn on) stops numpy from
     advising huge pages for its arrays (their first touch stalled a cold run in the
     kernel's compaction); a ``NUMPY_MADVISE_HUGEPAGE`` the user set is kept."""
-    code = ("import numpy._core.multiarray as m\n"
-            "from jnds_deploy.process import keep_freed_memory\n"
-            "assert keep_freed_memory()\n"
-            "print(m._set_madvise_hugepage(True))\n")
+    code = (
+        "import numpy._core.multiarray as m\n"
+        "from jnds_deploy.process import keep_freed_memory\n"
+        "assert keep_freed_memory()\n"
+        "print(m._set_madvise_hugepage(True))\n"
+    )
     environ = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
     if env is not None:
         environ["NUMPY_MADVISE_HUGEPAGE"] = env
@@ -70,12 +73,14 @@ def test_huge_page_advice_goes_by_numpys_environment_variable_before_numpy_is_im
     """Called before numpy is imported (as `jnds run`, `serve` and `batch` do, ``cli.program``),
     ``no_huge_page_advice`` sets ``NUMPY_MADVISE_HUGEPAGE=0``, which numpy reads when imported:
     numpy's advice is off without its private switch."""
-    code = ("import sys\n"
-            "from jnds_deploy.process import no_huge_page_advice\n"
-            "assert 'numpy' not in sys.modules\n"
-            "assert no_huge_page_advice()\n"
-            "import os, numpy._core.multiarray as m\n"
-            "print(os.environ['NUMPY_MADVISE_HUGEPAGE'], m._set_madvise_hugepage(True))\n")
+    code = (
+        "import sys\n"
+        "from jnds_deploy.process import no_huge_page_advice\n"
+        "assert 'numpy' not in sys.modules\n"
+        "assert no_huge_page_advice()\n"
+        "import os, numpy._core.multiarray as m\n"
+        "print(os.environ['NUMPY_MADVISE_HUGEPAGE'], m._set_madvise_hugepage(True))\n"
+    )
     environ = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environ)
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -127,23 +132,32 @@ def test_a_pipeline_changes_no_process_wide_setting_unless_asked(tiny_artifacts)
     registered, the next pipeline's sessions share it, and its frames are bit-equal."""
     from .conftest import SAMPLE
 
-    proc = subprocess.run([sys.executable, "-c", _PIPELINE, str(tiny_artifacts[0]), str(SAMPLE)],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-c", _PIPELINE, str(tiny_artifacts[0]), str(SAMPLE)], capture_output=True, text=True
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert json.loads(proc.stdout) == {"env": [], "registered": 0, "shares": False, "after": 1, "shared": True,
-                                       "equal": True}
+    assert json.loads(proc.stdout) == {
+        "env": [],
+        "registered": 0,
+        "shares": False,
+        "after": 1,
+        "shared": True,
+        "equal": True,
+    }
 
 
 def test_tune_process_makes_every_setting_once():
     """``tune_process``: numpy's advice off, OpenMP's brief spin, numba's settings, malloc's,
     the shared arena; a second call changes nothing more."""
-    code = ("import json, os, sys\n"
-            "from jnds_deploy import process\n"
-            "process.tune_process(); process.tune_process()\n"
-            "import numba\n"
-            "print(json.dumps([os.environ.get('NUMPY_MADVISE_HUGEPAGE'), os.environ.get('GOMP_SPINCOUNT'),\n"
-            "                  numba.config.THREADING_LAYER, numba.config.SLP_VECTORIZE,\n"
-            "                  process.shared_arena_registered(), process.keep_freed_memory()]))\n")
+    code = (
+        "import json, os, sys\n"
+        "from jnds_deploy import process\n"
+        "process.tune_process(); process.tune_process()\n"
+        "import numba\n"
+        "print(json.dumps([os.environ.get('NUMPY_MADVISE_HUGEPAGE'), os.environ.get('GOMP_SPINCOUNT'),\n"
+        "                  numba.config.THREADING_LAYER, numba.config.SLP_VECTORIZE,\n"
+        "                  process.shared_arena_registered(), process.keep_freed_memory()]))\n"
+    )
     settings = ("NUMPY_MADVISE_HUGEPAGE", "GOMP_SPINCOUNT", "OMP_WAIT_POLICY")
     environ = {k: v for k, v in os.environ.items() if k not in settings and not k.startswith("NUMBA_")}
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environ)
@@ -169,15 +183,18 @@ print(numba.threading_layer())
 """
 
 
-@pytest.mark.parametrize("imports, env, spins", [
-    # `jnds run` and `jnds serve`: tune_numba before the first loop
-    ("from jnds_deploy.runtime import tune_numba; tune_numba()", {}, "1000"),
-    # a spin count or a wait policy the user set is kept
-    ("from jnds_deploy.runtime import tune_numba; tune_numba()", {"GOMP_SPINCOUNT": "5000"}, "5000"),
-    ("from jnds_deploy.runtime import tune_numba; tune_numba()", {"OMP_WAIT_POLICY": "PASSIVE"}, "0"),
-    # the benchmarks that import torch (which loads libgomp) before main() calls tune_process
-    ("import benchmarks.common; import torch; benchmarks.common.tune_process()", {}, "1000"),
-])
+@pytest.mark.parametrize(
+    "imports, env, spins",
+    [
+        # `jnds run` and `jnds serve`: tune_numba before the first loop
+        ("from jnds_deploy.runtime import tune_numba; tune_numba()", {}, "1000"),
+        # a spin count or a wait policy the user set is kept
+        ("from jnds_deploy.runtime import tune_numba; tune_numba()", {"GOMP_SPINCOUNT": "5000"}, "5000"),
+        ("from jnds_deploy.runtime import tune_numba; tune_numba()", {"OMP_WAIT_POLICY": "PASSIVE"}, "0"),
+        # the benchmarks that import torch (which loads libgomp) before main() calls tune_process
+        ("import benchmarks.common; import torch; benchmarks.common.tune_process()", {}, "1000"),
+    ],
+)
 def test_openmps_idle_threads_spin_briefly_in_the_processes_that_run_the_pipeline(imports, env, spins):
     """GNU OpenMP's workers (numba's threadsafe layer) spin 300 000 times after every
     parallel loop by default, on the cores ONNX Runtime's threads need next
@@ -188,8 +205,12 @@ def test_openmps_idle_threads_spin_briefly_in_the_processes_that_run_the_pipelin
 
     root = str(Path(__file__).resolve().parents[1])
     environ = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
-    proc = subprocess.run([sys.executable, "-c", _OPENMP.format(imports=imports), root],
-                          env={**environ, **env, "OMP_DISPLAY_ENV": "VERBOSE"}, capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-c", _OPENMP.format(imports=imports), root],
+        env={**environ, **env, "OMP_DISPLAY_ENV": "VERBOSE"},
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     if proc.stdout.strip() != "omp":
         pytest.skip(f"numba's threading layer here is {proc.stdout.strip()!r}, not GNU OpenMP")

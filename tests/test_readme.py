@@ -1,6 +1,7 @@
 """The README's snippets run as written: its Python blocks against the shipped checkpoint's
 artifacts (a temporary out/artifacts) and the bundled sample, the server block against a
 server started here, and the Blender block in Blender's environment."""
+
 import re
 import subprocess
 import sys
@@ -62,8 +63,13 @@ def test_jnds_run_line(shipped_artifacts, tmp_path):
     """The usage block's `jnds run` line, as written but for its paths."""
     line = next(x for x in _blocks("sh")[1].splitlines() if x.startswith("jnds run "))
     cmd = line.split("#")[0].replace("out/artifacts", str(shipped_artifacts)).replace("out/run", str(tmp_path / "run"))
-    proc = subprocess.run([sys.executable, "-m", "jnds_deploy", *cmd.split()[1:], "--quiet"], cwd=ROOT,
-                          capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, "-m", "jnds_deploy", *cmd.split()[1:], "--quiet"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "(160x90 -> 320x180, int8)" in proc.stdout  # int8 by default
     assert len(list((tmp_path / "run").glob("*.exr"))) == 8
@@ -85,9 +91,23 @@ def test_blender_block(tmp_path):
     proc = subprocess.run([str(BLENDER), "-c", script], capture_output=True, text=True, timeout=600, cwd=ROOT)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     out = tmp_path / "seq"
-    proc = subprocess.run([sys.executable, "-m", "jnds_deploy", "import", "cycles", str(tmp_path / "jnds" / "raw"),
-                           "--out", str(out), "--reference", str(tmp_path / "jnds" / "ref")],
-                          capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "jnds_deploy",
+            "import",
+            "cycles",
+            str(tmp_path / "jnds" / "raw"),
+            "--out",
+            str(out),
+            "--reference",
+            str(tmp_path / "jnds" / "ref"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     from jnds_deploy.io import open_sequence
 

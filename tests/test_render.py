@@ -84,8 +84,12 @@ def test_motion_vectors_warp_sample_reference():
 
 def _render(tmp_path, name, *args):
     out = tmp_path / name
-    proc = subprocess.run([sys.executable, "-m", "jnds_deploy", "render", "--quiet", "--out", str(out),
-                           *map(str, args)], capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, "-m", "jnds_deploy", "render", "--quiet", "--out", str(out), *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr
     return out, proc
 
@@ -93,9 +97,22 @@ def _render(tmp_path, name, *args):
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     """The issue's example: 4 frames at 64x36, 16 spp reference, with a camera cut."""
-    out, proc = _render(tmp_path_factory.mktemp("render"), "tiny", "--scene", "procedural",
-                        "--camera", "cut", "--seed", "11", "--frames", "4", "--size", "64x36",
-                        "--spp", "16")
+    out, proc = _render(
+        tmp_path_factory.mktemp("render"),
+        "tiny",
+        "--scene",
+        "procedural",
+        "--camera",
+        "cut",
+        "--seed",
+        "11",
+        "--frames",
+        "4",
+        "--size",
+        "64x36",
+        "--spp",
+        "16",
+    )
     return out, proc.stdout
 
 
@@ -114,7 +131,7 @@ def test_tiny_render_validates(tiny):
         assert (np.abs(a["motion"]).max() == 0) == still
         assert a["specular"].min() >= 0 and a["diffuse"].min() >= 0
         # demodulated diffuse is 0 where albedo is ~0 (background, metal)
-        dark = (a["albedo"] <= 1e-3)
+        dark = a["albedo"] <= 1e-3
         assert (a["diffuse"][dark] == 0).all()
         assert set(seq.reference(i)) == {"color", "diffuse", "specular", "albedo"}
     meta = json.loads((out / "sequence.json").read_text())
@@ -142,12 +159,13 @@ def test_moving_objects_motion_vectors_follow_the_objects():
     motion = object_motion(seed, "moving", names)
     assert 0 < len(motion) < len(names)
     assert object_motion(seed, "procedural", names) == {}
-    moved = moved_objects(build_scene(mi, seed, "moving", 2, frames)[0],
-                          build_scene(mi, seed, "moving", 1, frames)[0], motion)
+    moved = moved_objects(
+        build_scene(mi, seed, "moving", 2, frames)[0], build_scene(mi, seed, "moving", 1, frames)[0], motion
+    )
     prev, now = (SplitPathTracer(mi, dr, *build_scene(mi, seed, "moving", i, frames)) for i in (1, 2))
     mv = motion_vectors(now, cam, cam, size, moved).reshape(-1, 2)
 
-    rows, cols = np.mgrid[0:size[1], 0:size[0]]
+    rows, cols = np.mgrid[0 : size[1], 0 : size[0]]
     pix = np.stack([cols.ravel() + 0.5, rows.ravel() + 0.5], 1)  # pixel centres (x, y)
     o, d = cam.rays(pix[:, 0], pix[:, 1], size)
     t, shape = now.intersect(o, d, shapes=True)
@@ -174,6 +192,7 @@ def test_render_is_deterministic_and_resumes(tmp_path, tiny):
     # resume: keep frames 0 and 1, drop the rest; the re-render must equal the original
     out = tmp_path / "again"
     import shutil
+
     shutil.copytree(tiny[0], out)
     (out / "sequence.json").unlink()
     for i in (2, 3):
@@ -186,14 +205,32 @@ def test_render_is_deterministic_and_resumes(tmp_path, tiny):
             np.testing.assert_array_equal(again.inputs(i)[k], v, err_msg=f"frame {i} {k}")
         np.testing.assert_array_equal(again.reference(i)["color"], first.reference(i)["color"])
     # another configuration into the same directory is refused, nothing is overwritten
-    proc = subprocess.run([sys.executable, "-m", "jnds_deploy", "render", "--quiet", "--out", str(out),
-                           "--seed", "12", "--frames", "4", "--size", "64x36"], capture_output=True, text=True)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "jnds_deploy",
+            "render",
+            "--quiet",
+            "--out",
+            str(out),
+            "--seed",
+            "12",
+            "--frames",
+            "4",
+            "--size",
+            "64x36",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2 and "another configuration" in proc.stderr
     assert validate(out).frame_count == 4
 
 
 def test_bad_render_config():
     from jnds_deploy.render import RenderConfig
+
     with pytest.raises(RenderError, match="--frames must be >= 1"):
         RenderConfig(frames=0)
     with pytest.raises(RenderError, match="--scene 'moon'"):
@@ -204,6 +241,7 @@ def test_bad_render_config():
 def tracer():
     from jnds_deploy.render.integrator import SplitPathTracer, load_mitsuba
     from jnds_deploy.render.scene import build_scene
+
     mi, dr = load_mitsuba()
     scene, materials = build_scene(mi, 5, "procedural")
     # small bright bulbs make point sampling (inputs) and box filtering (reference) differ
@@ -219,6 +257,7 @@ def test_high_spp_input_matches_reference_and_1spp_mean(tracer):
     - the mean of 8 independent 1-spp inputs.
     """
     from jnds_deploy.render.sequence import RenderConfig, render_inputs, render_reference
+
     cam = camera_path("static", 1, np.random.default_rng(4))[0][0]
     cfg = RenderConfig(size=(32, 18), spp=64, spp_input=256)
     comp = lambda a: a["albedo"] * a["diffuse"] + a["specular"]  # noqa: E731
@@ -245,9 +284,11 @@ def test_the_scene_renders_the_same_in_whatever_order_mitsuba_loads_its_emitters
     """Mitsuba orders a loaded scene's emitters differently from one load to the next (2 of
     the 4 emitters swapped in 4 of 12 loads when measured); the tracer picks emitters in a
     fixed order, so every load renders the same samples."""
-    from jnds_deploy.render.integrator import SplitPathTracer, emitter_id as name, load_mitsuba
+    from jnds_deploy.render.integrator import SplitPathTracer, load_mitsuba
+    from jnds_deploy.render.integrator import emitter_id as name
     from jnds_deploy.render.scene import build_scene
     from jnds_deploy.render.sequence import RenderConfig, render_inputs
+
     mi, dr = load_mitsuba()
     cfg = RenderConfig(size=(24, 14), spp_input=2)
     cam = camera_path("static", 1, np.random.default_rng(4))[0][0]
@@ -277,6 +318,7 @@ def test_scalar_fallback_matches_llvm(tmp_path):
 
 def test_dataset_grows_with_new_training_seeds_only():
     from jnds_deploy.render.dataset import dataset_specs
+
     base, grown = dataset_specs("train"), dataset_specs("train", 40)
     assert len(base) == 24 and len(grown) == 40 and grown[:24] == base
     val_seeds = {cfg.seed for _, cfg in dataset_specs("val")}
@@ -285,14 +327,22 @@ def test_dataset_grows_with_new_training_seeds_only():
         dataset_specs("train", 0)
     # the kinds rotate with the seed: every 8th a diffuse-only and a metal-only scene
     assert [rel for rel, _ in base[:8]] == [
-        "train/procedural-static-1000", "train/procedural-dolly-1001", "train/procedural-orbit-1002",
-        "train/diffuse-pan-1003", "train/procedural-cut-1004", "train/procedural-static-1005",
-        "train/metal-dolly-1006", "train/procedural-orbit-1007"]
+        "train/procedural-static-1000",
+        "train/procedural-dolly-1001",
+        "train/procedural-orbit-1002",
+        "train/diffuse-pan-1003",
+        "train/procedural-cut-1004",
+        "train/procedural-static-1005",
+        "train/metal-dolly-1006",
+        "train/procedural-orbit-1007",
+    ]
     assert all(rel.split("/")[1].startswith(cfg.scene) for rel, cfg in base)
     moving = dataset_specs("train", 24, moving_sequences=3)
     assert moving[:24] == base and [(rel, cfg.scene) for rel, cfg in moving[24:]] == [
-        ("train/moving-static-4000", "moving"), ("train/moving-dolly-4001", "moving"),
-        ("train/moving-orbit-4002", "moving")]
+        ("train/moving-static-4000", "moving"),
+        ("train/moving-dolly-4001", "moving"),
+        ("train/moving-orbit-4002", "moving"),
+    ]
     assert not {cfg.seed for _, cfg in moving} & val_seeds
     with pytest.raises(ValueError, match="moving_sequences"):
         dataset_specs("train", 24, "cycles", moving_sequences=1)
@@ -301,8 +351,11 @@ def test_dataset_grows_with_new_training_seeds_only():
 def test_dataset_jobs_render_what_one_process_renders(tmp_path, monkeypatch):
     """--jobs N renders in spawned processes; the sequences are the same bit for bit."""
     from jnds_deploy.render import RenderConfig, dataset
-    specs = [(f"train/s{i}", RenderConfig(scene="procedural", seed=30 + i, camera="orbit", frames=2,
-                                          size=(32, 18), spp=4)) for i in range(2)]
+
+    specs = [
+        (f"train/s{i}", RenderConfig(scene="procedural", seed=30 + i, camera="orbit", frames=2, size=(32, 18), spp=4))
+        for i in range(2)
+    ]
     monkeypatch.setattr(dataset, "dataset_specs", lambda split, n, engine="mitsuba", moving=0, mixed=0, lights=0: specs)
     one = dataset.render_dataset(tmp_path / "one", jobs=1)
     two = dataset.render_dataset(tmp_path / "two", jobs=2)
@@ -324,10 +377,12 @@ def test_dataset_jobs_render_what_one_process_renders(tmp_path, monkeypatch):
 
 def test_the_test_split_is_apart_and_only_rendered_when_asked_for():
     from jnds_deploy.render.dataset import dataset_specs
+
     for engine in ("mitsuba", "cycles"):
         test = {cfg.seed for _, cfg in dataset_specs("test", engine=engine)}
         seen = {cfg.seed for _, cfg in dataset_specs("all", 1000, engine=engine)}
         assert len(test) == 6 and not test & seen
         assert all(rel.startswith("test/") for rel, _ in dataset_specs("test", engine=engine))
-    assert not {cfg.seed for _, cfg in dataset_specs("test")} & {cfg.seed for _, cfg in
-                                                                 dataset_specs("all", 1000, engine="cycles")}
+    assert not {cfg.seed for _, cfg in dataset_specs("test")} & {
+        cfg.seed for _, cfg in dataset_specs("all", 1000, engine="cycles")
+    }

@@ -1,4 +1,5 @@
 """SVGF baseline: preserves constants, removes noise, accumulates over time, no NaN."""
+
 import numpy as np
 import pytest
 
@@ -10,10 +11,14 @@ def frame(rng, w=48, h=32, noise=0.0, level=0.5):
     diffuse = np.full((h, w, 3), level, np.float32)
     if noise:
         diffuse = diffuse * rng.exponential(1.0, (h, w, 3)).astype(np.float32)
-    return {"diffuse": diffuse, "specular": np.zeros((h, w, 3), np.float32),
-            "albedo": np.full((h, w, 3), 0.8, np.float32),
-            "normal": np.tile(np.array([0, 0, 1], np.float32), (h, w, 1)),
-            "depth": np.full((h, w, 1), 3.0, np.float32), "motion": np.zeros((h, w, 2), np.float32)}
+    return {
+        "diffuse": diffuse,
+        "specular": np.zeros((h, w, 3), np.float32),
+        "albedo": np.full((h, w, 3), 0.8, np.float32),
+        "normal": np.tile(np.array([0, 0, 1], np.float32), (h, w, 1)),
+        "depth": np.full((h, w, 1), 3.0, np.float32),
+        "motion": np.zeros((h, w, 2), np.float32),
+    }
 
 
 def test_constant_input_is_preserved():

@@ -16,6 +16,7 @@ why). The lineage of shipped models is in ``docs/changelog.md``, not on the card
 ``--note`` adds a line under the scores, e.g. how the reports' settings differ from the
 checkpoint's.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,9 +46,14 @@ INFERENCE_SETTINGS = {
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--eval", nargs="+", required=True, metavar="REPORT",
-                    help="jnds evaluate reports (JSON) or quoted globs of them; a report of one set is named "
-                         "after its file (model_eval_<set>.json)")
+    ap.add_argument(
+        "--eval",
+        nargs="+",
+        required=True,
+        metavar="REPORT",
+        help="jnds evaluate reports (JSON) or quoted globs of them; a report of one set is named "
+        "after its file (model_eval_<set>.json)",
+    )
     ap.add_argument("--model", default="jnds", help="the method in the reports that is this checkpoint")
     ap.add_argument("--checkpoint", default=str(PKG / "jnds.pt"), help="the checkpoint the card describes")
     ap.add_argument("--run", default=None, help="ship this training run's checkpoint.pt as --out-dir/jnds.pt first")
@@ -109,8 +115,15 @@ def card(ckpt: dict, sets: dict, model: str, reports: list[str], notes: list[str
         pixel and upsamples it {cfg.scale}x; trained in full precision, then quantization-aware for the int8
         pipeline. Where it falls short of OIDN and why: [docs/model-gap.md](../../docs/model-gap.md). How it
         came to be: [docs/changelog.md](../../docs/changelog.md).""")
-    parts = ["# Model card: jnds", intro, configuration(ckpt, cfg), data(ckpt), recipe(tcfg, ckpt.get("state") or {}),
-             scores(sets, model, trained, reports, notes), limitations(sets, model, trained)]
+    parts = [
+        "# Model card: jnds",
+        intro,
+        configuration(ckpt, cfg),
+        data(ckpt),
+        recipe(tcfg, ckpt.get("state") or {}),
+        scores(sets, model, trained, reports, notes),
+        limitations(sets, model, trained),
+    ]
     return "\n\n".join(parts) + "\n"
 
 
@@ -118,15 +131,24 @@ def configuration(ckpt: dict, cfg: ModelConfig) -> str:
     macs = count_macs(cfg)
     params = sum(p.numel() for p in ckpt["model"].values() if p.dtype.is_floating_point)
     rows = "\n".join(f"| `{k}` | `{json.dumps(v)}` |" for k, v in asdict(cfg).items())
-    upsample = ("one learned upsample kernel for every pixel, no upsample graph" if cfg.upsample_width == 0
-                else f"upsample block {macs.get('upsample_block', 0):.1f}")
-    on = [f"- {text.format(v=getattr(cfg, k))}: `jnds run {off}` turns it off" for k, (text, off)
-          in INFERENCE_SETTINGS.items() if getattr(cfg, k)]
+    upsample = (
+        "one learned upsample kernel for every pixel, no upsample graph"
+        if cfg.upsample_width == 0
+        else f"upsample block {macs.get('upsample_block', 0):.1f}"
+    )
+    on = [
+        f"- {text.format(v=getattr(cfg, k))}: `jnds run {off}` turns it off"
+        for k, (text, off) in INFERENCE_SETTINGS.items()
+        if getattr(cfg, k)
+    ]
     size = _para(f"""{params:,} parameters (activation ranges included); {macs["total"]:.1f} GMAC per 1280x720
         frame: input block {macs["input_block"]:.1f}, feature extractor {macs["feature_extractor"]:.1f}, output
         block {macs["output_block"]:.1f}; {upsample} (`jnds_deploy.model.count_macs`).""")
-    settings = ("\n\nSettings that change no weight (not in the paper; docs/model-gap.md says why), on:\n\n"
-                + "\n".join(on)) if on else ""
+    settings = (
+        ("\n\nSettings that change no weight (not in the paper; docs/model-gap.md says why), on:\n\n" + "\n".join(on))
+        if on
+        else ""
+    )
     return f"""## Configuration
 
 `model_config` of the checkpoint (`jnds_deploy.model.ModelConfig`; its comments say what each
@@ -149,8 +171,10 @@ def _counts(items) -> list[tuple[str, int]]:
 def data(ckpt: dict) -> str:
     parsed = [parse_sequence(n) for n in ckpt.get("train_sequences") or []]
     if parsed:
-        per = [f"{n} {r} ({', '.join(f'{k} {c}' for k, c in _counts(p[1] for p in parsed if p[0] == r))})"
-               for r, n in _counts(p[0] for p in parsed)]
+        per = [
+            f"{n} {r} ({', '.join(f'{k} {c}' for k, c in _counts(p[1] for p in parsed if p[0] == r))})"
+            for r, n in _counts(p[0] for p in parsed)
+        ]
         what = f"{len(parsed)} training sequences: {' and '.join(per)}"
     else:
         what = "The training sequences are not recorded in the checkpoint"
@@ -164,15 +188,26 @@ def recipe(tcfg: dict, state: dict) -> str:
     if not tcfg:
         return "## Recipe\n\nNot recorded in the checkpoint."
     start = "Fine-tuned from the checkpoint shipped before it" if tcfg.get("init") else "Trained from scratch"
-    aug = [text for key, text in (("rotate_normals", "normal rotations"), ("flips", "flips"),
-                                  ("colours", "colour permutations"), ("cross_cuts", "windows across camera cuts"),
-                                  ("balance_renderers", "each renderer drawn half the time")) if tcfg.get(key)]
+    aug = [
+        text
+        for key, text in (
+            ("rotate_normals", "normal rotations"),
+            ("flips", "flips"),
+            ("colours", "colour permutations"),
+            ("cross_cuts", "windows across camera cuts"),
+            ("balance_renderers", "each renderer drawn half the time"),
+        )
+        if tcfg.get(key)
+    ]
     if tcfg.get("exposure"):
         aug.insert(0, "exposure x2^{:g}..2^{:g}".format(*tcfg["exposure"]))
     loss = f"Eq. 3-5 (spatial weight {tcfg.get('w_spatial')}, spatial loss `{tcfg.get('spatial_loss')}`"
     loss += ", the feature loss being Eq. 6" if "feature" in str(tcfg.get("spatial_loss")) else ""
-    loss += (f"), plus {tcfg['lowfreq_loss']:g} x the L1 of 4-, 8- and 16-pixel box averages (not in the paper)"
-             if tcfg.get("lowfreq_loss") else ")")
+    loss += (
+        f"), plus {tcfg['lowfreq_loss']:g} x the L1 of 4-, 8- and 16-pixel box averages (not in the paper)"
+        if tcfg.get("lowfreq_loss")
+        else ")"
+    )
     device = f"{tcfg.get('threads', 2)} CPU cores" if tcfg.get("device", "cpu") == "cpu" else tcfg["device"]
     return "## Recipe\n\n" + _para(f"""{start}: {tcfg.get("fp32_steps")} fp32 steps, then
         {tcfg.get("qat_steps")} quantization-aware ({state.get("step", "?")} in all; phase at save:
@@ -205,13 +240,20 @@ def _rows(sets: dict, model: str, trained: set) -> list[tuple[str, str, dict, di
         parsed = {n: parse_sequence(n) for n in seqs}
         renderers = sorted({p[0] for p in parsed.values()})
         label = name if name in ("val", "test") else " and ".join(sorted({p[1] for p in parsed.values()}))
-        rows.append((label, f"{len(seqs)} ({_seeds(list(parsed.values()))})", _means(rep[model], seqs),
-                     _means(rep[BASELINE], seqs)))
+        rows.append(
+            (
+                label,
+                f"{len(seqs)} ({_seeds(list(parsed.values()))})",
+                _means(rep[model], seqs),
+                _means(rep[BASELINE], seqs),
+            )
+        )
         if len(renderers) > 1:
             for r in renderers:
                 part = [n for n in seqs if parsed[n][0] == r]
-                rows.append((f"{label}, its {r} half", str(len(part)), _means(rep[model], part),
-                             _means(rep[BASELINE], part)))
+                rows.append(
+                    (f"{label}, its {r} half", str(len(part)), _means(rep[model], part), _means(rep[BASELINE], part))
+                )
         for n in seqs:
             pooled[parsed[n][:2] in trained][n] = (rep[model]["sequences"][n], rep[BASELINE]["sequences"][n])
     for seen, label in ((True, "**all: kinds it trained on**"), (False, "**all: kinds it never trained on**")):
@@ -222,18 +264,23 @@ def _rows(sets: dict, model: str, trained: set) -> list[tuple[str, str, dict, di
 
 
 def scores(sets: dict, model: str, trained: set, reports: list[str], notes: list[str]) -> str:
-    lines = [f"| {label} | {n} | {m['psnr']:.2f} / {m['flip']:.4f} / {m['temporal']:.4f} | "
-             f"{b['psnr']:.2f} / {b['flip']:.4f} / {b['temporal']:.4f} | {m['psnr'] - b['psnr']:+.2f} dB, "
-             f"{m['flip'] - b['flip']:+.4f}, {m['temporal'] / b['temporal']:.2f}x |"
-             for label, n, m, b in _rows(sets, model, trained)]
+    lines = [
+        f"| {label} | {n} | {m['psnr']:.2f} / {m['flip']:.4f} / {m['temporal']:.4f} | "
+        f"{b['psnr']:.2f} / {b['flip']:.4f} / {b['temporal']:.4f} | {m['psnr'] - b['psnr']:+.2f} dB, "
+        f"{m['flip'] - b['flip']:+.4f}, {m['temporal'] / b['temporal']:.2f}x |"
+        for label, n, m, b in _rows(sets, model, trained)
+    ]
     kinds = {parse_sequence(n)[:2] for rep in sets.values() for n in rep[model]["sequences"]}
     unseen = sorted(k for r, k in kinds - trained)
     multi: dict[str, list[str]] = {}
     for name, rep in sets.items():
         multi.setdefault(rep["_report"], []).append(name)
-    commands = [f"`jnds evaluate --checkpoint jnds_deploy/checkpoints/jnds.pt --data "
-                f"{' '.join('data/' + n for n in names)} --baselines bicubic oidn-balanced --threads 2 --out {path}`"
-                for path, names in multi.items() if len(names) > 1]
+    commands = [
+        f"`jnds evaluate --checkpoint jnds_deploy/checkpoints/jnds.pt --data "
+        f"{' '.join('data/' + n for n in names)} --baselines bicubic oidn-balanced --threads 2 --out {path}`"
+        for path, names in multi.items()
+        if len(names) > 1
+    ]
     how = _para(f"""The checkpoint at int8 fake quantization, as `jnds evaluate` runs it (the deployed int8
         pipeline against fp32: [benchmarks/results/exposure_sweep.md](../../benchmarks/results/exposure_sweep.md)),
         against OIDN `balanced` on the 1-spp frame, upsampled bicubically; OIDN is given the albedo and
@@ -259,12 +306,21 @@ def limitations(sets: dict, model: str, trained: set) -> str:
         if label.startswith("**") or ", its " in label:
             continue
         (behind if m["psnr"] < b["psnr"] else ahead).append(f"{label} ({m['psnr'] - b['psnr']:+.2f} dB)")
-    return "## Limitations\n\n" + _para(f"""- Behind OIDN `balanced` + bicubic in PSNR on: {"; ".join(behind)
-        or "no set"}. Ahead on: {"; ".join(ahead) or "no set"}.""").replace("\n", "\n  ") + "\n" + _para(
-        """- Known failures, measured and explained in [docs/model-gap.md](../../docs/model-gap.md): scene
+    return (
+        "## Limitations\n\n"
+        + _para(
+            f"""- Behind OIDN `balanced` + bicubic in PSNR on: {"; ".join(behind) or "no set"}. Ahead on: {
+                "; ".join(ahead) or "no set"
+            }."""
+        ).replace("\n", "\n  ")
+        + "\n"
+        + _para(
+            """- Known failures, measured and explained in [docs/model-gap.md](../../docs/model-gap.md): scene
         kinds unlike its training data, participating media, mirrors and glossy reflections, hair, thin
         geometry, the first frame and the frame after a camera cut, and trails behind moving objects where
-        the history is wrong.""").replace("\n", "\n  ")
+        the history is wrong."""
+        ).replace("\n", "\n  ")
+    )
 
 
 if __name__ == "__main__":

@@ -9,12 +9,67 @@ calibrate``) holds ONNX graphs and ``manifest.json``; docs/artifact-format.md de
 Written by ``export`` and ``calibration``, read by ``runtime``; this package imports
 neither.
 """
-from .layouts import (BLOCK_KEY, HEAD, HEAD_KEY, INPUTS, INPUTS_KEY, LEVELS_KEY, BlockLayout, Cut, HeadLayout,
-                      InputsLayout, levels_of_session, levels_to_json, preprocess)
-from .manifest import (ACTIVATION_TYPES, FORMAT, GROUPS, MANIFEST, READABLE, Block, Edge, Graph, GraphChoice,
-                       Int8Graph, Manifest, Variant, file_hash, variant_key, write_json)
 
-__all__ = ["ACTIVATION_TYPES", "BLOCK_KEY", "FORMAT", "GROUPS", "HEAD", "HEAD_KEY", "INPUTS", "INPUTS_KEY",
-           "LEVELS_KEY", "MANIFEST", "READABLE", "Block", "BlockLayout", "Cut", "Edge", "Graph", "GraphChoice",
-           "HeadLayout", "InputsLayout", "Int8Graph", "Manifest", "Variant", "file_hash", "levels_of_session",
-           "levels_to_json", "preprocess", "variant_key", "write_json"]
+from .layouts import (
+    BLOCK_KEY,
+    HEAD,
+    HEAD_KEY,
+    INPUTS,
+    INPUTS_KEY,
+    LEVELS_KEY,
+    BlockLayout,
+    Cut,
+    HeadLayout,
+    InputsLayout,
+    levels_of_session,
+    levels_to_json,
+    preprocess,
+)
+from .manifest import (
+    ACTIVATION_TYPES,
+    FORMAT,
+    GROUPS,
+    MANIFEST,
+    READABLE,
+    Block,
+    Edge,
+    Graph,
+    GraphChoice,
+    Int8Graph,
+    Manifest,
+    Variant,
+    file_hash,
+    variant_key,
+    write_json,
+)
+
+__all__ = [
+    "ACTIVATION_TYPES",
+    "BLOCK_KEY",
+    "FORMAT",
+    "GROUPS",
+    "HEAD",
+    "HEAD_KEY",
+    "INPUTS",
+    "INPUTS_KEY",
+    "LEVELS_KEY",
+    "MANIFEST",
+    "READABLE",
+    "Block",
+    "BlockLayout",
+    "Cut",
+    "Edge",
+    "Graph",
+    "GraphChoice",
+    "HeadLayout",
+    "InputsLayout",
+    "Int8Graph",
+    "Manifest",
+    "Variant",
+    "file_hash",
+    "levels_of_session",
+    "levels_to_json",
+    "preprocess",
+    "variant_key",
+    "write_json",
+]

@@ -15,6 +15,7 @@ carries what it takes to run it; docs/artifact-format.md describes every key.
 
 Numbers in these layouts are (scale, zero point) pairs: value = (q - zero_point) * scale.
 """
+
 from __future__ import annotations
 
 import json
@@ -36,8 +37,15 @@ BLOCK_KEY = "jnds.block"
 # what model.tonemap_inputs does to each channel of current then history: 1 Eq. 1's tonemap
 # (radiance), 2 n * 0.5 + 0.5 (normals), 0 nothing; a network with the guide albedo input
 # reads its channels after them, as they are (``preprocess``)
-_PREPROCESS = np.array([1 if n in RADIANCE else 2 if n == "normal" else 0
-                        for layout in (CURRENT, HISTORY) for n, c in layout for _ in range(c)], np.int64)
+_PREPROCESS = np.array(
+    [
+        1 if n in RADIANCE else 2 if n == "normal" else 0
+        for layout in (CURRENT, HISTORY)
+        for n, c in layout
+        for _ in range(c)
+    ],
+    np.int64,
+)
 _GUIDED = np.append(_PREPROCESS, np.zeros(N_GUIDE, np.int64))
 
 
@@ -49,8 +57,10 @@ def preprocess(channels: int) -> np.ndarray:
         for block in (1, 2):
             if channels == len(kinds) * block * block:
                 return np.repeat(kinds, block * block)
-    raise ArtifactError(f"an input projection reads {len(_PREPROCESS)} channels (current, history) or "
-                        f"{len(_GUIDED)} (and the guide albedo), or 4x either (in 2x2 blocks), not {channels}")
+    raise ArtifactError(
+        f"an input projection reads {len(_PREPROCESS)} channels (current, history) or "
+        f"{len(_GUIDED)} (and the guide albedo), or 4x either (in 2x2 blocks), not {channels}"
+    )
 
 
 def _metadata(sess, key: str) -> str | None:
@@ -96,31 +106,47 @@ class InputsLayout(_Kept):
     @property
     def order(self) -> np.ndarray:
         """``slots``, or the identity where empty."""
-        return np.array(self.slots or range(len(_PREPROCESS) * self.block ** 2), np.int64)
+        return np.array(self.slots or range(len(_PREPROCESS) * self.block**2), np.int64)
 
     @property
     def guided(self) -> bool:
         """The graph reads the guide albedo (after current and history)."""
-        return len(self.order) == len(_GUIDED) * self.block ** 2
+        return len(self.order) == len(_GUIDED) * self.block**2
 
     def to_json(self) -> str:
-        return json.dumps({"scale": self.scale, "zero_point": self.zero_point, "channels": self.channels,
-                           "slots": list(self.slots), "block": self.block})
+        return json.dumps(
+            {
+                "scale": self.scale,
+                "zero_point": self.zero_point,
+                "channels": self.channels,
+                "slots": list(self.slots),
+                "block": self.block,
+            }
+        )
 
     @classmethod
     def from_json(cls, text: str) -> InputsLayout:
         try:
             d = json.loads(text)
-            layout = cls(float(d["scale"]), int(d["zero_point"]), int(d["channels"]), tuple(d.get("slots", ())),
-                         int(d.get("block", 1)))
+            layout = cls(
+                float(d["scale"]),
+                int(d["zero_point"]),
+                int(d["channels"]),
+                tuple(d.get("slots", ())),
+                int(d.get("block", 1)),
+            )
         except (ValueError, KeyError, TypeError) as exc:
             raise ArtifactError(f"inputs metadata {INPUTS_KEY!r} malformed ({exc!r})") from exc
         order = layout.order
-        if (layout.channels < len(order) or not layout.scale > 0 or not 0 <= layout.zero_point <= 255
-                or layout.block not in (1, 2)
-                or len(order) not in (len(_PREPROCESS) * layout.block ** 2, len(_GUIDED) * layout.block ** 2)
-                or len(set(order.tolist())) != len(order)
-                or not (0 <= order.min() and order.max() < layout.channels)):
+        if (
+            layout.channels < len(order)
+            or not layout.scale > 0
+            or not 0 <= layout.zero_point <= 255
+            or layout.block not in (1, 2)
+            or len(order) not in (len(_PREPROCESS) * layout.block**2, len(_GUIDED) * layout.block**2)
+            or len(set(order.tolist())) != len(order)
+            or not (0 <= order.min() and order.max() < layout.channels)
+        ):
             raise ArtifactError(f"inputs metadata {INPUTS_KEY!r}: {layout}")
         return layout
 
@@ -142,18 +168,29 @@ class HeadLayout(_Kept):
 
     def __post_init__(self):
         used = sum(n for _, n in self.parts)
-        if (used != len(self.scale) or used != len(self.centre) or used > self.channels
-                or not 0 <= self.zero_point <= 255):
-            raise ArtifactError(f"head layout: {used} channels in parts, {len(self.scale)} scales, "
-                                f"{len(self.centre)} centres, {self.channels} in the tensor, "
-                                f"zero point {self.zero_point}")
+        if (
+            used != len(self.scale)
+            or used != len(self.centre)
+            or used > self.channels
+            or not 0 <= self.zero_point <= 255
+        ):
+            raise ArtifactError(
+                f"head layout: {used} channels in parts, {len(self.scale)} scales, "
+                f"{len(self.centre)} centres, {self.channels} in the tensor, "
+                f"zero point {self.zero_point}"
+            )
         bad = [n for n, c in self.parts if head_kind(n) == "normalized" and c != 9]
         if bad:  # the runtime's decoding (runtime.head.decode_row) normalizes 3x3 kernels
             raise ArtifactError(f"head layout: normalized kernel(s) {', '.join(bad)} without 9 taps")
 
     def to_dict(self) -> dict:
-        return {"parts": [list(p) for p in self.parts], "scale": list(self.scale), "centre": list(self.centre),
-                "zero_point": self.zero_point, "channels": self.channels}
+        return {
+            "parts": [list(p) for p in self.parts],
+            "scale": list(self.scale),
+            "centre": list(self.centre),
+            "zero_point": self.zero_point,
+            "channels": self.channels,
+        }
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict())
@@ -169,8 +206,13 @@ class HeadLayout(_Kept):
     def from_dict(cls, d: dict) -> HeadLayout:
         """The layout from its JSON object (``to_dict``'s)."""
         try:
-            return cls(tuple((str(n), int(c)) for n, c in d["parts"]), tuple(float(s) for s in d["scale"]),
-                       tuple(float(s) for s in d["centre"]), int(d["zero_point"]), int(d["channels"]))
+            return cls(
+                tuple((str(n), int(c)) for n, c in d["parts"]),
+                tuple(float(s) for s in d["scale"]),
+                tuple(float(s) for s in d["centre"]),
+                int(d["zero_point"]),
+                int(d["channels"]),
+            )
         except (ValueError, KeyError, TypeError) as exc:
             raise ArtifactError(f"head layout metadata {HEAD_KEY!r} malformed ({exc!r})") from exc
 
@@ -224,27 +266,51 @@ class BlockLayout(_Kept):
     segments: tuple[tuple[str, tuple[str, ...]], ...]
 
     def to_json(self) -> str:
-        return json.dumps({"cuts": [{"entry": c.entry, "up": c.up, "skip": c.skip, "up_q": list(c.up_q),
-                                     "skip_q": list(c.skip_q), "entry_q": list(c.entry_q), "stage": c.stage,
-                                     "skip_phases": c.skip_phases}
-                                    for c in self.cuts],
-                           "segments": [[e, list(o)] for e, o in self.segments]})
+        return json.dumps(
+            {
+                "cuts": [
+                    {
+                        "entry": c.entry,
+                        "up": c.up,
+                        "skip": c.skip,
+                        "up_q": list(c.up_q),
+                        "skip_q": list(c.skip_q),
+                        "entry_q": list(c.entry_q),
+                        "stage": c.stage,
+                        "skip_phases": c.skip_phases,
+                    }
+                    for c in self.cuts
+                ],
+                "segments": [[e, list(o)] for e, o in self.segments],
+            }
+        )
 
     @classmethod
     def from_json(cls, text: str) -> BlockLayout:
         try:
             d = json.loads(text)
-            cuts = tuple(Cut(str(c["entry"]), str(c["up"]), str(c["skip"]),
-                             *((float(c[k][0]), int(c[k][1])) for k in ("up_q", "skip_q", "entry_q")),
-                             str(c.get("stage", "")), int(c.get("skip_phases", 1))) for c in d["cuts"])
+            cuts = tuple(
+                Cut(
+                    str(c["entry"]),
+                    str(c["up"]),
+                    str(c["skip"]),
+                    *((float(c[k][0]), int(c[k][1])) for k in ("up_q", "skip_q", "entry_q")),
+                    str(c.get("stage", "")),
+                    int(c.get("skip_phases", 1)),
+                )
+                for c in d["cuts"]
+            )
             layout = cls(cuts, tuple((str(e), tuple(str(n) for n in o)) for e, o in d["segments"]))
         except (ValueError, KeyError, TypeError, IndexError) as exc:
             raise ArtifactError(f"block metadata {BLOCK_KEY!r} malformed ({exc!r})") from exc
         entries = [e for e, _ in layout.segments]
         made = {n for _, o in layout.segments for n in o}
-        if (entries[:1] != [INPUTS] or sorted(entries[1:]) != sorted(c.entry for c in layout.cuts)
-                or not all({c.up, c.skip} <= made and c.skip_phases in (1, 2) for c in layout.cuts)
-                or not all(s > 0 and 0 <= z <= 255 for c in layout.cuts for s, z in (c.up_q, c.skip_q, c.entry_q))):
+        if (
+            entries[:1] != [INPUTS]
+            or sorted(entries[1:]) != sorted(c.entry for c in layout.cuts)
+            or not all({c.up, c.skip} <= made and c.skip_phases in (1, 2) for c in layout.cuts)
+            or not all(s > 0 and 0 <= z <= 255 for c in layout.cuts for s, z in (c.up_q, c.skip_q, c.entry_q))
+        ):
             raise ArtifactError(f"block metadata {BLOCK_KEY!r}: {layout}")
         return layout
 

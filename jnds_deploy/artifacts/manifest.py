@@ -18,6 +18,7 @@ last calibrated). An int8 entry's ``inputs``, ``head``, ``levels`` (``Edge``) an
 as the fp32 graphs do, or u8 ones whose layouts are in the graph's metadata
 (``artifacts.layouts``; ``runtime.network`` runs either from float feeds).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -72,13 +73,13 @@ DESCRIPTION = {
 }
 FILTER_PATHS = {
     "diffuse/specular": "spatiotemporal(spatial, temporal, blend) at native; level k (native / 2^k): "
-                        "2x2 average pool then 'down' kernel; back up: bilinear x2, 'up' kernel, "
-                        "lerp(skip, filtered, up_blend); ReLU after every filter; native up kernel "
-                        "and up_blend are '<path>.up', '<path>.up_blend'",
+    "2x2 average pool then 'down' kernel; back up: bilinear x2, 'up' kernel, "
+    "lerp(skip, filtered, up_blend); ReLU after every filter; native up kernel "
+    "and up_blend are '<path>.up', '<path>.up_blend'",
     "albedo/normal": "spatiotemporal with the shared 'aux.*' kernels; normals filtered as n * 0.5 + 0.5",
     "blend": "lerp(current, history, blend): 1 = all history",
     "history": "next frame's history = [diffuse, specular, albedo, normal] filtered, warped bicubically "
-               "along the motion vectors; on a first frame or cut the current inputs stand in",
+    "along the motion vectors; on a first frame or cut the current inputs stand in",
 }
 
 
@@ -135,8 +136,10 @@ class Int8Graph:
             if key in d:
                 d[key] = _member(kind, d[key], f"{where}.{key}")
         if d.get("activation_type") not in ACTIVATION_TYPES:
-            raise ArtifactError(f"{where}.activation_type is {d.get('activation_type')!r}, expected one of "
-                                f"{', '.join(map(repr, ACTIVATION_TYPES))}")
+            raise ArtifactError(
+                f"{where}.activation_type is {d.get('activation_type')!r}, expected one of "
+                f"{', '.join(map(repr, ACTIVATION_TYPES))}"
+            )
         variants = {k: Variant(**v) for k, v in d.pop("variants", {}).items()}
         return cls(**d, variants=variants)
 
@@ -146,8 +149,7 @@ def _member(kind: type[Enum], value, where: str):
     try:
         return kind(value)
     except ValueError:
-        raise ArtifactError(f"{where} is {value!r}, expected one of "
-                            f"{', '.join(repr(m.value) for m in kind)}") from None
+        raise ArtifactError(f"{where} is {value!r}, expected one of {', '.join(repr(m.value) for m in kind)}") from None
 
 
 @dataclass
@@ -237,8 +239,10 @@ class Manifest:
             raise ArtifactError(f"{path}: unreadable ({exc})") from exc
         if not isinstance(data, dict) or data.get("format") not in READABLE:
             got = data.get("format") if isinstance(data, dict) else None
-            raise ArtifactError(f"{path}: format {got!r}, expected {FORMAT!r}; "
-                                "re-run `jnds export` (and `jnds calibrate`) with this version")
+            raise ArtifactError(
+                f"{path}: format {got!r}, expected {FORMAT!r}; "
+                "re-run `jnds export` (and `jnds calibrate`) with this version"
+            )
         try:
             manifest = cls.from_dict(data)
         except (KeyError, TypeError, AttributeError) as exc:
@@ -246,15 +250,20 @@ class Manifest:
         except ArtifactError as exc:
             raise ArtifactError(f"{path}: {exc}") from exc
         if manifest.upsample_root not in UPSAMPLE_ROOTS:
-            raise ArtifactError(f"{path}: model_config.upsample_root is {manifest.upsample_root!r}, "
-                                f"expected one of {', '.join(map(str, UPSAMPLE_ROOTS))}")
+            raise ArtifactError(
+                f"{path}: model_config.upsample_root is {manifest.upsample_root!r}, "
+                f"expected one of {', '.join(map(str, UPSAMPLE_ROOTS))}"
+            )
         if "network" not in manifest.graphs:
             raise ArtifactError(f"{path}: no 'network' graph")
         if manifest.scale > 1 and "upsample" not in manifest.graphs:
             k = manifest.upsample_kernel
-            if not (isinstance(k, list) and len(k) == 9 and all(isinstance(v, (int, float)) and -1 <= v <= 1 for v in k)):
-                raise ArtifactError(f"{path}: no 'upsample' graph, and upsample_kernel is {k!r}, "
-                                    "expected 9 numbers in [-1, 1]")
+            if not (
+                isinstance(k, list) and len(k) == 9 and all(isinstance(v, (int, float)) and -1 <= v <= 1 for v in k)
+            ):
+                raise ArtifactError(
+                    f"{path}: no 'upsample' graph, and upsample_kernel is {k!r}, expected 9 numbers in [-1, 1]"
+                )
         return manifest
 
     def save(self, root: str | Path) -> Path:
@@ -277,26 +286,49 @@ class Manifest:
         graphs = {}
         for name, g in data["graphs"].items():
             int8 = {m: Int8Graph.from_dict(e, f"graphs.{name}.int8.{m}") for m, e in g.get("int8", {}).items()}
-            graphs[name] = Graph(file=g["file"], inputs=g.get("inputs", {}), outputs=g.get("outputs", {}),
-                                 precision=g.get("precision", "fp32"), resolution=g.get("resolution", "native"),
-                                 sha256=g.get("sha256", ""), variants=variants(g), int8=int8)
+            graphs[name] = Graph(
+                file=g["file"],
+                inputs=g.get("inputs", {}),
+                outputs=g.get("outputs", {}),
+                precision=g.get("precision", "fp32"),
+                resolution=g.get("resolution", "native"),
+                sha256=g.get("sha256", ""),
+                variants=variants(g),
+                int8=int8,
+            )
         method = data.get("int8_method")
         if method is not None and not any(method in g.int8 for g in graphs.values()):
             raise ArtifactError(f"int8_method is {method!r}, and no graph has an int8 entry of that name")
-        return cls(checkpoint=data["checkpoint"], model_config=data["model_config"],
-                   pad_multiple=int(data["pad_multiple"]), graphs=graphs,
-                   validation=data.get("validation", []), qat_ranges=data.get("qat_ranges", "qat_ranges.json"),
-                   int8_method=method, int8_validation=data.get("int8_validation", {}),
-                   package_version=data.get("package_version", ""), upsample_kernel=data.get("upsample_kernel"))
+        return cls(
+            checkpoint=data["checkpoint"],
+            model_config=data["model_config"],
+            pad_multiple=int(data["pad_multiple"]),
+            graphs=graphs,
+            validation=data.get("validation", []),
+            qat_ranges=data.get("qat_ranges", "qat_ranges.json"),
+            int8_method=method,
+            int8_validation=data.get("int8_validation", {}),
+            package_version=data.get("package_version", ""),
+            upsample_kernel=data.get("upsample_kernel"),
+        )
 
     def to_dict(self) -> dict:
-        return {"format": self.format, "package_version": self.package_version, "checkpoint": self.checkpoint,
-                "model_config": self.model_config, "scale": self.scale, "pad_multiple": self.pad_multiple,
-                **DESCRIPTION, "filter_paths": {"levels": self.filter_levels, **FILTER_PATHS},
-                "graphs": {k: asdict(g) for k, g in self.graphs.items()}, "qat_ranges": self.qat_ranges,
-                "validation": self.validation, "int8_method": self.int8_method,
-                "int8_validation": self.int8_validation,
-                **({"upsample_kernel": self.upsample_kernel} if self.upsample_kernel is not None else {})}
+        return {
+            "format": self.format,
+            "package_version": self.package_version,
+            "checkpoint": self.checkpoint,
+            "model_config": self.model_config,
+            "scale": self.scale,
+            "pad_multiple": self.pad_multiple,
+            **DESCRIPTION,
+            "filter_paths": {"levels": self.filter_levels, **FILTER_PATHS},
+            "graphs": {k: asdict(g) for k, g in self.graphs.items()},
+            "qat_ranges": self.qat_ranges,
+            "validation": self.validation,
+            "int8_method": self.int8_method,
+            "int8_validation": self.int8_validation,
+            **({"upsample_kernel": self.upsample_kernel} if self.upsample_kernel is not None else {}),
+        }
 
     # -- which file serves what ------------------------------------------------------------
 
@@ -314,8 +346,10 @@ class Manifest:
                 raise ArtifactError(f"{root}: no {what} graph for {name!r}; run `jnds calibrate`")
             file, variants = entry.file, entry.variants
         if not (root / file).is_file():
-            raise ArtifactError(f"{root / file}: missing; re-run `jnds export`"
-                                + (" and `jnds calibrate`" if precision == "int8" else ""))
+            raise ArtifactError(
+                f"{root / file}: missing; re-run `jnds export`"
+                + (" and `jnds calibrate`" if precision == "int8" else "")
+            )
         found = {frozenset(): root / file}
         for v in variants.values():
             if (root / v.file).is_file():

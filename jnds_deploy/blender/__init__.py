@@ -34,6 +34,7 @@ What ``configure`` sets (and nothing else of the user's look):
   ``jnds.json``, the normal the import gives those pixels;
 - multilayer 32-bit float EXR output (Blender 5 writes one part per pass).
 """
+
 from __future__ import annotations
 
 import json
@@ -101,8 +102,11 @@ def _bsdf_roughness(material):
     if not material.node_tree:
         return None
     for node in material.node_tree.nodes:
-        if node.type in ("BSDF_PRINCIPLED", "BSDF_GLOSSY", "BSDF_ANISOTROPIC", "BSDF_METALLIC",
-                         "BSDF_GLASS", "BSDF_REFRACTION") and "Roughness" in node.inputs:
+        if (
+            node.type
+            in ("BSDF_PRINCIPLED", "BSDF_GLOSSY", "BSDF_ANISOTROPIC", "BSDF_METALLIC", "BSDF_GLASS", "BSDF_REFRACTION")
+            and "Roughness" in node.inputs
+        ):
             return node.inputs["Roughness"]
     return None
 
@@ -142,10 +146,15 @@ def _key_jitter(scene, changes: Changes, log) -> dict:
     sample sits at its Halton offset; one frame beyond each end too (Cycles evaluates the
     scene at frame - 1 and + 1 for the Vector pass). Returns {frame: (jx, jy)}."""
     cam = scene.camera.data
-    if cam.animation_data and cam.animation_data.action and any(
-            fc.data_path in ("shift_x", "shift_y") for fc in _fcurves(cam.animation_data.action)):
-        raise ConfigError(f"camera {scene.camera.name!r}: its lens shift is animated; jnds jitters it "
-                         "per frame (pass jitter=False, or remove that animation)")
+    if (
+        cam.animation_data
+        and cam.animation_data.action
+        and any(fc.data_path in ("shift_x", "shift_y") for fc in _fcurves(cam.animation_data.action))
+    ):
+        raise ConfigError(
+            f"camera {scene.camera.name!r}: its lens shift is animated; jnds jitters it "
+            "per frame (pass jitter=False, or remove that animation)"
+        )
     unit = _shift_scale(scene, cam)
     base = (cam.shift_x, cam.shift_y)
     jitters = {}
@@ -164,8 +173,10 @@ def _key_jitter(scene, changes: Changes, log) -> dict:
             for k in fc.keyframe_points:
                 k.interpolation = "CONSTANT"
     changes.shift_keys = True
-    log(f"jnds: camera {scene.camera.name!r}: lens shift keyed per frame {scene.frame_start - 1}.."
-        f"{scene.frame_end + 1} (Halton 2,3 jitter, constant interpolation)")
+    log(
+        f"jnds: camera {scene.camera.name!r}: lens shift keyed per frame {scene.frame_start - 1}.."
+        f"{scene.frame_end + 1} (Halton 2,3 jitter, constant interpolation)"
+    )
     return jitters
 
 
@@ -246,9 +257,16 @@ def _sidecar(scene, jitters: dict, kind: str, scale: int = 1, toward: dict | Non
     os.makedirs(folder, exist_ok=True)
     r = scene.render
     size = [int(r.resolution_x * r.resolution_percentage / 100), int(r.resolution_y * r.resolution_percentage / 100)]
-    data = {"kind": kind, "frame_start": scene.frame_start, "frame_end": scene.frame_end, "size": size,
-            "scale": scale, "roughness": f"AOV {ROUGHNESS_AOV!r}: Blender's roughness r (alpha = r^2)",
-            "jitter": {str(f): list(j) for f, j in jitters.items()}, "blender": bpy.app.version_string}
+    data = {
+        "kind": kind,
+        "frame_start": scene.frame_start,
+        "frame_end": scene.frame_end,
+        "size": size,
+        "scale": scale,
+        "roughness": f"AOV {ROUGHNESS_AOV!r}: Blender's roughness r (alpha = r^2)",
+        "jitter": {str(f): list(j) for f, j in jitters.items()},
+        "blender": bpy.app.version_string,
+    }
     if toward is not None:
         data["toward_camera"] = {str(f): v for f, v in toward.items()}
     with open(os.path.join(folder, SIDECAR), "w") as fh:
@@ -270,13 +288,16 @@ def configure(scene=None, output: str | None = None, jitter_frames: bool = True,
     for material in bpy.data.materials:
         _add_roughness_aov(material, changes, log)
     jitters = _key_jitter(scene, changes, log) if jitter_frames else {}
-    _sidecar(scene, {f: j for f, j in jitters.items() if scene.frame_start <= f <= scene.frame_end}, "inputs",
-             toward=_toward_camera(scene))
+    _sidecar(
+        scene,
+        {f: j for f, j in jitters.items() if scene.frame_start <= f <= scene.frame_end},
+        "inputs",
+        toward=_toward_camera(scene),
+    )
     return changes
 
 
-def configure_reference(scene=None, output: str | None = None, spp: int = 128, scale: int = 2,
-                        log=print) -> Changes:
+def configure_reference(scene=None, output: str | None = None, spp: int = 128, scale: int = 2, log=print) -> Changes:
     """Make ``scene`` render the reference of the same frames: ``scale`` x the resolution,
     ``spp`` samples per target pixel box-filtered over the pixel, no jitter, the same
     passes (the import takes colour and the converged components from them). Call it on a

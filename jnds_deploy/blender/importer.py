@@ -32,6 +32,7 @@ passes onto the paper's split:
 A reference (``--reference``: the same frames rendered by ``blender.configure_reference``)
 gives ``color`` = Combined and the converged components by the same mapping.
 """
+
 from __future__ import annotations
 
 import json
@@ -41,9 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import CYCLES_PASSES, DENOISING_PASSES, PASSES, ROUGHNESS_AOV, SIDECAR  # names only: no bpy at import
 from ..errors import SequenceError
 from ..io import FrameInfo, SequenceWriter, read_exr, validate
+from . import CYCLES_PASSES, DENOISING_PASSES, PASSES, ROUGHNESS_AOV, SIDECAR  # names only: no bpy at import
 
 SETTINGS = {  # pass -> the Blender setting that enables it
     "Combined": "View Layer Properties > Passes > Data > Combined",
@@ -92,21 +93,33 @@ def read_passes(path: Path) -> dict[str, np.ndarray]:
 def _require(passes: dict, names, path: Path) -> None:
     missing = [n for n in names if n not in passes]
     if missing:
-        raise SequenceError(path, "missing Cycles pass(es): " + "; ".join(f"{n} ({SETTINGS[n]})" for n in missing)
-                            + ". `jnds_deploy.blender.configure(scene)` enables them all")
+        raise SequenceError(
+            path,
+            "missing Cycles pass(es): "
+            + "; ".join(f"{n} ({SETTINGS[n]})" for n in missing)
+            + ". `jnds_deploy.blender.configure(scene)` enables them all",
+        )
 
 
 def components(passes: dict) -> dict[str, np.ndarray]:
     """albedo, diffuse (demodulated), specular of a frame's passes (the paper's split)."""
+
     def rgb(n):
         return passes[n][..., :3]
 
-    specular = (rgb("Glossy Color") * (rgb("Glossy Direct") + rgb("Glossy Indirect"))
-                + rgb("Transmission Color") * (rgb("Transmission Direct") + rgb("Transmission Indirect"))
-                + rgb("Volume Direct") + rgb("Volume Indirect") + rgb("Emission") + rgb("Environment"))
-    return {"albedo": np.clip(rgb("Diffuse Color"), 0.0, 1.0),
-            "diffuse": rgb("Diffuse Direct") + rgb("Diffuse Indirect"),
-            "specular": specular}
+    specular = (
+        rgb("Glossy Color") * (rgb("Glossy Direct") + rgb("Glossy Indirect"))
+        + rgb("Transmission Color") * (rgb("Transmission Direct") + rgb("Transmission Indirect"))
+        + rgb("Volume Direct")
+        + rgb("Volume Indirect")
+        + rgb("Emission")
+        + rgb("Environment")
+    )
+    return {
+        "albedo": np.clip(rgb("Diffuse Color"), 0.0, 1.0),
+        "diffuse": rgb("Diffuse Direct") + rgb("Diffuse Indirect"),
+        "specular": specular,
+    }
 
 
 def input_layers(passes: dict, path: Path, toward_camera=None) -> dict[str, np.ndarray]:
@@ -124,17 +137,25 @@ def input_layers(passes: dict, path: Path, toward_camera=None) -> dict[str, np.n
         volume = no_surface & np.any(passes[VOLUME_MARK][..., :3] != 0, axis=-1, keepdims=True)
     if volume.any():
         if toward_camera is None:
-            raise SequenceError(path, f"{int(volume.sum())} pixels scattered in a volume, and {SIDECAR} beside "
-                                      "the frames has no 'toward_camera' to give them a normal; render with "
-                                      "`jnds_deploy.blender.configure`, which writes it")
+            raise SequenceError(
+                path,
+                f"{int(volume.sum())} pixels scattered in a volume, and {SIDECAR} beside "
+                "the frames has no 'toward_camera' to give them a normal; render with "
+                "`jnds_deploy.blender.configure`, which writes it",
+            )
         normal = np.where(volume, np.asarray(toward_camera, np.float32), normal)
     motion = np.where(no_surface, 0.0, motion).astype(np.float32)  # no surface, no motion: as Blender's
     motion = volume_motion(motion, volume[..., 0], ~no_surface[..., 0])
     depth = np.where(no_surface[..., 0], 0.0, passes["Depth"][..., 0])[..., None]
     roughness = np.clip(passes[ROUGHNESS_AOV][..., :1], 0.0, 1.0) ** 2
     roughness = np.where(no_surface, 1.0, roughness)
-    out = {**layers, "normal": normal.astype(np.float32), "roughness": roughness.astype(np.float32),
-           "motion": motion, "depth": depth.astype(np.float32)}
+    out = {
+        **layers,
+        "normal": normal.astype(np.float32),
+        "roughness": roughness.astype(np.float32),
+        "motion": motion,
+        "depth": depth.astype(np.float32),
+    }
     if GUIDE_ALBEDO in passes:  # what a Cycles user gives OIDN (the baseline), not the model
         out["denoising_albedo"] = np.clip(passes[GUIDE_ALBEDO][..., :3], 0.0, 1.0).astype(np.float32)
     return out
@@ -191,7 +212,9 @@ def find_frames(raw: Path) -> dict[int, Path]:
     if not found:
         raise SequenceError(raw, "no <prefix>NNNN.exr frames")
     if len(found) > 1:
-        raise SequenceError(raw, f"frames with several prefixes ({', '.join(repr(k) for k in found)}); one per directory")
+        raise SequenceError(
+            raw, f"frames with several prefixes ({', '.join(repr(k) for k in found)}); one per directory"
+        )
     frames = next(iter(found.values()))
     numbers = sorted(frames)
     gaps = sorted(set(range(numbers[0], numbers[-1] + 1)) - set(numbers))
@@ -220,8 +243,10 @@ def import_cycles(raw: str | Path, out: str | Path, reference: str | Path | None
     numbers = list(frames)
     refs = find_frames(Path(reference)) if reference else None
     if refs is not None and list(refs) != numbers:
-        raise SequenceError(Path(reference), f"reference frames {list(refs)[0]}..{list(refs)[-1]} do not match "
-                                             f"the inputs' {numbers[0]}..{numbers[-1]}")
+        raise SequenceError(
+            Path(reference),
+            f"reference frames {list(refs)[0]}..{list(refs)[-1]} do not match the inputs' {numbers[0]}..{numbers[-1]}",
+        )
     jitters, cuts, toward = _sidecar(raw, numbers)
     first = read_passes(frames[numbers[0]])
     h, w = first["Combined"].shape[:2] if "Combined" in first else next(iter(first.values())).shape[:2]
@@ -244,10 +269,13 @@ def import_cycles(raw: str | Path, out: str | Path, reference: str | Path | None
             writer.write_reference(i, reference_layers(read_passes(refs[n]), refs[n]))
         infos.append(FrameInfo(i, jitters[n], cut))
     if unmarked:
-        warnings.warn(f"{raw}: {unmarked} pixels (all frames) saw light scattered in a volume before any surface "
-                      f"and import as background, whose radiance the pipeline takes as exact: render with the "
-                      f"{VOLUME_MARK} pass (view layer > Passes > Data > Denoising Data; "
-                      "`jnds_deploy.blender.configure` turns it on)", stacklevel=2)
+        warnings.warn(
+            f"{raw}: {unmarked} pixels (all frames) saw light scattered in a volume before any surface "
+            f"and import as background, whose radiance the pipeline takes as exact: render with the "
+            f"{VOLUME_MARK} pass (view layer > Passes > Data > Denoising Data; "
+            "`jnds_deploy.blender.configure` turns it on)",
+            stacklevel=2,
+        )
     # the engine, where training's renderer balance reads it (training.data.SequenceArrays.renderer)
     writer.close(infos, {"renderer": {"engine": "cycles", "imported_from": str(raw)}})
     return validate(out)

@@ -7,6 +7,7 @@ ones), set up by ``jnds_deploy.blender.configure`` and rendered frame by frame i
 ``<out>/.cycles/raw`` (and ``ref``); ``jnds_deploy.blender.importer`` imports them and the raw
 frames are deleted. An interrupted render resumes: Blender skips the frames on disk.
 """
+
 from __future__ import annotations
 
 import json
@@ -28,16 +29,25 @@ def blender_python() -> Path:
     """The Python interpreter of the Blender environment, or RenderError saying how to make one."""
     path = Path(os.environ.get(BLENDER_ENV) or ROOT / ".venv-blender" / "bin" / "python")
     if not path.is_file():
-        raise RenderError(f"{path}: no Blender environment; `make setup` (tools/setup.sh) creates "
-                          f".venv-blender with bpy==5.0.1, or point {BLENDER_ENV} at a Python that has bpy")
+        raise RenderError(
+            f"{path}: no Blender environment; `make setup` (tools/setup.sh) creates "
+            f".venv-blender with bpy==5.0.1, or point {BLENDER_ENV} at a Python that has bpy"
+        )
     return path
 
 
 def scene_job(cfg) -> dict:
     """What ``blender.scenes`` is given of a ``RenderConfig``: the scene's kind, seed, camera
     path, frames, size, samples and scale."""
-    return {"scene": cfg.scene, "seed": cfg.seed, "camera": cfg.camera, "frames": cfg.frames,
-            "size": list(cfg.size), "spp": cfg.spp, "scale": cfg.scale}
+    return {
+        "scene": cfg.scene,
+        "seed": cfg.seed,
+        "camera": cfg.camera,
+        "frames": cfg.frames,
+        "size": list(cfg.size),
+        "spp": cfg.spp,
+        "scale": cfg.scale,
+    }
 
 
 def render_sequence(cfg, out: str | Path, progress: bool = True) -> dict:
@@ -62,8 +72,10 @@ def render_sequence(cfg, out: str | Path, progress: bool = True) -> dict:
     times: dict[str, list[float]] = {"inputs": [], "reference": []}
     tail: list[str] = []
     total = cfg.frames * (2 if cfg.reference else 1)
-    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env) as proc, \
-            tqdm(total=total, desc=f"render {out.name} (cycles)", unit="frame", disable=not progress) as bar:
+    with (
+        subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env) as proc,
+        tqdm(total=total, desc=f"render {out.name} (cycles)", unit="frame", disable=not progress) as bar,
+    ):
         for line in proc.stdout:
             tail = (tail + [line.rstrip()])[-20:]
             if line.startswith("jnds-frame "):

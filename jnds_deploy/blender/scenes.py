@@ -16,6 +16,7 @@ It renders frame by frame into RAW_DIR (inputs, ``blender.configure``) and REF_D
 reference, ``blender.configure_reference``), skipping frames already there (each file is
 written under a temporary name and renamed), and prints one ``jnds-frame`` line per frame.
 """
+
 from __future__ import annotations
 
 import json
@@ -78,8 +79,13 @@ CYCLES_HOLDOUT_KINDS = {
 # the view, a sliding cube, a thin pole and, on some draws, a moving lamp; the camera moves
 # twice as fast as in the other kinds
 CYCLES_GHOST_KINDS = ("plain",)
-CYCLES_SCENE_KINDS = (CYCLES_TRAIN_KINDS + CYCLES_EXTRA_KINDS + CYCLES_TEST_KINDS
-                      + sum(CYCLES_HOLDOUT_KINDS.values(), ()) + CYCLES_GHOST_KINDS)
+CYCLES_SCENE_KINDS = (
+    CYCLES_TRAIN_KINDS
+    + CYCLES_EXTRA_KINDS
+    + CYCLES_TEST_KINDS
+    + sum(CYCLES_HOLDOUT_KINDS.values(), ())
+    + CYCLES_GHOST_KINDS
+)
 TEXTURES = ("brick", "checker", "noise", "voronoi")
 
 
@@ -180,20 +186,31 @@ def _objects(rng, n, extent, metal_share, textured_share, frames):
         elif kind == "cylinder":
             bpy.ops.mesh.primitive_cylinder_add(radius=s / 3, depth=s * 1.5, location=(loc[0], loc[1], s * 0.75))
         elif kind == "torus":
-            bpy.ops.mesh.primitive_torus_add(major_radius=s / 2, minor_radius=s / 8, location=(loc[0], loc[1], s / 2),
-                                             rotation=(rng.uniform(0, 3), 0, 0))
+            bpy.ops.mesh.primitive_torus_add(
+                major_radius=s / 2,
+                minor_radius=s / 8,
+                location=(loc[0], loc[1], s / 2),
+                rotation=(rng.uniform(0, 3), 0, 0),
+            )
             bpy.ops.object.shade_smooth()
         elif kind == "cone":
             bpy.ops.mesh.primitive_cone_add(radius1=s / 2, depth=s, location=(loc[0], loc[1], s / 2))
         else:  # thin geometry: a pole or a wire frame a pixel or two wide
-            bpy.ops.mesh.primitive_cylinder_add(radius=rng.uniform(0.01, 0.03), depth=rng.uniform(1.0, 3.0),
-                                                location=(loc[0], loc[1], 1.0),
-                                                rotation=(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), 0))
+            bpy.ops.mesh.primitive_cylinder_add(
+                radius=rng.uniform(0.01, 0.03),
+                depth=rng.uniform(1.0, 3.0),
+                location=(loc[0], loc[1], 1.0),
+                rotation=(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), 0),
+            )
         obj = bpy.context.object
         r = rng.random()
-        mat = _material(f"m{i}", rng, metal=r < metal_share,
-                        texture=rng.choice(TEXTURES) if rng.random() < textured_share else None,
-                        glass=metal_share <= r < metal_share + 0.1)
+        mat = _material(
+            f"m{i}",
+            rng,
+            metal=r < metal_share,
+            texture=rng.choice(TEXTURES) if rng.random() < textured_share else None,
+            glass=metal_share <= r < metal_share + 0.1,
+        )
         obj.data.materials.append(mat)
         if rng.random() < 0.4:  # moves on its own
             d = (rng.uniform(-1.5, 1.5), rng.uniform(-1.5, 1.5))
@@ -209,8 +226,9 @@ def _objects(rng, n, extent, metal_share, textured_share, frames):
 
 
 def _room(rng, half, height, window: bool, texture_walls: bool):
-    walls = _material("walls", rng, rough=rng.uniform(0.5, 1.0),
-                      texture=rng.choice(TEXTURES) if texture_walls else None)
+    walls = _material(
+        "walls", rng, rough=rng.uniform(0.5, 1.0), texture=rng.choice(TEXTURES) if texture_walls else None
+    )
     floor = _material("floor", rng, rough=rng.uniform(0.2, 0.9), texture=rng.choice(TEXTURES))
     t = 0.1
     _box("floor", (2 * half, 2 * half, t), (0, 0, -t / 2), floor)
@@ -244,8 +262,11 @@ def _world(scene, rng, kind):
     if kind in ("sky", "dusk"):  # dusk: the sun just below the horizon, dim
         sky = world.node_tree.nodes.new("ShaderNodeTexSky")
         sky.sky_type = "PREETHAM"
-        sky.sun_direction = ((rng.uniform(-0.3, 0.3), 0.8, rng.uniform(0.3, 0.7)) if kind == "sky" else
-                             (rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(0.0, 0.08)))
+        sky.sun_direction = (
+            (rng.uniform(-0.3, 0.3), 0.8, rng.uniform(0.3, 0.7))
+            if kind == "sky"
+            else (rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(0.0, 0.08))
+        )
         world.node_tree.links.new(sky.outputs["Color"], bg.inputs["Color"])
         bg.inputs["Strength"].default_value = rng.uniform(0.3, 1.0) if kind == "sky" else rng.uniform(0.02, 0.15)
     elif kind == "dark":
@@ -285,8 +306,11 @@ def _camera(scene, rng, path, frames, target, radius, height, speed=1.0):
         elif path == "dolly":
             r = radius * (1.0 - 0.35 * t)
         elif path == "pan":
-            aim = [target[0] + 2.0 * math.cos(a0 + math.pi / 2) * (t - 0.5),
-                   target[1] + 2.0 * math.sin(a0 + math.pi / 2) * (t - 0.5), target[2]]
+            aim = [
+                target[0] + 2.0 * math.cos(a0 + math.pi / 2) * (t - 0.5),
+                target[1] + 2.0 * math.sin(a0 + math.pi / 2) * (t - 0.5),
+                target[2],
+            ]
         elif path == "cut" and f > frames // 2:
             a = a0 + 2.2
         cam.location = (target[0] + r * math.cos(a), target[1] + r * math.sin(a), height)
@@ -319,8 +343,9 @@ def build(cfg: dict):
     if kind == "sunroom":
         _world(scene, rng, "sky")
         _room(rng, 5.0, 3.2, window=True, texture_walls=rng.random() < 0.5)
-        bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(35, 60)), 0,
-                                                       math.radians(rng.uniform(160, 200))))
+        bpy.ops.object.light_add(
+            type="SUN", rotation=(math.radians(rng.uniform(35, 60)), 0, math.radians(rng.uniform(160, 200)))
+        )
         bpy.context.object.data.energy = rng.uniform(3.0, 8.0)
         bpy.context.object.data.angle = math.radians(rng.uniform(0.5, 3))
         moving = _objects(rng, rng.randint(4, 8), 3.5, 0.25, 0.4, frames)
@@ -330,8 +355,12 @@ def build(cfg: dict):
         _room(rng, 5.0, 3.0, window=False, texture_walls=rng.random() < 0.5)
         for i in range(rng.randint(2, 5)):
             em = _material(f"em{i}", rng, emission=rng.uniform(10.0, 50.0), rough=0.5)
-            _emitter(f"lamp{i}", rng.uniform(0.05, 0.15),
-                     (rng.uniform(-3.5, 3.5), rng.uniform(-3.5, 3.5), rng.uniform(0.1, 2.5)), em)
+            _emitter(
+                f"lamp{i}",
+                rng.uniform(0.05, 0.15),
+                (rng.uniform(-3.5, 3.5), rng.uniform(-3.5, 3.5), rng.uniform(0.1, 2.5)),
+                em,
+            )
         moving = _objects(rng, rng.randint(4, 8), 3.5, 0.3, 0.4, frames)
         target, radius, height = (0, 0, 0.8), rng.uniform(3.5, 4.5), rng.uniform(1.0, 2.2)
     elif kind == "metals":
@@ -378,8 +407,12 @@ def build(cfg: dict):
         for i in range(rng.randint(3, 6)):  # panels of fine texture on the walls
             x = rng.choice((-5.9, 5.9))
             panel = _material(f"panel{i}", rng, rough=rng.uniform(0.3, 0.9), texture=rng.choice(TEXTURES))
-            _box(f"panel{i}", (0.02, rng.uniform(1.0, 2.5), rng.uniform(0.8, 1.8)),
-                 (x, rng.uniform(-4.5, 4.5), rng.uniform(1.4, 2.4)), panel)
+            _box(
+                f"panel{i}",
+                (0.02, rng.uniform(1.0, 2.5), rng.uniform(0.8, 1.8)),
+                (x, rng.uniform(-4.5, 4.5), rng.uniform(1.4, 2.4)),
+                panel,
+            )
         moving = _objects(rng, rng.randint(5, 8), 3.5, 0.5, 0.3, frames)
         target, radius, height = (0, 0, 1.0), rng.uniform(3.5, 5.0), rng.uniform(1.4, 2.6)
     elif kind == "night":
@@ -394,9 +427,12 @@ def build(cfg: dict):
             light.data.spot_blend = rng.uniform(0.1, 0.5)
         for i in range(rng.randint(2, 4)):  # neon tubes: thin and far brighter than anything lit
             neon = _material(f"neon{i}", rng, emission=rng.uniform(20.0, 80.0), rough=0.5)
-            bpy.ops.mesh.primitive_cylinder_add(radius=rng.uniform(0.02, 0.05), depth=rng.uniform(0.8, 2.0),
-                                                location=(rng.uniform(-4, 4), rng.uniform(-4, 4), rng.uniform(0.5, 2.5)),
-                                                rotation=(rng.uniform(0, 3), rng.uniform(0, 3), 0))
+            bpy.ops.mesh.primitive_cylinder_add(
+                radius=rng.uniform(0.02, 0.05),
+                depth=rng.uniform(0.8, 2.0),
+                location=(rng.uniform(-4, 4), rng.uniform(-4, 4), rng.uniform(0.5, 2.5)),
+                rotation=(rng.uniform(0, 3), rng.uniform(0, 3), 0),
+            )
             bpy.context.object.data.materials.append(neon)
         moving = _objects(rng, rng.randint(6, 10), 4.0, 0.4, 0.4, frames)
         target, radius, height = (0, 0, 0.6), rng.uniform(4.5, 6.5), rng.uniform(1.2, 2.8)
@@ -450,8 +486,9 @@ def _plain(scene, rng, frames):
     import bpy
 
     _world(scene, rng, "dark")
-    floor = _material("floor", rng, rough=0.5, color=[rng.uniform(0.3, 0.8)] * 3,
-                      texture="checker" if rng.random() < 0.5 else None)
+    floor = _material(
+        "floor", rng, rough=0.5, color=[rng.uniform(0.3, 0.8)] * 3, texture="checker" if rng.random() < 0.5 else None
+    )
     _box("floor", (40, 40, 0.1), (0, 0, -0.05), floor)
     bpy.ops.object.light_add(type="AREA", location=(rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(3.5, 5)))
     bpy.context.object.data.energy = rng.uniform(400, 900)
@@ -466,13 +503,20 @@ def _plain(scene, rng, frames):
             bpy.ops.object.shade_smooth()
         bpy.context.object.data.materials.append(_material(f"prop{i}", rng, rough=0.5))
     mirror = _material("mirror", rng, metal=True, rough=rng.uniform(0.02, 0.08), color=(0.9, 0.9, 0.9))
-    _box("mirror_cube", (1.0, 1.0, 1.0), (rng.uniform(-2, 2), rng.uniform(-2, 2), 0.5), mirror,
-         rotation=(0, 0, rng.uniform(0, 1.5)))
+    _box(
+        "mirror_cube",
+        (1.0, 1.0, 1.0),
+        (rng.uniform(-2, 2), rng.uniform(-2, 2), 0.5),
+        mirror,
+        rotation=(0, 0, rng.uniform(0, 1.5)),
+    )
     moving = []
     a = rng.uniform(0, 2 * math.pi)  # the ball rolls through the centre, fast
     r = rng.uniform(0.3, 0.5)
     d = rng.uniform(4.0, 6.0)
-    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4, radius=r, location=(-d / 2 * math.cos(a), -d / 2 * math.sin(a), r))
+    bpy.ops.mesh.primitive_ico_sphere_add(
+        subdivisions=4, radius=r, location=(-d / 2 * math.cos(a), -d / 2 * math.sin(a), r)
+    )
     bpy.ops.object.shade_smooth()
     ball = bpy.context.object
     ball.data.materials.append(_material("ball", rng, rough=0.5, texture="checker"))
@@ -484,14 +528,20 @@ def _plain(scene, rng, frames):
     cube.data.materials.append(_material("slider", rng, rough=0.5))
     _slide(cube, frames, (2.5 * math.cos(b), 2.5 * math.sin(b), 0.0), (0.0, 0.0, rng.uniform(-1.5, 1.5)))
     moving.append(cube)
-    bpy.ops.mesh.primitive_cylinder_add(radius=0.025, depth=2.0, location=(rng.uniform(-1.5, 1.5), rng.uniform(-1.5, 1.5), 1.0))
+    bpy.ops.mesh.primitive_cylinder_add(
+        radius=0.025, depth=2.0, location=(rng.uniform(-1.5, 1.5), rng.uniform(-1.5, 1.5), 1.0)
+    )
     pole = bpy.context.object  # thin geometry, moving
     pole.data.materials.append(_material("pole", rng, rough=0.5))
     _slide(pole, frames, (rng.uniform(-2, 2), rng.uniform(-2, 2), 0.0))
     moving.append(pole)
     if rng.random() < 0.5:  # a lamp moving through the scene
-        lamp = _emitter("lamp", 0.12, (rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(0.3, 1.2)),
-                        _material("lamp", rng, emission=rng.uniform(20.0, 40.0), rough=0.5))
+        lamp = _emitter(
+            "lamp",
+            0.12,
+            (rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(0.3, 1.2)),
+            _material("lamp", rng, emission=rng.uniform(20.0, 40.0), rough=0.5),
+        )
         _slide(lamp, frames, (rng.uniform(-3, 3), rng.uniform(-3, 3), 0.0))
         moving.append(lamp)
     return moving, (0, 0, 0.5), rng.uniform(4.5, 6.0), rng.uniform(1.5, 2.8)
@@ -537,8 +587,9 @@ def _mixed_rig(rig, rng):
     import bpy
 
     if rig == "sun":
-        bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(20, 70)), 0,
-                                                       math.radians(rng.uniform(0, 360))))
+        bpy.ops.object.light_add(
+            type="SUN", rotation=(math.radians(rng.uniform(20, 70)), 0, math.radians(rng.uniform(0, 360)))
+        )
         bpy.context.object.data.energy = rng.uniform(2.0, 8.0)
         bpy.context.object.data.angle = math.radians(rng.uniform(0.5, 5))
     elif rig == "area":
@@ -547,15 +598,20 @@ def _mixed_rig(rig, rng):
         bpy.context.object.data.size = rng.uniform(0.3, 2.5)
     elif rig == "points":
         for i in range(rng.randint(1, 3)):
-            bpy.ops.object.light_add(type="POINT", location=(rng.uniform(-3, 3), rng.uniform(-3, 3),
-                                                             rng.uniform(0.5, 2.5)))
+            bpy.ops.object.light_add(
+                type="POINT", location=(rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(0.5, 2.5))
+            )
             bpy.context.object.data.energy = rng.uniform(50, 400)
             bpy.context.object.data.shadow_soft_size = rng.uniform(0.02, 0.5)
     elif rig == "emitters":
         for i in range(rng.randint(1, 4)):
             em = _material(f"em{i}", rng, emission=rng.uniform(5.0, 60.0), rough=0.5)
-            _emitter(f"lamp{i}", rng.uniform(0.05, 0.4),
-                     (rng.uniform(-3.5, 3.5), rng.uniform(-3.5, 3.5), rng.uniform(0.1, 2.5)), em)
+            _emitter(
+                f"lamp{i}",
+                rng.uniform(0.05, 0.4),
+                (rng.uniform(-3.5, 3.5), rng.uniform(-3.5, 3.5), rng.uniform(0.1, 2.5)),
+                em,
+            )
     else:
         _lights_rig(rig, rng)
 
@@ -568,9 +624,11 @@ def _lights_rig(rig, rng):
 
     if rig == "spots":
         for i in range(rng.randint(1, 3)):
-            bpy.ops.object.light_add(type="SPOT", location=(rng.uniform(-3, 3), rng.uniform(-3, 3),
-                                                            rng.uniform(2.0, 4.5)),
-                                     rotation=(rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), 0))
+            bpy.ops.object.light_add(
+                type="SPOT",
+                location=(rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(2.0, 4.5)),
+                rotation=(rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), 0),
+            )
             light = bpy.context.object.data
             light.energy = rng.uniform(150, 1500)
             light.spot_size = math.radians(rng.uniform(20, 90))
@@ -578,9 +636,11 @@ def _lights_rig(rig, rng):
             light.shadow_soft_size = rng.uniform(0.02, 0.4)
             light.color = [rng.uniform(0.6, 1.0) for _ in range(3)]
     elif rig == "shaped_area":
-        bpy.ops.object.light_add(type="AREA", location=(rng.uniform(-2.5, 2.5), rng.uniform(-2.5, 2.5),
-                                                        rng.uniform(1.5, 3.0)),
-                                 rotation=(rng.uniform(-0.8, 0.8), rng.uniform(-0.8, 0.8), 0))
+        bpy.ops.object.light_add(
+            type="AREA",
+            location=(rng.uniform(-2.5, 2.5), rng.uniform(-2.5, 2.5), rng.uniform(1.5, 3.0)),
+            rotation=(rng.uniform(-0.8, 0.8), rng.uniform(-0.8, 0.8), 0),
+        )
         light = bpy.context.object.data
         light.shape = rng.choice(("SQUARE", "RECTANGLE", "DISK", "ELLIPSE"))
         light.size, light.size_y = rng.uniform(0.2, 2.0), rng.uniform(0.05, 2.0)
@@ -618,8 +678,13 @@ def _interior(scene, rng, frames):
     # lamps stay inside its circle
     radius = min(rng.uniform(2.5, 4.5), half - 0.6)
     tint = [rng.uniform(0.3, 0.9) for _ in range(3)]
-    walls = _material("walls", rng, rough=rng.uniform(0.5, 1.0), color=tint,
-                      texture=rng.choice(TEXTURES) if rng.random() < 0.4 else None)
+    walls = _material(
+        "walls",
+        rng,
+        rough=rng.uniform(0.5, 1.0),
+        color=tint,
+        texture=rng.choice(TEXTURES) if rng.random() < 0.4 else None,
+    )
     floor = _material("floor", rng, rough=rng.uniform(0.05, 0.8), texture=rng.choice(TEXTURES))
     _box("floor", (2 * half, 2 * half, t), (0, 0, -t / 2), floor)
     _box("wall_w", (t, 2 * half, height), (-half, 0, height / 2), walls)
@@ -644,8 +709,11 @@ def _interior(scene, rng, frames):
     else:
         _box("ceiling", (2 * half, 2 * half, t), (0, 0, height + t / 2), walls)
     if daylight:  # the sun low through the door (from the north), or steep through the hatch
-        rot = ((math.radians(rng.uniform(45, 75)), 0, math.radians(rng.uniform(150, 210))) if door else
-               (math.radians(rng.uniform(5, 35)), 0, math.radians(rng.uniform(0, 360))))
+        rot = (
+            (math.radians(rng.uniform(45, 75)), 0, math.radians(rng.uniform(150, 210)))
+            if door
+            else (math.radians(rng.uniform(5, 35)), 0, math.radians(rng.uniform(0, 360)))
+        )
         bpy.ops.object.light_add(type="SUN", rotation=rot)
         bpy.context.object.data.energy = rng.uniform(2.0, 8.0)
         bpy.context.object.data.angle = math.radians(rng.uniform(0.5, 3))
@@ -665,16 +733,24 @@ def _interior(scene, rng, frames):
             _props(f"s{i}_{k}", rng, rng.randint(3, 8), (cx, cy, z + 0.015), (sx * 0.4, sy * 0.45), 0.03, 0.18)
         for e in (-1, 1):  # the two uprights
             off = (0, e * sy / 2) if side in ("w", "e") else (e * sx / 2, 0)
-            _box(f"upright{i}{e}", (sx if side in ("w", "e") else 0.03, 0.03 if side in ("w", "e") else sy, shelf_h),
-                 (cx + off[0], cy + off[1], shelf_h / 2), wood)
+            _box(
+                f"upright{i}{e}",
+                (sx if side in ("w", "e") else 0.03, 0.03 if side in ("w", "e") else sy, shelf_h),
+                (cx + off[0], cy + off[1], shelf_h / 2),
+                wood,
+            )
     for i in range(rng.randint(1, 2)):  # tables in the middle of the room
         tx, ty = rng.uniform(-0.35, 0.35) * half, rng.uniform(-0.35, 0.35) * half
         tw, td, th = rng.uniform(0.8, 1.8), rng.uniform(0.6, 1.0), rng.uniform(0.7, 0.8)
         _box(f"table{i}", (tw, td, 0.04), (tx, ty, th), wood)
         for lx in (-1, 1):
             for ly in (-1, 1):
-                _box(f"table{i}leg{lx}{ly}", (0.04, 0.04, th), (tx + lx * (tw / 2 - 0.05), ty + ly * (td / 2 - 0.05),
-                                                                th / 2), wood)
+                _box(
+                    f"table{i}leg{lx}{ly}",
+                    (0.04, 0.04, th),
+                    (tx + lx * (tw / 2 - 0.05), ty + ly * (td / 2 - 0.05), th / 2),
+                    wood,
+                )
         _props(f"t{i}", rng, rng.randint(4, 12), (tx, ty, th + 0.02), (tw * 0.45, td * 0.45), 0.03, 0.2)
     moving = _objects(rng, rng.randint(2, 5), 0.5 * half, rng.uniform(0.1, 0.5), rng.uniform(0.2, 0.7), frames)
     return moving, (0, 0, rng.uniform(0.6, 1.1)), radius, rng.uniform(1.2, min(2.2, height - 0.3))
@@ -723,6 +799,7 @@ def _displace(name, noise_scale, strength):
     bpy.context.object.modifiers[-1].strength = strength
     bpy.ops.object.shade_smooth()
 
+
 def _detail(scene, rng, frames):
     """The ``detail`` training kind: the surface and geometric detail of real assets,
     which the other kinds' flat primitives lack. Surfaces with bump-mapped relief (``_relief``)
@@ -739,12 +816,18 @@ def _detail(scene, rng, frames):
     # the camera circles the centre at ``radius``; the shapes stand within 1.6 m of it, the
     # walls beyond the camera's circle
     radius, metal, textured = rng.uniform(2.4, 3.8), rng.uniform(0.1, 0.5), rng.uniform(0.3, 0.9)
-    ground = _relief("ground", rng, world_coords=True, rough=rng.uniform(0.05, 0.9),
-                     texture=rng.choice(DETAIL_TEXTURES))
+    ground = _relief(
+        "ground", rng, world_coords=True, rough=rng.uniform(0.05, 0.9), texture=rng.choice(DETAIL_TEXTURES)
+    )
     _box("ground", (40, 40, 0.1), (0, 0, -0.05), ground)
     if rng.random() < 0.6:  # a corner of two walls, open to the world on the other sides
-        wall = _relief("wall", rng, world_coords=True, rough=rng.uniform(0.3, 1.0),
-                       texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.7 else None)
+        wall = _relief(
+            "wall",
+            rng,
+            world_coords=True,
+            rough=rng.uniform(0.3, 1.0),
+            texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.7 else None,
+        )
         h, d = rng.uniform(2.0, 4.0), radius + rng.uniform(0.4, 1.5)
         _box("wall_a", (0.1, 2 * d, h), (-d, 0, h / 2), wall)
         _box("wall_b", (2 * d, 0.1, h), (0, -d, h / 2), wall)
@@ -756,8 +839,13 @@ def _detail(scene, rng, frames):
 
     def material(i):
         r = rng.random()
-        return _relief(f"d{i}", rng, metal=r < metal, glass=metal <= r < metal + 0.08,
-                       texture=rng.choice(DETAIL_TEXTURES) if rng.random() < textured else None)
+        return _relief(
+            f"d{i}",
+            rng,
+            metal=r < metal,
+            glass=metal <= r < metal + 0.08,
+            texture=rng.choice(DETAIL_TEXTURES) if rng.random() < textured else None,
+        )
 
     moving = []
     for i in range(rng.randint(4, 8)):
@@ -765,8 +853,9 @@ def _detail(scene, rng, frames):
         a, r = rng.uniform(0, 2 * math.pi), rng.uniform(0, 1.6)
         x, y, s = r * math.cos(a), r * math.sin(a), rng.uniform(0.25, 0.8)
         if shape == "monkey":
-            bpy.ops.mesh.primitive_monkey_add(size=s, location=(x, y, s / 2),
-                                              rotation=(rng.uniform(-0.3, 0.3), 0, rng.uniform(0, 2 * math.pi)))
+            bpy.ops.mesh.primitive_monkey_add(
+                size=s, location=(x, y, s / 2), rotation=(rng.uniform(-0.3, 0.3), 0, rng.uniform(0, 2 * math.pi))
+            )
             bpy.ops.object.modifier_add(type="SUBSURF")
             bpy.context.object.modifiers[-1].render_levels = 2
             bpy.ops.object.shade_smooth()
@@ -774,36 +863,58 @@ def _detail(scene, rng, frames):
             bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=5, radius=s / 2, location=(x, y, s * 0.35))
             _displace(f"rock{i}", rng.uniform(0.1, 0.5), rng.uniform(0.1, 0.4) * s)
         elif shape == "slats":  # n slats 0.5-3 cm thick, 2-12 cm apart, upright or lying
-            n, gap, t, span = rng.randint(8, 24), rng.uniform(0.02, 0.12), rng.uniform(0.005, 0.03), rng.uniform(0.5, 1.5)
+            n, gap, t, span = (
+                rng.randint(8, 24),
+                rng.uniform(0.02, 0.12),
+                rng.uniform(0.005, 0.03),
+                rng.uniform(0.5, 1.5),
+            )
             mat, a = material(i), rng.uniform(0, math.pi)
             upright = rng.random() < 0.5
             for k in range(n):
                 o = (k - n / 2) * gap
                 if upright:
-                    _box(f"slat{i}_{k}", (t, t * 3, span), (x + o * math.cos(a), y + o * math.sin(a), span / 2), mat,
-                         (0, 0, a))
+                    _box(
+                        f"slat{i}_{k}",
+                        (t, t * 3, span),
+                        (x + o * math.cos(a), y + o * math.sin(a), span / 2),
+                        mat,
+                        (0, 0, a),
+                    )
                 else:
                     _box(f"slat{i}_{k}", (span, t * 3, t), (x, y, 0.1 + k * gap), mat, (0, 0, a))
             continue
         elif shape == "stairs":
-            n, rise, run, width = rng.randint(3, 7), rng.uniform(0.08, 0.18), rng.uniform(0.15, 0.3), rng.uniform(0.5, 1.2)
+            n, rise, run, width = (
+                rng.randint(3, 7),
+                rng.uniform(0.08, 0.18),
+                rng.uniform(0.15, 0.3),
+                rng.uniform(0.5, 1.2),
+            )
             mat, a = material(i), rng.uniform(0, 2 * math.pi)
             for k in range(n):
                 r = k * run
-                _box(f"step{i}_{k}", (run, width, rise * (k + 1)),
-                     (x + r * math.cos(a), y + r * math.sin(a), rise * (k + 1) / 2), mat, (0, 0, a))
+                _box(
+                    f"step{i}_{k}",
+                    (run, width, rise * (k + 1)),
+                    (x + r * math.cos(a), y + r * math.sin(a), rise * (k + 1) / 2),
+                    mat,
+                    (0, 0, a),
+                )
             continue
         elif shape == "pebbles":  # a bed of 60-200 stones 1-5 cm across
             mat = material(i)
             for k in range(rng.randint(60, 200)):
                 r = rng.uniform(0.005, 0.025)
-                bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=1, radius=r,
-                                                      location=(x + rng.gauss(0, 0.25), y + rng.gauss(0, 0.25), r * 0.6))
+                bpy.ops.mesh.primitive_ico_sphere_add(
+                    subdivisions=1, radius=r, location=(x + rng.gauss(0, 0.25), y + rng.gauss(0, 0.25), r * 0.6)
+                )
                 bpy.context.object.data.materials.append(mat)
             continue
         else:  # terrain: a patch of ground displaced by noise
-            bpy.ops.mesh.primitive_grid_add(x_subdivisions=96, y_subdivisions=96, size=rng.uniform(1.5, 3.0),
-                                            location=(x, y, 0.01))
+            bpy.ops.mesh.primitive_grid_add(
+                x_subdivisions=96, y_subdivisions=96, size=rng.uniform(1.5, 3.0), location=(x, y, 0.01)
+            )
             _displace(f"terrain{i}", rng.uniform(0.1, 0.4), rng.uniform(0.05, 0.3))
         obj = bpy.context.object
         obj.data.materials.append(material(i))
@@ -839,8 +950,13 @@ def _layered_material(name, rng):
     marble), anisotropy (brushed metal), thin film (oil, soap), transmission (frosted glass);
     base roughness and specular level over their whole range. Real assets mix them; every
     other training kind's materials are base colour, roughness, metal or clear glass."""
-    m = _material(name, rng, metal=rng.random() < 0.3, rough=rng.uniform(0.0, 1.0),
-                  texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.35 else None)
+    m = _material(
+        name,
+        rng,
+        metal=rng.random() < 0.3,
+        rough=rng.uniform(0.0, 1.0),
+        texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.35 else None,
+    )
     b = m.node_tree.nodes["Principled BSDF"].inputs
     b["Specular IOR Level"].default_value = rng.uniform(0.2, 1.0)
     if rng.random() < 0.45:
@@ -872,12 +988,14 @@ def _struts(name, rng, location, size, cells, thickness, rotation):
     screen, a grille; ``cells`` (x, y) may be 1 along one side: parallel bars)."""
     import bpy
 
-    bpy.ops.mesh.primitive_grid_add(x_subdivisions=cells[0], y_subdivisions=cells[1], size=size,
-                                    location=location, rotation=rotation)
+    bpy.ops.mesh.primitive_grid_add(
+        x_subdivisions=cells[0], y_subdivisions=cells[1], size=size, location=location, rotation=rotation
+    )
     bpy.ops.object.modifier_add(type="WIREFRAME")
     bpy.context.object.modifiers[-1].thickness = thickness
     bpy.context.object.data.materials.append(
-        _material(name, rng, metal=rng.random() < 0.6, rough=rng.uniform(0.05, 0.8)))
+        _material(name, rng, metal=rng.random() < 0.6, rough=rng.uniform(0.05, 0.8))
+    )
     return bpy.context.object
 
 
@@ -894,8 +1012,13 @@ def _layers(scene, rng, frames):
 
     _world(scene, rng, rng.choice(("sky", "dusk", "dark", "color")))
     radius = rng.uniform(2.4, 4.0)
-    ground = _relief("ground", rng, world_coords=True, rough=rng.uniform(0.05, 0.9),
-                     texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.7 else None)
+    ground = _relief(
+        "ground",
+        rng,
+        world_coords=True,
+        rough=rng.uniform(0.05, 0.9),
+        texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.7 else None,
+    )
     _box("ground", (40, 40, 0.1), (0, 0, -0.05), ground)
     if rng.random() < 0.5:
         wall = _relief("wall", rng, world_coords=True, rough=rng.uniform(0.3, 1.0))
@@ -911,26 +1034,48 @@ def _layers(scene, rng, frames):
             moving.append(obj)
 
     for i in range(rng.randint(4, 8)):
-        shape, a, r, s = rng.choice(LAYERS_SHAPES), rng.uniform(0, 2 * math.pi), rng.uniform(0, 1.6), rng.uniform(0.25, 0.8)
+        shape, a, r, s = (
+            rng.choice(LAYERS_SHAPES),
+            rng.uniform(0, 2 * math.pi),
+            rng.uniform(0, 1.6),
+            rng.uniform(0.25, 0.8),
+        )
         x, y = r * math.cos(a), r * math.sin(a)
         if shape == "torus":
-            bpy.ops.mesh.primitive_torus_add(major_radius=s / 2, minor_radius=s * rng.uniform(0.08, 0.25),
-                                             major_segments=64, minor_segments=24, location=(x, y, s / 2),
-                                             rotation=(rng.uniform(0, math.pi), 0, rng.uniform(0, math.pi)))
+            bpy.ops.mesh.primitive_torus_add(
+                major_radius=s / 2,
+                minor_radius=s * rng.uniform(0.08, 0.25),
+                major_segments=64,
+                minor_segments=24,
+                location=(x, y, s / 2),
+                rotation=(rng.uniform(0, math.pi), 0, rng.uniform(0, math.pi)),
+            )
         elif shape == "sphere":
             bpy.ops.mesh.primitive_uv_sphere_add(radius=s / 2, segments=64, ring_count=32, location=(x, y, s / 2))
         elif shape == "monkey":
-            bpy.ops.mesh.primitive_monkey_add(size=s, location=(x, y, s / 2), rotation=(0, 0, rng.uniform(0, 2 * math.pi)))
+            bpy.ops.mesh.primitive_monkey_add(
+                size=s, location=(x, y, s / 2), rotation=(0, 0, rng.uniform(0, 2 * math.pi))
+            )
             bpy.ops.object.modifier_add(type="SUBSURF")
             bpy.context.object.modifiers[-1].render_levels = 2
         elif shape == "capsule":  # a cylinder with rounded ends: bottles, handles, limbs
-            bpy.ops.mesh.primitive_cylinder_add(vertices=48, radius=s / 4, depth=s, location=(x, y, s / 2),
-                                                rotation=(rng.uniform(0, 1.5), 0, rng.uniform(0, math.pi)))
+            bpy.ops.mesh.primitive_cylinder_add(
+                vertices=48,
+                radius=s / 4,
+                depth=s,
+                location=(x, y, s / 2),
+                rotation=(rng.uniform(0, 1.5), 0, rng.uniform(0, math.pi)),
+            )
             bpy.ops.object.modifier_add(type="BEVEL")
             bpy.context.object.modifiers[-1].width, bpy.context.object.modifiers[-1].segments = s / 8, 6
         else:  # cloth: a plane folded by noise, draped near the ground
-            bpy.ops.mesh.primitive_grid_add(x_subdivisions=64, y_subdivisions=64, size=s * 2, location=(x, y, s / 3),
-                                            rotation=(rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4), 0))
+            bpy.ops.mesh.primitive_grid_add(
+                x_subdivisions=64,
+                y_subdivisions=64,
+                size=s * 2,
+                location=(x, y, s / 3),
+                rotation=(rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4), 0),
+            )
             _displace(f"cloth{i}", rng.uniform(0.2, 0.6), rng.uniform(0.05, 0.25))
         bpy.ops.object.shade_smooth()
         bpy.context.object.data.materials.append(_layered_material(f"l{i}", rng))
@@ -944,8 +1089,18 @@ def _layers(scene, rng, frames):
         z = size / 2 if tilt > 0.5 else rng.uniform(1.2, 2.5)  # standing, or hanging overhead
         # struts a tenth to a third of the pitch thick: thicker, a fine mesh reads as a panel
         thickness = max(0.0015, pitch * rng.uniform(0.1, 0.35))
-        moves(_struts(f"struts{i}", rng, (r * math.cos(a), r * math.sin(a), z), size, cells,
-                      thickness, (tilt, 0, rng.uniform(0, math.pi))), 0.3)
+        moves(
+            _struts(
+                f"struts{i}",
+                rng,
+                (r * math.cos(a), r * math.sin(a), z),
+                size,
+                cells,
+                thickness,
+                (tilt, 0, rng.uniform(0, math.pi)),
+            ),
+            0.3,
+        )
     return moving, (0, 0, rng.uniform(0.3, 0.8)), radius, rng.uniform(0.7, 2.0)
 
 
@@ -970,14 +1125,23 @@ def _glass(scene, rng, frames):
 
     _world(scene, rng, rng.choice(("sky", "dusk", "color", "dark")))
     radius = rng.uniform(2.2, 3.6)
-    ground = _relief("ground", rng, world_coords=True, rough=rng.uniform(0.1, 0.9),
-                     texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.7 else None)
+    ground = _relief(
+        "ground",
+        rng,
+        world_coords=True,
+        rough=rng.uniform(0.1, 0.9),
+        texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.7 else None,
+    )
     _box("ground", (40, 40, 0.1), (0, 0, -0.05), ground)
     top = 0.0
     if rng.random() < 0.5:  # a table under the glassware
         top = rng.uniform(0.4, 0.8)
-        _box("table", (rng.uniform(1.6, 2.6), rng.uniform(1.0, 1.8), 0.05), (0, 0, top - 0.025),
-             _material("table", rng, rough=rng.uniform(0.05, 0.6), texture=rng.choice(TEXTURES)))
+        _box(
+            "table",
+            (rng.uniform(1.6, 2.6), rng.uniform(1.0, 1.8), 0.05),
+            (0, 0, top - 0.025),
+            _material("table", rng, rough=rng.uniform(0.05, 0.6), texture=rng.choice(TEXTURES)),
+        )
     rigs = rng.sample(("sun", "spots", "area", "shaped_area", "points"), rng.randint(1, 2))
     if "sun" not in rigs and rng.random() < 0.5:
         rigs.append("sun")
@@ -990,8 +1154,13 @@ def _glass(scene, rng, frames):
         mat = _glass_material(f"g{i}", rng)
         if shape in ("tumbler", "bottle"):
             h = s * (1.2 if shape == "tumbler" else 2.5)
-            bpy.ops.mesh.primitive_cylinder_add(vertices=48, radius=s / 2 if shape == "tumbler" else s / 3, depth=h,
-                                                end_fill_type="NOTHING", location=(x, y, top + h / 2))
+            bpy.ops.mesh.primitive_cylinder_add(
+                vertices=48,
+                radius=s / 2 if shape == "tumbler" else s / 3,
+                depth=h,
+                end_fill_type="NOTHING",
+                location=(x, y, top + h / 2),
+            )
             bpy.ops.object.modifier_add(type="SOLIDIFY")
             bpy.context.object.modifiers[-1].thickness = rng.uniform(0.002, 0.008)
             bpy.ops.object.shade_smooth()
@@ -1030,8 +1199,13 @@ def _print(scene, rng, frames):
     world = rng.choice(("sky", "dusk", "dark", "color"))
     _world(scene, rng, world)
     radius = rng.uniform(2.2, 3.8)
-    ground = _relief("ground", rng, world_coords=True, rough=rng.uniform(0.1, 0.9),
-                     texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.5 else None)
+    ground = _relief(
+        "ground",
+        rng,
+        world_coords=True,
+        rough=rng.uniform(0.1, 0.9),
+        texture=rng.choice(DETAIL_TEXTURES) if rng.random() < 0.5 else None,
+    )
     _box("ground", (40, 40, 0.1), (0, 0, -0.05), ground)
     d = radius + rng.uniform(0.3, 1.2)
     walls = rng.random() < 0.6
@@ -1056,14 +1230,24 @@ def _print(scene, rng, frames):
             magic.turbulence_depth = rng.randint(2, 5)
             links.new(magic.outputs["Color"], nodes["Principled BSDF"].inputs["Base Color"])
         z = rng.uniform(0.2, 1.2) + h / 2
-        holders.append(_box(f"panel{i}", (w, 0.04, h), (r * math.cos(a), r * math.sin(a), z), face,
-                            (0, 0, a + math.pi / 2 + rng.uniform(-0.5, 0.5))))
+        holders.append(
+            _box(
+                f"panel{i}",
+                (w, 0.04, h),
+                (r * math.cos(a), r * math.sin(a), z),
+                face,
+                (0, 0, a + math.pi / 2 + rng.uniform(-0.5, 0.5)),
+            )
+        )
     for i in range(rng.randint(16, 40)):
         text = "".join(rng.choice(PRINT_CHARS) for _ in range(rng.randint(3, 16)))
         size = math.exp(rng.uniform(math.log(0.03), math.log(0.4)))
         glow = rng.random() < 0.25
-        mat = (_material(f"ink{i}", rng, emission=rng.uniform(2.0, 30.0), rough=0.5) if glow else
-               _material(f"ink{i}", rng, metal=rng.random() < 0.2, rough=rng.uniform(0.05, 0.9)))
+        mat = (
+            _material(f"ink{i}", rng, emission=rng.uniform(2.0, 30.0), rough=0.5)
+            if glow
+            else _material(f"ink{i}", rng, metal=rng.random() < 0.2, rough=rng.uniform(0.05, 0.9))
+        )
         bpy.ops.object.text_add()
         obj = bpy.context.object
         obj.data.body, obj.data.size = text, size
@@ -1098,8 +1282,11 @@ def _props(name, rng, n, base, extent, smallest, largest):
 
     for i in range(n):
         s = rng.uniform(smallest, largest)
-        loc = (base[0] + rng.uniform(-extent[0], extent[0]), base[1] + rng.uniform(-extent[1], extent[1]),
-               base[2] + s / 2)
+        loc = (
+            base[0] + rng.uniform(-extent[0], extent[0]),
+            base[1] + rng.uniform(-extent[1], extent[1]),
+            base[2] + s / 2,
+        )
         shape = rng.choice(("cube", "sphere", "cylinder", "cone"))
         if shape == "cube":
             bpy.ops.mesh.primitive_cube_add(size=s, location=loc, rotation=(0, 0, rng.uniform(0, 3)))
@@ -1112,8 +1299,14 @@ def _props(name, rng, n, base, extent, smallest, largest):
             bpy.ops.mesh.primitive_cone_add(radius1=s / 2.5, depth=s, location=loc)
         r = rng.random()
         bpy.context.object.data.materials.append(
-            _material(f"{name}p{i}", rng, metal=r < 0.25, glass=0.25 <= r < 0.35,
-                      texture=rng.choice(TEXTURES) if rng.random() < 0.4 else None))
+            _material(
+                f"{name}p{i}",
+                rng,
+                metal=r < 0.25,
+                glass=0.25 <= r < 0.35,
+                texture=rng.choice(TEXTURES) if rng.random() < 0.4 else None,
+            )
+        )
 
 
 def _interior_rig(rig, rng, half, height, reach):
@@ -1125,9 +1318,11 @@ def _interior_rig(rig, rng, half, height, reach):
 
     if rig == "uplight":
         for i in range(rng.randint(1, 2)):
-            bpy.ops.object.light_add(type="AREA", location=(rng.uniform(-0.7, 0.7) * half, rng.uniform(-0.7, 0.7) * half,
-                                                            rng.uniform(0.3, height - 0.8)),
-                                     rotation=(math.pi + rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), 0))
+            bpy.ops.object.light_add(
+                type="AREA",
+                location=(rng.uniform(-0.7, 0.7) * half, rng.uniform(-0.7, 0.7) * half, rng.uniform(0.3, height - 0.8)),
+                rotation=(math.pi + rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), 0),
+            )
             bpy.context.object.data.size = rng.uniform(0.1, 0.6)
             bpy.context.object.data.energy = rng.uniform(100, 600)
             bpy.context.object.data.color = (1.0, rng.uniform(0.75, 1.0), rng.uniform(0.55, 1.0))
@@ -1150,8 +1345,13 @@ def _interior_rig(rig, rng, half, height, reach):
             bpy.context.object.data.energy = rng.uniform(40, 250)
             bpy.context.object.data.shadow_soft_size = rng.uniform(0.02, 0.06)
             bpy.context.object.data.color = (1.0, rng.uniform(0.7, 0.95), rng.uniform(0.45, 0.8))
-            bpy.ops.mesh.primitive_cylinder_add(vertices=32, radius=rng.uniform(0.12, 0.25), depth=rng.uniform(0.2, 0.35),
-                                                end_fill_type="NOTHING", location=(x, y, z))
+            bpy.ops.mesh.primitive_cylinder_add(
+                vertices=32,
+                radius=rng.uniform(0.12, 0.25),
+                depth=rng.uniform(0.2, 0.35),
+                end_fill_type="NOTHING",
+                location=(x, y, z),
+            )
             bpy.context.object.data.materials.append(shade)
             bpy.ops.mesh.primitive_cylinder_add(radius=0.004, depth=height - z, location=(x, y, (height + z) / 2))
             bpy.context.object.data.materials.append(cord)
@@ -1159,9 +1359,11 @@ def _interior_rig(rig, rng, half, height, reach):
         side = rng.choice(("w", "e", "s"))
         d = half - rng.uniform(0.3, 0.8)
         # an area light shines along its local -z: turned to face the wall, tilted up a little
-        loc, rot = {"w": ((-d, rng.uniform(-0.5, 0.5) * half, height * 0.6), (0, math.pi / 2 + 0.3, 0)),
-                    "e": ((d, rng.uniform(-0.5, 0.5) * half, height * 0.6), (0, -math.pi / 2 - 0.3, 0)),
-                    "s": ((rng.uniform(-0.5, 0.5) * half, -d, height * 0.6), (-math.pi / 2 - 0.3, 0, 0))}[side]
+        loc, rot = {
+            "w": ((-d, rng.uniform(-0.5, 0.5) * half, height * 0.6), (0, math.pi / 2 + 0.3, 0)),
+            "e": ((d, rng.uniform(-0.5, 0.5) * half, height * 0.6), (0, -math.pi / 2 - 0.3, 0)),
+            "s": ((rng.uniform(-0.5, 0.5) * half, -d, height * 0.6), (-math.pi / 2 - 0.3, 0, 0)),
+        }[side]
         bpy.ops.object.light_add(type="AREA", location=loc, rotation=rot)
         bpy.context.object.data.size = rng.uniform(0.2, 1.0)
         bpy.context.object.data.energy = rng.uniform(150, 700)
@@ -1236,23 +1438,39 @@ def _media(scene, rng, frames):
             top = rng.uniform(2.5, 4.0) if sort == "air" else rng.uniform(1.0, 3.0)
             noise = 0.0 if sort == "air" else rng.uniform(0.3, 1.5)
             drift = [rng.uniform(-1.5, 1.5), rng.uniform(-1.5, 1.5), rng.uniform(-0.3, 0.3)]
-            mat = _volume_material(sort, rng, rng.uniform(0.005, 0.08) if sort == "air" else rng.uniform(0.03, 0.4),
-                                   noise, drift=drift if rng.random() < 0.5 else None, frames=frames)
+            mat = _volume_material(
+                sort,
+                rng,
+                rng.uniform(0.005, 0.08) if sort == "air" else rng.uniform(0.03, 0.4),
+                noise,
+                drift=drift if rng.random() < 0.5 else None,
+                frames=frames,
+            )
             bpy.ops.mesh.primitive_cube_add(size=1, location=(0, 0, top / 2 + 0.01))
             bpy.context.object.scale = (2 * reach, 2 * reach, top)
             bpy.context.object.data.materials.append(mat)
             continue
         for i in range(rng.randint(1, 4) if sort == "smoke" else rng.randint(1, 2)):
             s = rng.uniform(0.4, 2.0)
-            loc = (rng.uniform(-2.0, 2.0), rng.uniform(-2.0, 2.0), rng.uniform(s / 3, 2.0))  # inside the camera's circle
+            loc = (
+                rng.uniform(-2.0, 2.0),
+                rng.uniform(-2.0, 2.0),
+                rng.uniform(s / 3, 2.0),
+            )  # inside the camera's circle
             if rng.random() < 0.5:
                 bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=3, radius=s / 2, location=loc)
             else:
                 bpy.ops.mesh.primitive_cube_add(size=s, location=loc, rotation=(0, 0, rng.uniform(0, 3)))
             obj = bpy.context.object
-            obj.data.materials.append(_volume_material(
-                f"{sort}{i}", rng, rng.uniform(1.0, 12.0) if sort == "smoke" else rng.uniform(0.5, 5.0),
-                rng.uniform(0.8, 4.0) / s, emission=rng.uniform(1.0, 20.0) if sort == "glow" else 0.0))
+            obj.data.materials.append(
+                _volume_material(
+                    f"{sort}{i}",
+                    rng,
+                    rng.uniform(1.0, 12.0) if sort == "smoke" else rng.uniform(0.5, 5.0),
+                    rng.uniform(0.8, 4.0) / s,
+                    emission=rng.uniform(1.0, 20.0) if sort == "glow" else 0.0,
+                )
+            )
             if _slides(obj, rng, frames, 0.4, 1.0):
                 moving.append(obj)
     return moving, target, radius, height
@@ -1265,14 +1483,20 @@ def _atrium(scene, rng, frames):
 
     _world(scene, rng, "sky")
     half, height, t = rng.uniform(5.0, 7.0), rng.uniform(5.0, 7.0), 0.2
-    walls = _material("walls", rng, rough=rng.uniform(0.4, 0.9),
-                      texture=rng.choice(("brick", "noise")) if rng.random() < 0.6 else None)
+    walls = _material(
+        "walls",
+        rng,
+        rough=rng.uniform(0.4, 0.9),
+        texture=rng.choice(("brick", "noise")) if rng.random() < 0.6 else None,
+    )
     stone = _material("stone", rng, rough=rng.uniform(0.1, 0.5), texture=rng.choice(TEXTURES))
     _box("floor", (2 * half, 2 * half, t), (0, 0, -t / 2), stone)
-    for name, size, loc in (("w", (t, 2 * half, height), (-half, 0, height / 2)),
-                            ("e", (t, 2 * half, height), (half, 0, height / 2)),
-                            ("s", (2 * half, t, height), (0, -half, height / 2)),
-                            ("n", (2 * half, t, height), (0, half, height / 2))):
+    for name, size, loc in (
+        ("w", (t, 2 * half, height), (-half, 0, height / 2)),
+        ("e", (t, 2 * half, height), (half, 0, height / 2)),
+        ("s", (2 * half, t, height), (0, -half, height / 2)),
+        ("n", (2 * half, t, height), (0, half, height / 2)),
+    ):
         _box(f"wall_{name}", size, loc, walls)
     o = rng.uniform(1.2, 2.5)  # half the skylight's side: the roof is four slabs around it
     side = half - o
@@ -1280,20 +1504,26 @@ def _atrium(scene, rng, frames):
     _box("roof_s", (2 * half, side, t), (0, -(half + o) / 2, height + t / 2), walls)
     _box("roof_e", (side, 2 * o, t), ((half + o) / 2, 0, height + t / 2), walls)
     _box("roof_w", (side, 2 * o, t), (-(half + o) / 2, 0, height + t / 2), walls)
-    bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(5, 30)), 0,
-                                                   math.radians(rng.uniform(0, 360))))
+    bpy.ops.object.light_add(
+        type="SUN", rotation=(math.radians(rng.uniform(5, 30)), 0, math.radians(rng.uniform(0, 360)))
+    )
     bpy.context.object.data.energy = rng.uniform(3.0, 8.0)
     bpy.context.object.data.angle = math.radians(rng.uniform(0.5, 2.0))
     ring, n = rng.uniform(0.55, 0.8) * half, rng.randint(6, 10)
     column = _material("column", rng, rough=rng.uniform(0.3, 0.8), color=[rng.uniform(0.6, 0.9)] * 3)
     for i in range(n):
         a = 2 * math.pi * i / n
-        bpy.ops.mesh.primitive_cylinder_add(radius=rng.uniform(0.05, 0.12), depth=height,
-                                            location=(ring * math.cos(a), ring * math.sin(a), height / 2))
+        bpy.ops.mesh.primitive_cylinder_add(
+            radius=rng.uniform(0.05, 0.12), depth=height, location=(ring * math.cos(a), ring * math.sin(a), height / 2)
+        )
         bpy.context.object.data.materials.append(column)
     rail = _material("rail", rng, metal=True, rough=rng.uniform(0.1, 0.4))
-    bpy.ops.mesh.primitive_torus_add(major_radius=ring, minor_radius=rng.uniform(0.01, 0.02),
-                                     location=(0, 0, rng.uniform(0.9, 1.1)), major_segments=96)
+    bpy.ops.mesh.primitive_torus_add(
+        major_radius=ring,
+        minor_radius=rng.uniform(0.01, 0.02),
+        location=(0, 0, rng.uniform(0.9, 1.1)),
+        major_segments=96,
+    )
     bpy.context.object.data.materials.append(rail)
     pool = _material("pool", rng, rough=rng.uniform(0.0, 0.05), color=(0.02, 0.05, rng.uniform(0.08, 0.2)))
     _box("pool", (rng.uniform(1.5, 3.0), rng.uniform(1.5, 3.0), 0.02), (0, 0, 0.01), pool)
@@ -1318,8 +1548,9 @@ def _workshop(scene, rng, frames):
         light.shadow_soft_size = rng.uniform(0.02, 0.08)
         light.color = (1.0, rng.uniform(0.7, 0.9), rng.uniform(0.5, 0.7))
         # the shade: a cone open at the bottom around the lamp (its apex up)
-        bpy.ops.mesh.primitive_cone_add(vertices=32, radius1=rng.uniform(0.15, 0.3), depth=0.3,
-                                        end_fill_type="NOTHING", location=(x, y, z + 0.08))
+        bpy.ops.mesh.primitive_cone_add(
+            vertices=32, radius1=rng.uniform(0.15, 0.3), depth=0.3, end_fill_type="NOTHING", location=(x, y, z + 0.08)
+        )
         bpy.context.object.data.materials.append(shade)
     wood = _material("bench", rng, rough=rng.uniform(0.3, 0.7), texture="noise")
     bx, by = rng.uniform(-0.8, 0.8), rng.uniform(-0.5, 0.5)
@@ -1340,7 +1571,8 @@ def _workshop(scene, rng, frames):
             bpy.ops.mesh.primitive_cylinder_add(radius=s / 3, depth=s, location=loc)
         r = rng.random()
         bpy.context.object.data.materials.append(
-            _material(f"prop{i}", rng, metal=r < 0.3, texture=rng.choice(TEXTURES) if rng.random() < 0.5 else None))
+            _material(f"prop{i}", rng, metal=r < 0.3, texture=rng.choice(TEXTURES) if rng.random() < 0.5 else None)
+        )
     # the fan: blades parented to a hub that turns at a constant rate
     fx, fy, fz = rng.choice((-2.5, 2.5)), rng.uniform(-2.0, 2.0), rng.uniform(1.0, 1.6)
     metal = _material("fan", rng, metal=True, rough=rng.uniform(0.2, 0.5))
@@ -1352,8 +1584,13 @@ def _workshop(scene, rng, frames):
     blades, length = rng.randint(3, 5), rng.uniform(0.25, 0.45)
     for k in range(blades):
         a = 2 * math.pi * k / blades
-        blade = _box(f"blade{k}", (length, 0.07, 0.006), (0.55 * length * math.cos(a), 0.55 * length * math.sin(a), 0),
-                     metal, (0.25, 0, a))
+        blade = _box(
+            f"blade{k}",
+            (length, 0.07, 0.006),
+            (0.55 * length * math.cos(a), 0.55 * length * math.sin(a), 0),
+            metal,
+            (0.25, 0, a),
+        )
         blade.parent = hub
     turn = rng.uniform(0.05, 0.25) * rng.choice((-1, 1))  # radians a frame
     for f in (0, frames + 1):
@@ -1379,8 +1616,9 @@ def _street(scene, rng, frames):
 
     _world(scene, rng, "dusk")
     road_half = rng.uniform(3.0, 4.5)
-    road = _material("asphalt", rng, rough=rng.uniform(0.03, 0.25), color=[rng.uniform(0.03, 0.08)] * 3,
-                     texture="noise")
+    road = _material(
+        "asphalt", rng, rough=rng.uniform(0.03, 0.25), color=[rng.uniform(0.03, 0.08)] * 3, texture="noise"
+    )
     _box("road", (60, 2 * road_half, 0.1), (0, 0, -0.05), road)
     kerb = _material("pavement", rng, rough=rng.uniform(0.4, 0.9), texture=rng.choice(("brick", "checker")))
     for side in (-1, 1):
@@ -1389,18 +1627,34 @@ def _street(scene, rng, frames):
         while x < 20.0:  # facades of random widths and heights, windows lit at random
             width, tall, depth = rng.uniform(4, 9), rng.uniform(6, 18), 4.0
             y = side * (road_half + 2.5 + depth / 2)
-            _box(f"house{side}_{x:.0f}", (width, depth, tall), (x + width / 2, y, tall / 2),
-                 _material(f"facade{side}_{x:.0f}", rng, rough=rng.uniform(0.5, 0.95),
-                           texture=rng.choice(("brick", "noise", None))))
-            lit = _material(f"window{side}_{x:.0f}", rng, emission=rng.uniform(1.0, 12.0), rough=0.3,
-                            color=(1.0, rng.uniform(0.6, 0.95), rng.uniform(0.3, 0.8)))
+            _box(
+                f"house{side}_{x:.0f}",
+                (width, depth, tall),
+                (x + width / 2, y, tall / 2),
+                _material(
+                    f"facade{side}_{x:.0f}",
+                    rng,
+                    rough=rng.uniform(0.5, 0.95),
+                    texture=rng.choice(("brick", "noise", None)),
+                ),
+            )
+            lit = _material(
+                f"window{side}_{x:.0f}",
+                rng,
+                emission=rng.uniform(1.0, 12.0),
+                rough=0.3,
+                color=(1.0, rng.uniform(0.6, 0.95), rng.uniform(0.3, 0.8)),
+            )
             dark = _material(f"glass{side}_{x:.0f}", rng, rough=0.05, color=(0.02, 0.02, 0.03))
             for fx in range(int(width // 1.5)):
                 for fz in range(int((tall - 1.0) // 2.5)):
                     wx = x + 0.75 + 1.5 * fx
-                    _box(f"w{side}_{wx:.1f}_{fz}", (0.8, 0.05, 1.2),
-                         (wx, y - side * (depth / 2 + 0.03), 1.8 + 2.5 * fz),
-                         lit if rng.random() < 0.4 else dark)
+                    _box(
+                        f"w{side}_{wx:.1f}_{fz}",
+                        (0.8, 0.05, 1.2),
+                        (wx, y - side * (depth / 2 + 0.03), 1.8 + 2.5 * fz),
+                        lit if rng.random() < 0.4 else dark,
+                    )
             x += width + rng.uniform(0.0, 1.0)
     pole = _material("pole", rng, metal=True, rough=rng.uniform(0.3, 0.6), color=(0.3, 0.3, 0.32))
     lamp = _material("lamp", rng, emission=rng.uniform(20.0, 60.0), rough=0.5, color=(1.0, 0.85, 0.6))
@@ -1426,8 +1680,12 @@ def _street(scene, rng, frames):
         scene.collection.objects.link(car)
         paint = _material(f"paint{c}", rng, metal=rng.random() < 0.5, rough=rng.uniform(0.1, 0.4))
         body = _box(f"body{c}", (4.2, 1.8, 0.8), (0, 0, 0.65), paint)
-        cabin = _box(f"cabin{c}", (2.2, 1.6, 0.6), (-0.3, 0, 1.35),
-                     _material(f"cabin{c}", rng, rough=0.05, color=(0.05, 0.06, 0.08)))
+        cabin = _box(
+            f"cabin{c}",
+            (2.2, 1.6, 0.6),
+            (-0.3, 0, 1.35),
+            _material(f"cabin{c}", rng, rough=0.05, color=(0.05, 0.06, 0.08)),
+        )
         parts = [body, cabin]
         front = 2.1 if speed > 0 else -2.1
         head = _material(f"head{c}", rng, emission=rng.uniform(30.0, 80.0), rough=0.5, color=(1.0, 0.95, 0.85))
@@ -1436,8 +1694,9 @@ def _street(scene, rng, frames):
             parts.append(_emitter(f"head{c}{sy}", 0.1, (front * 1.01, sy, 0.7), head))
             parts.append(_box(f"tail{c}{sy}", (0.04, 0.3, 0.12), (-front * 1.0, sy, 0.8), tail))
             # a spot shines along its -Z: -84 degrees about Y aims it ahead (+X) and a little down
-            bpy.ops.object.light_add(type="SPOT", location=(front * 1.05, sy, 0.7),
-                                     rotation=(0, math.radians(-84 if speed > 0 else 84), 0))
+            bpy.ops.object.light_add(
+                type="SPOT", location=(front * 1.05, sy, 0.7), rotation=(0, math.radians(-84 if speed > 0 else 84), 0)
+            )
             light = bpy.context.object
             light.data.energy = rng.uniform(300, 900)
             light.data.spot_size = math.radians(rng.uniform(40, 60))
@@ -1493,8 +1752,9 @@ def _studio(scene, rng, frames):
     # floor (up to y = 4), a cove (the inside of a quarter cylinder of radius r) and a wall
     r = rng.uniform(1.0, 2.0)
     _box("floor", (20, 14, 0.1), (0, -3.0, -0.05), backdrop)
-    profile = [(4.0 + r * math.cos(a), r + r * math.sin(a))
-               for a in (-math.pi / 2 + math.pi / 2 * k / 24 for k in range(25))]
+    profile = [
+        (4.0 + r * math.cos(a), r + r * math.sin(a)) for a in (-math.pi / 2 + math.pi / 2 * k / 24 for k in range(25))
+    ]
     verts = [(x, y, z) for x in (-10.0, 10.0) for y, z in profile]
     faces = [(k, k + 1, 26 + k, 25 + k) for k in range(24)]
     mesh = bpy.data.meshes.new("cove")
@@ -1530,8 +1790,13 @@ def _studio(scene, rng, frames):
         bpy.ops.object.modifier_add(type="SUBSURF")
         bpy.context.object.modifiers[-1].levels = 2
     elif hero == "torus_knot":
-        bpy.ops.mesh.primitive_torus_add(major_radius=0.4, minor_radius=0.12, location=(0, 0, 0.6),
-                                         rotation=(rng.uniform(0.3, 1.2), 0, 0), major_segments=96)
+        bpy.ops.mesh.primitive_torus_add(
+            major_radius=0.4,
+            minor_radius=0.12,
+            location=(0, 0, 0.6),
+            rotation=(rng.uniform(0.3, 1.2), 0, 0),
+            major_segments=96,
+        )
     else:
         bpy.ops.mesh.primitive_uv_sphere_add(radius=0.45, location=(0, 0, 0.55), segments=64, ring_count=32)
     bpy.ops.object.shade_smooth()
@@ -1563,9 +1828,13 @@ def _studio(scene, rng, frames):
         bpy.context.object.data.materials.append(_studio_material(f"prop{i}", rng, rng.choice(STUDIO_SORTS)))
     # a fine wire mesh standing behind the set: a grid turned into thin struts
     cells = rng.randint(12, 30)
-    bpy.ops.mesh.primitive_grid_add(x_subdivisions=cells, y_subdivisions=cells, size=rng.uniform(1.2, 2.0),
-                                    location=(rng.uniform(-1.5, 1.5), rng.uniform(1.5, 2.5), 1.0),
-                                    rotation=(math.pi / 2, 0, rng.uniform(-0.5, 0.5)))
+    bpy.ops.mesh.primitive_grid_add(
+        x_subdivisions=cells,
+        y_subdivisions=cells,
+        size=rng.uniform(1.2, 2.0),
+        location=(rng.uniform(-1.5, 1.5), rng.uniform(1.5, 2.5), 1.0),
+        rotation=(math.pi / 2, 0, rng.uniform(-0.5, 0.5)),
+    )
     bpy.ops.object.modifier_add(type="WIREFRAME")
     bpy.context.object.modifiers[-1].thickness = rng.uniform(0.004, 0.012)
     bpy.context.object.data.materials.append(_material("wire", rng, metal=True, rough=rng.uniform(0.2, 0.5)))
@@ -1630,35 +1899,48 @@ def _grove(scene, rng, frames):
     import bpy
 
     _world(scene, rng, "sky")
-    bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(30, 65)), 0,
-                                                   math.radians(rng.uniform(0, 360))))
+    bpy.ops.object.light_add(
+        type="SUN", rotation=(math.radians(rng.uniform(30, 65)), 0, math.radians(rng.uniform(0, 360)))
+    )
     bpy.context.object.data.energy = rng.uniform(3.0, 6.0)
     bpy.context.object.data.angle = math.radians(rng.uniform(0.3, 1.5))
-    soil = _material("soil", rng, rough=0.9, color=(rng.uniform(0.1, 0.25), rng.uniform(0.08, 0.18), 0.05),
-                     texture="noise")
+    soil = _material(
+        "soil", rng, rough=0.9, color=(rng.uniform(0.1, 0.25), rng.uniform(0.08, 0.18), 0.05), texture="noise"
+    )
     _box("soil", (40, 40, 0.1), (0, 0, -0.05), soil)
-    bark = _material("bark", rng, rough=0.8, color=(rng.uniform(0.1, 0.3), rng.uniform(0.07, 0.2), 0.05),
-                     texture="voronoi")
+    bark = _material(
+        "bark", rng, rough=0.8, color=(rng.uniform(0.1, 0.3), rng.uniform(0.07, 0.2), 0.05), texture="voronoi"
+    )
     moving = []
     for i in range(rng.randint(3, 6)):
         a, r = rng.uniform(0, 2 * math.pi), rng.uniform(1.0, 3.5)
         x, y, h = r * math.cos(a), r * math.sin(a), rng.uniform(2.0, 4.0)
-        bpy.ops.mesh.primitive_cone_add(vertices=24, radius1=rng.uniform(0.06, 0.15), radius2=0.02, depth=h,
-                                        location=(x, y, h / 2))
+        bpy.ops.mesh.primitive_cone_add(
+            vertices=24, radius1=rng.uniform(0.06, 0.15), radius2=0.02, depth=h, location=(x, y, h / 2)
+        )
         bpy.context.object.data.materials.append(bark)
         for k in range(rng.randint(2, 5)):  # branches: thin cylinders leaning out of the trunk
             z, ang, ln = rng.uniform(0.4, 0.85) * h, rng.uniform(0, 2 * math.pi), rng.uniform(0.4, 1.2)
-            bpy.ops.mesh.primitive_cylinder_add(vertices=12, radius=rng.uniform(0.01, 0.03), depth=ln,
-                                                location=(x + 0.4 * ln * math.cos(ang), y + 0.4 * ln * math.sin(ang),
-                                                          z + 0.2 * ln),
-                                                rotation=(0, rng.uniform(0.6, 1.2), ang))
+            bpy.ops.mesh.primitive_cylinder_add(
+                vertices=12,
+                radius=rng.uniform(0.01, 0.03),
+                depth=ln,
+                location=(x + 0.4 * ln * math.cos(ang), y + 0.4 * ln * math.sin(ang), z + 0.2 * ln),
+                rotation=(0, rng.uniform(0.6, 1.2), ang),
+            )
             bpy.context.object.data.materials.append(bark)
         leaves = _leaf_material(f"leaf{i}", rng)
         for k in range(rng.randint(1, 2)):
             e = (rng.uniform(0.6, 1.3), rng.uniform(0.6, 1.3), rng.uniform(0.5, 1.0))
-            crown = _cards(f"crown{i}_{k}", rng, rng.randint(300, 900),
-                           (x + rng.uniform(-0.3, 0.3), y + rng.uniform(-0.3, 0.3), h * rng.uniform(0.75, 0.95)),
-                           e, rng.uniform(0.05, 0.14), leaves)
+            crown = _cards(
+                f"crown{i}_{k}",
+                rng,
+                rng.randint(300, 900),
+                (x + rng.uniform(-0.3, 0.3), y + rng.uniform(-0.3, 0.3), h * rng.uniform(0.75, 0.95)),
+                e,
+                rng.uniform(0.05, 0.14),
+                leaves,
+            )
             # swaying in the wind: a small tilt back and forth about the crown's own centre
             bpy.context.view_layer.objects.active = crown
             crown.select_set(True)
@@ -1679,8 +1961,11 @@ def _grove(scene, rng, frames):
             ht, wd, a = rng.uniform(0.1, 0.4), 0.006, rng.uniform(0, math.pi)
             lean = (rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1))
             b = len(verts)
-            verts += [(px - wd * math.cos(a), py - wd * math.sin(a), 0), (px + wd * math.cos(a), py + wd * math.sin(a), 0),
-                      (px + lean[0], py + lean[1], ht)]
+            verts += [
+                (px - wd * math.cos(a), py - wd * math.sin(a), 0),
+                (px + wd * math.cos(a), py + wd * math.sin(a), 0),
+                (px + lean[0], py + lean[1], ht),
+            ]
             faces.append((b, b + 1, b + 2))
         mesh = bpy.data.meshes.new(f"tuft{k}")
         mesh.from_pydata(verts, [], faces)
@@ -1711,14 +1996,20 @@ def _haze(scene, rng, frames):
     gaps = sorted(rng.sample([-0.5, -0.1, 0.3], rng.randint(1, 2)))
     edges = [-half] + [e for g in gaps for e in (g * half, g * half + 0.8)] + [half]
     for k in range(0, len(edges), 2):
-        _box(f"roof{k}", (2 * half, edges[k + 1] - edges[k], t), (0, (edges[k] + edges[k + 1]) / 2, height + t / 2), wall)
-    bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(10, 35)), 0, math.radians(rng.uniform(-30, 30))))
+        _box(
+            f"roof{k}", (2 * half, edges[k + 1] - edges[k], t), (0, (edges[k] + edges[k + 1]) / 2, height + t / 2), wall
+        )
+    bpy.ops.object.light_add(
+        type="SUN", rotation=(math.radians(rng.uniform(10, 35)), 0, math.radians(rng.uniform(-30, 30)))
+    )
     bpy.context.object.data.energy = rng.uniform(8.0, 16.0)
     bpy.context.object.data.angle = math.radians(0.5)
     for i in range(rng.randint(1, 3)):
-        bpy.ops.object.light_add(type="SPOT", location=(rng.uniform(-half + 1, half - 1), rng.uniform(-half + 1, half - 1),
-                                                        height - 0.3),
-                                 rotation=(rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4), 0))
+        bpy.ops.object.light_add(
+            type="SPOT",
+            location=(rng.uniform(-half + 1, half - 1), rng.uniform(-half + 1, half - 1), height - 0.3),
+            rotation=(rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4), 0),
+        )
         light = bpy.context.object.data
         light.energy, light.spot_size = rng.uniform(2000, 8000), math.radians(rng.uniform(15, 40))
         light.spot_blend, light.shadow_soft_size = rng.uniform(0.05, 0.3), rng.uniform(0.02, 0.1)
@@ -1740,16 +2031,21 @@ def _haze(scene, rng, frames):
     n = rng.randint(2, 4)
     for i in range(2 * n):  # two rows of columns along the long walls, the middle left clear
         x, y = -half + (i // 2 + 0.5) * 2 * half / n, (half - 0.7) * (1 if i % 2 else -1)
-        bpy.ops.mesh.primitive_cylinder_add(vertices=32, radius=rng.uniform(0.15, 0.3), depth=height,
-                                            location=(x, y, height / 2))
+        bpy.ops.mesh.primitive_cylinder_add(
+            vertices=32, radius=rng.uniform(0.15, 0.3), depth=height, location=(x, y, height / 2)
+        )
         bpy.context.object.data.materials.append(col)
     moving = []
     for i in range(rng.randint(4, 9)):
         s = rng.uniform(0.3, 0.9)
         x, y = rng.uniform(-1.6, 1.6), rng.uniform(-1.6, 1.6)  # inside the camera's circle
-        crate = _box(f"crate{i}", (s, s * rng.uniform(0.7, 1.4), s), (x, y, s / 2),
-                     _material(f"crate{i}", rng, metal=rng.random() < 0.3, texture=rng.choice(TEXTURES)),
-                     (0, 0, rng.uniform(0, math.pi)))
+        crate = _box(
+            f"crate{i}",
+            (s, s * rng.uniform(0.7, 1.4), s),
+            (x, y, s / 2),
+            _material(f"crate{i}", rng, metal=rng.random() < 0.3, texture=rng.choice(TEXTURES)),
+            (0, 0, rng.uniform(0, math.pi)),
+        )
         if rng.random() < 0.35:
             d = (rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0))
             for f, tt in ((0, 0.0), (frames + 1, 1.0)):
@@ -1777,8 +2073,12 @@ def _bathroom(scene, rng, frames):
     floor = _material("floor_tiles", rng, rough=rng.uniform(0.1, 0.5), texture="checker")
     t = 0.1
     _box("floor", (2 * half, 2 * half, t), (0, 0, -t / 2), floor)
-    _box("ceiling", (2 * half, 2 * half, t), (0, 0, height + t / 2), _material("ceiling", rng, rough=0.8,
-                                                                                color=[0.85, 0.85, 0.85]))
+    _box(
+        "ceiling",
+        (2 * half, 2 * half, t),
+        (0, 0, height + t / 2),
+        _material("ceiling", rng, rough=0.8, color=[0.85, 0.85, 0.85]),
+    )
     _box("wall_n", (2 * half, t, height), (0, half, height / 2), wall)
     _box("wall_s", (2 * half, t, height), (0, -half, height / 2), wall)
     _box("wall_w", (t, 2 * half, height), (-half, 0, height / 2), wall)
@@ -1788,9 +2088,15 @@ def _bathroom(scene, rng, frames):
         _box("wall_e_n", (t, half - y1, height), (half, (half + y1) / 2, height / 2), wall)
         _box("wall_e_b", (t, y1 - y0, z0), (half, 0, z0 / 2), wall)
         _box("wall_e_t", (t, y1 - y0, height - z1), (half, 0, (z1 + height) / 2), wall)
-        _box("window", (0.01, y1 - y0, z1 - z0), (half, 0, (z0 + z1) / 2),
-             _material("frosted", rng, glass=True, rough=rng.uniform(0.1, 0.4), color=[0.95, 0.95, 0.95]))
-        bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(40, 65)), 0, math.radians(rng.uniform(60, 120))))
+        _box(
+            "window",
+            (0.01, y1 - y0, z1 - z0),
+            (half, 0, (z0 + z1) / 2),
+            _material("frosted", rng, glass=True, rough=rng.uniform(0.1, 0.4), color=[0.95, 0.95, 0.95]),
+        )
+        bpy.ops.object.light_add(
+            type="SUN", rotation=(math.radians(rng.uniform(40, 65)), 0, math.radians(rng.uniform(60, 120)))
+        )
         bpy.context.object.data.energy = rng.uniform(3.0, 7.0)
     else:
         _box("wall_e", (t, 2 * half, height), (half, 0, height / 2), wall)
@@ -1800,30 +2106,49 @@ def _bathroom(scene, rng, frames):
     if rng.random() < 0.5:  # facing mirrors
         _box("mirror_s", (rng.uniform(0.8, 1.6), 0.01, h), (rng.uniform(-0.3, 0.3), -half + 0.06, 1.0 + h / 2), mirror)
     for side in (-1, 1):  # strip lamps either side of the north mirror
-        _box(f"strip{side}", (0.05, 0.03, h), (side * (w / 2 + 0.12), half - 0.07, 1.0 + h / 2),
-             _material(f"strip{side}", rng, emission=rng.uniform(4.0, 15.0), rough=0.5))
+        _box(
+            f"strip{side}",
+            (0.05, 0.03, h),
+            (side * (w / 2 + 0.12), half - 0.07, 1.0 + h / 2),
+            _material(f"strip{side}", rng, emission=rng.uniform(4.0, 15.0), rough=0.5),
+        )
     bpy.ops.object.light_add(type="AREA", location=(0, 0, height - 0.05))
     bpy.context.object.data.energy = rng.uniform(30, 150)
     bpy.context.object.data.size = rng.uniform(0.2, 0.5)
     ceramic = _material("ceramic", rng, rough=rng.uniform(0.03, 0.15), color=[0.92, 0.92, 0.9])
     chrome = _material("chrome", rng, metal=True, rough=rng.uniform(0.05, 0.2), color=[0.85, 0.86, 0.88])
     _box("basin", (0.6, 0.4, 0.15), (0, half - 0.3, 0.85), ceramic)
-    _box("cabinet", (0.7, 0.45, 0.78), (0, half - 0.3, 0.39), _material("cabinet", rng, rough=rng.uniform(0.2, 0.7),
-                                                                     texture=rng.choice(("wave", "noise"))))
-    bpy.ops.mesh.primitive_cylinder_add(vertices=32, radius=0.015, depth=0.25, location=(0, half - 0.12, 1.0),
-                                        rotation=(math.pi / 2.5, 0, 0))
+    _box(
+        "cabinet",
+        (0.7, 0.45, 0.78),
+        (0, half - 0.3, 0.39),
+        _material("cabinet", rng, rough=rng.uniform(0.2, 0.7), texture=rng.choice(("wave", "noise"))),
+    )
+    bpy.ops.mesh.primitive_cylinder_add(
+        vertices=32, radius=0.015, depth=0.25, location=(0, half - 0.12, 1.0), rotation=(math.pi / 2.5, 0, 0)
+    )
     bpy.context.object.data.materials.append(chrome)
     tub_x = -half + 0.45
     _box("tub", (0.75, 1.6, 0.55), (tub_x, -0.2, 0.275), ceramic)
     for _ in range(rng.randint(1, 3)):  # towel rails
-        bpy.ops.mesh.primitive_cylinder_add(vertices=24, radius=0.012, depth=rng.uniform(0.5, 0.9),
-                                            location=(half - 0.08 if not daylight else rng.uniform(-0.8, 0.8),
-                                                      -half + 0.08 if daylight else rng.uniform(-1.0, 1.0),
-                                                      rng.uniform(0.9, 1.6)),
-                                            rotation=(0, math.pi / 2, 0) if daylight else (math.pi / 2, 0, 0))
+        bpy.ops.mesh.primitive_cylinder_add(
+            vertices=24,
+            radius=0.012,
+            depth=rng.uniform(0.5, 0.9),
+            location=(
+                half - 0.08 if not daylight else rng.uniform(-0.8, 0.8),
+                -half + 0.08 if daylight else rng.uniform(-1.0, 1.0),
+                rng.uniform(0.9, 1.6),
+            ),
+            rotation=(0, math.pi / 2, 0) if daylight else (math.pi / 2, 0, 0),
+        )
         bpy.context.object.data.materials.append(chrome)
-    screen = _box("screen", (0.01, 0.8, 1.6), (tub_x + 0.38, -0.6, 0.55 + 0.8),
-                  _material("screen", rng, glass=True, rough=rng.uniform(0.0, 0.4), color=[0.9, 0.95, 0.95]))
+    screen = _box(
+        "screen",
+        (0.01, 0.8, 1.6),
+        (tub_x + 0.38, -0.6, 0.55 + 0.8),
+        _material("screen", rng, glass=True, rough=rng.uniform(0.0, 0.4), color=[0.9, 0.95, 0.95]),
+    )
     moving = []
     d = rng.uniform(0.4, 0.8) * rng.choice((-1, 1))
     for f, tt in ((0, 0.0), (frames + 1, 1.0)):
@@ -1833,12 +2158,17 @@ def _bathroom(scene, rng, frames):
     for i in range(rng.randint(2, 5)):  # bottles and jars on the basin and the tub's rim
         s = rng.uniform(0.04, 0.09)
         x, y, z = (rng.uniform(-0.3, 0.3), half - 0.2, 0.93) if i % 2 else (tub_x + rng.uniform(-0.3, 0.3), -0.95, 0.55)
-        bpy.ops.mesh.primitive_cylinder_add(vertices=32, radius=s / 2, depth=s * rng.uniform(1.5, 3.0),
-                                            location=(x, y, z + s))
+        bpy.ops.mesh.primitive_cylinder_add(
+            vertices=32, radius=s / 2, depth=s * rng.uniform(1.5, 3.0), location=(x, y, z + s)
+        )
         bpy.ops.object.shade_smooth()
         bpy.context.object.data.materials.append(_material(f"bottle{i}", rng, glass=rng.random() < 0.4))
-    return moving, (rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), rng.uniform(0.9, 1.3)), half - 0.45, \
-        rng.uniform(1.3, 1.8)
+    return (
+        moving,
+        (rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), rng.uniform(0.9, 1.3)),
+        half - 0.45,
+        rng.uniform(1.3, 1.8),
+    )
 
 
 def _hair_material(name, rng):
@@ -1894,11 +2224,16 @@ def _fur(scene, rng, frames):
     ground = _material("ground", rng, rough=rng.uniform(0.3, 0.9), texture=rng.choice(TEXTURES))
     _box("ground", (30, 30, 0.1), (0, 0, -0.05), ground)
     if outdoor:
-        bpy.ops.object.light_add(type="SUN", rotation=(math.radians(rng.uniform(25, 60)), 0, math.radians(rng.uniform(0, 360))))
+        bpy.ops.object.light_add(
+            type="SUN", rotation=(math.radians(rng.uniform(25, 60)), 0, math.radians(rng.uniform(0, 360)))
+        )
         bpy.context.object.data.energy = rng.uniform(2.0, 6.0)
     for i in range(1 if outdoor else rng.randint(2, 3)):
-        bpy.ops.object.light_add(type="AREA", location=(rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(1.5, 3.0)),
-                                 rotation=(rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), 0))
+        bpy.ops.object.light_add(
+            type="AREA",
+            location=(rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(1.5, 3.0)),
+            rotation=(rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), 0),
+        )
         bpy.context.object.data.energy = rng.uniform(50, 300)
         bpy.context.object.data.size = rng.uniform(0.3, 1.5)
     bpy.ops.mesh.primitive_plane_add(size=rng.uniform(1.5, 2.5), location=(0, 0, 0.005))
@@ -1919,8 +2254,9 @@ def _fur(scene, rng, frames):
             bpy.ops.object.modifier_add(type="SUBSURF")
             bpy.context.object.modifiers[-1].levels = bpy.context.object.modifiers[-1].render_levels = 2
         else:
-            bpy.ops.mesh.primitive_torus_add(major_radius=s / 2, minor_radius=s / 6, location=loc,
-                                             rotation=(rng.uniform(0, 1.2), 0, 0))
+            bpy.ops.mesh.primitive_torus_add(
+                major_radius=s / 2, minor_radius=s / 6, location=loc, rotation=(rng.uniform(0, 1.2), 0, 0)
+            )
         bpy.ops.object.shade_smooth()
         obj = bpy.context.object
         obj.data.materials.append(_material(f"skin{i}", rng, rough=0.7))
@@ -1970,8 +2306,9 @@ def render_sequence(cfg: dict, raw: str, ref: str | None) -> None:
     if ref:
         jb.restore(scene, changes, log=lambda m: None)
         scene.cycles.seed = cfg["seed"] + 7919  # reference noise independent of the inputs'
-        jb.configure_reference(scene, output=os.path.join(ref, ""), spp=cfg["spp"], scale=cfg["scale"],
-                               log=lambda m: None)
+        jb.configure_reference(
+            scene, output=os.path.join(ref, ""), spp=cfg["spp"], scale=cfg["scale"], log=lambda m: None
+        )
         _render_frames(scene, ref, frames, "reference")
 
 

@@ -22,6 +22,7 @@ graph on each run, whatever outputs it is asked for, so each default is a frame 
 smallest size the network takes: the segments a run does not need run on them, at a cost
 small against a frame's (measured at commit 77cc4c7).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -79,10 +80,19 @@ def cut_blocks(model: onnx.ModelProto, multiple: int, label: str = "the graph") 
     for k, resize in enumerate(resizes, 1):  # graph order: the coarsest decoder first
         attrs = {a.name: helper.get_attribute_value(a) for a in resize.attribute}
         scales = resize.input[2] if len(resize.input) > 2 else ""
-        factor = (numpy_helper.to_array(inits[scales]) if scales in inits
-                  else numpy_helper.to_array(producers[scales].attribute[0].t) if scales in producers else None)
-        if (attrs.get("mode") != b"linear" or attrs.get("coordinate_transformation_mode") != b"half_pixel"
-                or factor is None or list(factor) != [1, 1, 2, 2]):
+        factor = (
+            numpy_helper.to_array(inits[scales])
+            if scales in inits
+            else numpy_helper.to_array(producers[scales].attribute[0].t)
+            if scales in producers
+            else None
+        )
+        if (
+            attrs.get("mode") != b"linear"
+            or attrs.get("coordinate_transformation_mode") != b"half_pixel"
+            or factor is None
+            or list(factor) != [1, 1, 2, 2]
+        ):
             raise CalibrationError(f"{label}: {resize.name} is not a 2x linear half-pixel resize")
         up_dq = producers.get(resize.input[0])
         up_q = _single(consumers.get(resize.output[0], []), f"quantization of {resize.name}", label)
@@ -102,35 +112,61 @@ def cut_blocks(model: onnx.ModelProto, multiple: int, label: str = "the graph") 
             attrs = {a.name: helper.get_attribute_value(a) for a in d2s.attribute}
             skip_dq, phases = producers.get(d2s.input[0]), 2
             if attrs.get("blocksize") != 2 or attrs.get("mode", b"DCR") != b"CRD" or skip_dq is None:
-                raise CalibrationError(f"{label}: {d2s.name} is not a quantized 2x2 depth-to-space "
-                                       "(CRD, pixel_shuffle's order)")
+                raise CalibrationError(
+                    f"{label}: {d2s.name} is not a quantized 2x2 depth-to-space (CRD, pixel_shuffle's order)"
+                )
             _phase_first(skip_dq.input[0], d2s, inits, producers, consumers, label)
         cat_q = _single(consumers.get(concat.output[0], []), f"quantization of {concat.name}", label)
         cat_dq = _single(consumers.get(cat_q.output[0], []), f"dequantization of {concat.name}", label)
-        if (any(n is None or n.op_type != "DequantizeLinear" for n in (up_dq, skip_dq, up_dq2, cat_dq))
-                or up_q.op_type != "QuantizeLinear" or cat_q.op_type != "QuantizeLinear"):
-            raise CalibrationError(f"{label}: {resize.name} and {concat.name} are not quantized as expected "
-                                   "(DequantizeLinear, Resize, QuantizeLinear, Concat, QuantizeLinear)")
-        conv = _single([n for n in consumers.get(cat_dq.output[0], []) if n.op_type == "Conv"],
-                       f"convolution reading {concat.name}", label)
+        if (
+            any(n is None or n.op_type != "DequantizeLinear" for n in (up_dq, skip_dq, up_dq2, cat_dq))
+            or up_q.op_type != "QuantizeLinear"
+            or cat_q.op_type != "QuantizeLinear"
+        ):
+            raise CalibrationError(
+                f"{label}: {resize.name} and {concat.name} are not quantized as expected "
+                "(DequantizeLinear, Resize, QuantizeLinear, Concat, QuantizeLinear)"
+            )
+        conv = _single(
+            [n for n in consumers.get(cat_dq.output[0], []) if n.op_type == "Conv"],
+            f"convolution reading {concat.name}",
+            label,
+        )
         weights = producers.get(conv.input[1])
         if weights is None or weights.input[0] not in inits:
             raise CalibrationError(f"{label}: {conv.name}'s weights are not quantized initializers")
         width = int(numpy_helper.to_array(inits[weights.input[0]]).shape[1])
         entry = f"block.{k}"
-        cut = Cut(entry, f"{entry}.up", f"{entry}.skip", qparams(up_dq), qparams(skip_dq), qparams(cat_q),
-                  stage_of(concat.name), phases)
+        cut = Cut(
+            entry,
+            f"{entry}.up",
+            f"{entry}.skip",
+            qparams(up_dq),
+            qparams(skip_dq),
+            qparams(cat_q),
+            stage_of(concat.name),
+            phases,
+        )
         prefix = concat.name.rsplit("/", 1)[0]  # named in its stage (runtime.profile's stages)
-        added += [helper.make_node("Transpose", [up_dq.input[0]], [cut.up], name=f"{prefix}/{cut.up}_Transpose",
-                                   perm=[0, 2, 3, 1]),
-                  helper.make_node("Transpose", [skip_dq.input[0]], [cut.skip], name=f"{prefix}/{cut.skip}_Transpose",
-                                   perm=[0, 2, 3, 1])]
+        added += [
+            helper.make_node(
+                "Transpose", [up_dq.input[0]], [cut.up], name=f"{prefix}/{cut.up}_Transpose", perm=[0, 2, 3, 1]
+            ),
+            helper.make_node(
+                "Transpose", [skip_dq.input[0]], [cut.skip], name=f"{prefix}/{cut.skip}_Transpose", perm=[0, 2, 3, 1]
+            ),
+        ]
         cat_dq.input[0] = f"{entry}_nchw"  # the convolution reads the new entry
-        g.node.insert(0, helper.make_node("Transpose", [entry], [f"{entry}_nchw"], name=f"{prefix}/{entry}_Transpose",
-                                          perm=[0, 3, 1, 2]))
+        g.node.insert(
+            0,
+            helper.make_node(
+                "Transpose", [entry], [f"{entry}_nchw"], name=f"{prefix}/{entry}_Transpose", perm=[0, 3, 1, 2]
+            ),
+        )
         g.input.append(helper.make_tensor_value_info(entry, onnx.TensorProto.UINT8, ["N", f"H{k}", f"W{k}", width]))
-        g.output.extend([helper.make_tensor_value_info(n, onnx.TensorProto.UINT8, ["N", "h", "w", "C"])
-                         for n in (cut.up, cut.skip)])
+        g.output.extend(
+            [helper.make_tensor_value_info(n, onnx.TensorProto.UINT8, ["N", "h", "w", "C"]) for n in (cut.up, cut.skip)]
+        )
         defaults[entry] = np.zeros((1, m, m, width), np.uint8)
         cuts.append(cut)
     g.node.extend(added)

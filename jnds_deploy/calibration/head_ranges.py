@@ -19,6 +19,7 @@ code then covers its own [centre_c - R_c, centre_c + R_c] (``channel_ranges``): 
 head output's range on the calibration inputs, within what the part's function can tell
 apart (kernels are clamped to [-1, 1], a sigmoid is flat beyond +-12, a ReLU below 0).
 """
+
 from __future__ import annotations
 
 import itertools
@@ -62,7 +63,9 @@ def _head(graph: onnx.GraphProto):
     parts = []
     for out in graph.output:
         t = out.name
-        while t not in index and t in producers and producers[t].input:  # back along the first inputs: Clip, Sigmoid, Div <- Exp <- Sub
+        while (
+            t not in index and t in producers and producers[t].input
+        ):  # back along the first inputs: Clip, Sigmoid, Div <- Exp <- Sub
             t = producers[t].input[0]
         if t in index:
             parts.append((out.name, index[t]))
@@ -106,7 +109,7 @@ def raw_ranges(model: onnx.ModelProto, feeds: list[dict[str, np.ndarray]], stops
         a, b = raw.min(axis=(0, 2, 3)), raw.max(axis=(0, 2, 3))
         lo, hi = (a, b) if lo is None else (np.minimum(lo, a), np.maximum(hi, b))
     starts = np.cumsum([0] + sizes)
-    return {name: np.stack([lo[starts[i]:starts[i + 1]], hi[starts[i]:starts[i + 1]]], 1) for name, i in parts}
+    return {name: np.stack([lo[starts[i] : starts[i + 1]], hi[starts[i] : starts[i + 1]]], 1) for name, i in parts}
 
 
 def channel_ranges(raw: dict[str, np.ndarray]) -> dict[str, dict[str, list[float]]]:
@@ -126,8 +129,9 @@ def channel_ranges(raw: dict[str, np.ndarray]) -> dict[str, dict[str, list[float
     return out
 
 
-def quantize_head(model: onnx.ModelProto, ranges: dict[str, dict[str, list[float]]],
-                  label: str = "the graph") -> onnx.ModelProto:
+def quantize_head(
+    model: onnx.ModelProto, ranges: dict[str, dict[str, list[float]]], label: str = "the graph"
+) -> onnx.ModelProto:
     """``model`` (an int8 network graph or pruned variant, head float; changed) with its head
     quantized and its u8 NHWC output ``head`` in place of the outputs the head fed; its
     layout (``HeadLayout``) in the graph's metadata. ``ranges``: centre and range of every
@@ -143,8 +147,9 @@ def quantize_head(model: onnx.ModelProto, ranges: dict[str, dict[str, list[float
     r = np.concatenate([np.asarray(ranges[n]["range"], np.float64) for n in names])
     m = np.concatenate([np.asarray(ranges[n]["centre"], np.float64) for n in names])
     if [len(ranges[n]["range"]) for n in names] != sizes or len(m) != len(r):
-        raise CalibrationError(f"{label}: head ranges of {[len(ranges[n]['range']) for n in names]} channels, "
-                               f"the split has {sizes}")
+        raise CalibrationError(
+            f"{label}: head ranges of {[len(ranges[n]['range']) for n in names]} channels, the split has {sizes}"
+        )
     inits = {i.name: numpy_helper.to_array(i) for i in g.initializer}
     producers = {o: n for n in g.node for o in n.output}
     x_dq = producers.get(conv.input[0])
@@ -160,28 +165,62 @@ def quantize_head(model: onnx.ModelProto, ranges: dict[str, dict[str, list[float
     wq = np.clip(np.round(w / w_scale[:, None, None, None]), -127, 127).astype(np.int8)
     bq = np.round(b / (x_scale * w_scale)).astype(np.int32)
     c = len(w)
-    g.initializer.extend([numpy_helper.from_array(a, n) for a, n in (
-        (wq, "head_w_q"), (w_scale.astype(np.float32), "head_w_scale"), (np.zeros(c, np.int8), "head_w_zp"),
-        (bq, "head_b_q"), ((x_scale * w_scale).astype(np.float32), "head_b_scale"),
-        (np.zeros(c, np.int32), "head_b_zp"), (np.array(CODE_SCALE, np.float32), "head_y_scale"),
-        (np.array(ZERO_POINT, np.uint8), "head_y_zp"))])
+    g.initializer.extend(
+        [
+            numpy_helper.from_array(a, n)
+            for a, n in (
+                (wq, "head_w_q"),
+                (w_scale.astype(np.float32), "head_w_scale"),
+                (np.zeros(c, np.int8), "head_w_zp"),
+                (bq, "head_b_q"),
+                ((x_scale * w_scale).astype(np.float32), "head_b_scale"),
+                (np.zeros(c, np.int32), "head_b_zp"),
+                (np.array(CODE_SCALE, np.float32), "head_y_scale"),
+                (np.array(ZERO_POINT, np.uint8), "head_y_zp"),
+            )
+        ]
+    )
     conv.input[1], conv.input[2] = "head_w", "head_b"
     at = list(g.node).index(conv)  # the nodes stay topologically sorted
     prefix = HEAD_NODE.rsplit("/", 1)[0]  # named in the output block (runtime.profile's stages)
-    g.node.insert(at, helper.make_node("DequantizeLinear", ["head_b_q", "head_b_scale", "head_b_zp"], ["head_b"],
-                                       name=f"{prefix}/bias_DequantizeLinear", axis=0))
-    g.node.insert(at, helper.make_node("DequantizeLinear", ["head_w_q", "head_w_scale", "head_w_zp"], ["head_w"],
-                                       name=f"{prefix}/weight_DequantizeLinear", axis=0))
-    g.node.extend([
-        helper.make_node("QuantizeLinear", [conv.output[0], "head_y_scale", "head_y_zp"], ["head_u8"],
-                         name=f"{prefix}/QuantizeLinear"),
-        helper.make_node("Transpose", ["head_u8"], [HEAD], name=f"{prefix}/Transpose", perm=[0, 2, 3, 1])])
+    g.node.insert(
+        at,
+        helper.make_node(
+            "DequantizeLinear",
+            ["head_b_q", "head_b_scale", "head_b_zp"],
+            ["head_b"],
+            name=f"{prefix}/bias_DequantizeLinear",
+            axis=0,
+        ),
+    )
+    g.node.insert(
+        at,
+        helper.make_node(
+            "DequantizeLinear",
+            ["head_w_q", "head_w_scale", "head_w_zp"],
+            ["head_w"],
+            name=f"{prefix}/weight_DequantizeLinear",
+            axis=0,
+        ),
+    )
+    g.node.extend(
+        [
+            helper.make_node(
+                "QuantizeLinear",
+                [conv.output[0], "head_y_scale", "head_y_zp"],
+                ["head_u8"],
+                name=f"{prefix}/QuantizeLinear",
+            ),
+            helper.make_node("Transpose", ["head_u8"], [HEAD], name=f"{prefix}/Transpose", perm=[0, 2, 3, 1]),
+        ]
+    )
     for vi in [v for v in g.value_info if v.name == conv.output[0]]:
         g.value_info.remove(vi)  # its channel count changed
     keep = [o.name for o in g.output if o.name not in set(names)]
     g.output.append(helper.make_tensor_value_info(HEAD, onnx.TensorProto.UINT8, ["N", "H", "W", c]))
-    layout = HeadLayout(tuple(zip(names, sizes)), tuple(float(v) for v in r * CODE_SCALE),
-                        tuple(float(v) for v in m), ZERO_POINT, c)
+    layout = HeadLayout(
+        tuple(zip(names, sizes)), tuple(float(v) for v in r * CODE_SCALE), tuple(float(v) for v in m), ZERO_POINT, c
+    )
     return extracted(model, [i.name for i in g.input], keep + [HEAD], {HEAD_KEY: layout.to_json()})
 
 
@@ -214,8 +253,10 @@ def code_levels(model: onnx.ModelProto, label: str = "the graph") -> onnx.ModelP
         kind = head_kind(name)
         want = {"kernel": ["Clip"], "blend": ["Sigmoid"]}.get(kind)
         if q is None or q.op_type != "QuantizeLinear" or [n.op_type for n in chain] != want:
-            raise CalibrationError(f"{label}: level output {name} is not a {kind} of a quantized head "
-                                   f"(QuantizeLinear, DequantizeLinear, Split, {' '.join(want or ['?'])})")
+            raise CalibrationError(
+                f"{label}: level output {name} is not a {kind} of a quantized head "
+                f"(QuantizeLinear, DequantizeLinear, Split, {' '.join(want or ['?'])})"
+            )
         if kind == "kernel":
             bounds = [_constant(g, i) for i in chain[0].input[1:]]
             if any(b is None for b in bounds) or [float(b) for b in bounds] != list(BOUNDS["kernel"]):
@@ -228,14 +269,16 @@ def code_levels(model: onnx.ModelProto, label: str = "the graph") -> onnx.ModelP
         sizes = _split_sizes(g, split)
         parts.sort(key=lambda p: p[1])
         if [i for _, i in parts] != list(range(len(sizes))):
-            raise CalibrationError(f"{label}: {split.name}'s parts {[i for _, i in parts]} do not each reach "
-                                   f"one output")
+            raise CalibrationError(
+                f"{label}: {split.name}'s parts {[i for _, i in parts]} do not each reach one output"
+            )
         scale, zp = _constant(g, dq.input[1]), _constant(g, dq.input[2])
         if scale is None or zp is None or zp.dtype != np.uint8 or scale.size != 1:
             raise CalibrationError(f"{label}: {dq.name} is not a u8 per-tensor dequantization")
         n = sum(sizes)
-        layouts[head] = HeadLayout(tuple((p, c) for (p, _), c in zip(parts, sizes)), (float(scale),) * n,
-                                   (0.0,) * n, int(zp), n)
+        layouts[head] = HeadLayout(
+            tuple((p, c) for (p, _), c in zip(parts, sizes)), (float(scale),) * n, (0.0,) * n, int(zp), n
+        )
         old = q.output[0]
         q.output[0] = head  # the u8 tensor is the output (its dequantization goes with the rest)
         for node in g.node:
@@ -244,6 +287,8 @@ def code_levels(model: onnx.ModelProto, label: str = "the graph") -> onnx.ModelP
         return model
     gone = {p for lay in layouts.values() for p, _ in lay.parts}
     keep = [o.name for o in g.output if o.name not in gone]
-    g.output.extend(helper.make_tensor_value_info(h, onnx.TensorProto.UINT8, ["N", lay.channels, f"h{h}", f"w{h}"])
-                    for h, lay in layouts.items())
+    g.output.extend(
+        helper.make_tensor_value_info(h, onnx.TensorProto.UINT8, ["N", lay.channels, f"h{h}", f"w{h}"])
+        for h, lay in layouts.items()
+    )
     return extracted(model, [i.name for i in g.input], keep + list(layouts), {LEVELS_KEY: levels_to_json(layouts)})

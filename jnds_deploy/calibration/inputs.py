@@ -22,6 +22,7 @@ of them with large weights of one sign overflowed: the int8 graph lost to fp32 o
 frames (measured at commit 84b3903). Where no such placement exists the channels keep their
 order.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -68,10 +69,21 @@ def quantize_inputs(model: onnx.ModelProto, label: str = "the graph") -> onnx.Mo
     w_dq.input[0] += "_padded"
     prefix = PROJECT.rsplit("/", 2)[0]  # named in the input block (runtime.profile's stages)
     at = list(g.node).index(x_dq)
-    g.node.insert(at, helper.make_node("DequantizeLinear", [f"{INPUTS}_nchw", x_dq.input[1], x_dq.input[2]],
-                                       [conv.input[0] + "_packed"], name=f"{prefix}/inputs_DequantizeLinear"))
-    g.node.insert(at, helper.make_node("Transpose", [INPUTS], [f"{INPUTS}_nchw"], name=f"{prefix}/inputs_Transpose",
-                                       perm=[0, 3, 1, 2]))
+    g.node.insert(
+        at,
+        helper.make_node(
+            "DequantizeLinear",
+            [f"{INPUTS}_nchw", x_dq.input[1], x_dq.input[2]],
+            [conv.input[0] + "_packed"],
+            name=f"{prefix}/inputs_DequantizeLinear",
+        ),
+    )
+    g.node.insert(
+        at,
+        helper.make_node(
+            "Transpose", [INPUTS], [f"{INPUTS}_nchw"], name=f"{prefix}/inputs_Transpose", perm=[0, 3, 1, 2]
+        ),
+    )
     conv.input[0] += "_packed"
     g.input.append(helper.make_tensor_value_info(INPUTS, onnx.TensorProto.UINT8, ["N", "H", "W", channels]))
     layout = InputsLayout(scale, int(zp), channels, tuple(slots), block)

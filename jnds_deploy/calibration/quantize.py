@@ -23,6 +23,7 @@ before it is pruned (``export.prune`` reads the file); and, for the network grap
 of its variants with u8 edges, after ``u8_edges``' four surgeries, done on the model in
 memory.
 """
+
 from __future__ import annotations
 
 import json
@@ -66,9 +67,12 @@ INT8_MEAN_TOL = 0.03
 class CalibrateConfig:
     artifacts: str = option(help="a directory written by `jnds export`")
     data: tuple[str, ...] = option(help="sequences, or directories of sequences", nargs="+")
-    method: str = option("qat", "qat: the activation ranges learned in quantization-aware training (the rest "
-                                "from the data); minmax, percentile, entropy: ONNX Runtime's static calibration",
-                         choices=METHODS)
+    method: str = option(
+        "qat",
+        "qat: the activation ranges learned in quantization-aware training (the rest "
+        "from the data); minmax, percentile, entropy: ONNX Runtime's static calibration",
+        choices=METHODS,
+    )
     activation_type: str = option("u8", "the int8 activations' type", choices=ACTIVATION_TYPES)
     op_types: tuple[str, ...] = DEFAULT_OP_TYPES
     float_nodes: tuple[str, ...] = FLOAT_NODES
@@ -81,9 +85,14 @@ class CalibrateConfig:
     # quantized preprocessing of the input block (calibration.inputs), its output the
     # output block's head, read by the filter stage (calibration.head_ranges). False: both stay
     # float, the head as FLOAT_NODES says
-    u8_edges: bool = option(True, "keep the input block's preprocessing and the output block's head float "
-                                  "(default: the graph takes u8 inputs packed by the runtime and gives the head's u8 "
-                                  "output to the filters)", flag="--float-edges", action="store_false")
+    u8_edges: bool = option(
+        True,
+        "keep the input block's preprocessing and the output block's head float "
+        "(default: the graph takes u8 inputs packed by the runtime and gives the head's u8 "
+        "output to the filters)",
+        flag="--float-edges",
+        action="store_false",
+    )
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -94,16 +103,28 @@ class CalibrateConfig:
             raise CalibrationError("no calibration sequences given (--data SEQ ...)")
 
 
-def quantize_graph(fp32_path: Path, out_path: Path, feeds: list[dict[str, np.ndarray]], method: str,
-                   activation_type: str = "u8", op_types=DEFAULT_OP_TYPES, overrides: dict | None = None,
-                   percentile: float = 99.999, exclude: tuple[str, ...] = (),
-                   stops: tuple[float, ...] = (0,)) -> None:
+def quantize_graph(
+    fp32_path: Path,
+    out_path: Path,
+    feeds: list[dict[str, np.ndarray]],
+    method: str,
+    activation_type: str = "u8",
+    op_types=DEFAULT_OP_TYPES,
+    overrides: dict | None = None,
+    percentile: float = 99.999,
+    exclude: tuple[str, ...] = (),
+    stops: tuple[float, ...] = (0,),
+) -> None:
     """Static QDQ quantization of one graph; written atomically to ``out_path``. The
     calibrator sees every feed at each exposure 2^k of ``stops`` (``reader.FeedReader``)."""
     from onnxruntime.quantization import CalibrationMethod, QuantType
 
-    calib = {"qat": CalibrationMethod.MinMax, "minmax": CalibrationMethod.MinMax,
-             "percentile": CalibrationMethod.Percentile, "entropy": CalibrationMethod.Entropy}[method]
+    calib = {
+        "qat": CalibrationMethod.MinMax,
+        "minmax": CalibrationMethod.MinMax,
+        "percentile": CalibrationMethod.Percentile,
+        "entropy": CalibrationMethod.Entropy,
+    }[method]
     extra = {"CalibPercentile": percentile} if method == "percentile" else {}
     if overrides:
         extra["TensorQuantOverrides"] = overrides
@@ -113,8 +134,7 @@ def quantize_graph(fp32_path: Path, out_path: Path, feeds: list[dict[str, np.nda
     root_logger = logging.getLogger()
     root_logger.addFilter(_drop_preprocessing_advice)
     try:
-        _quantize_static(fp32_path, out_path, FeedReader(feeds, stops, RADIANCE), calib, act, op_types, exclude,
-                         extra)
+        _quantize_static(fp32_path, out_path, FeedReader(feeds, stops, RADIANCE), calib, act, op_types, exclude, extra)
     finally:
         root_logger.removeFilter(_drop_preprocessing_advice)
 
@@ -128,10 +148,19 @@ def _quantize_static(fp32_path, out_path, reader, calib, act, op_types, exclude,
 
     with tempfile.TemporaryDirectory(dir=out_path.parent) as tmp:
         tmp_out = Path(tmp) / out_path.name
-        quantize_static(str(fp32_path), str(tmp_out), reader, quant_format=QuantFormat.QDQ,
-                        per_channel=True, activation_type=act, weight_type=QuantType.QInt8,
-                        calibrate_method=calib, op_types_to_quantize=list(op_types),
-                        nodes_to_exclude=list(exclude), extra_options=extra)
+        quantize_static(
+            str(fp32_path),
+            str(tmp_out),
+            reader,
+            quant_format=QuantFormat.QDQ,
+            per_channel=True,
+            activation_type=act,
+            weight_type=QuantType.QInt8,
+            calibrate_method=calib,
+            op_types_to_quantize=list(op_types),
+            nodes_to_exclude=list(exclude),
+            extra_options=extra,
+        )
         os.replace(tmp_out, out_path)
 
 
@@ -169,8 +198,13 @@ def quantized_tensors(model: onnx.ModelProto) -> dict[str, dict]:
         scale, zp = inits[node.input[1]], inits[node.input[2]]
         info = np.iinfo(zp.dtype)
         s, z = float(scale), int(zp)
-        out[node.input[0]] = {"scale": s, "zero_point": z, "dtype": str(zp.dtype),
-                              "rmin": (info.min - z) * s, "rmax": (info.max - z) * s}
+        out[node.input[0]] = {
+            "scale": s,
+            "zero_point": z,
+            "dtype": str(zp.dtype),
+            "rmin": (info.min - z) * s,
+            "rmax": (info.max - z) * s,
+        }
     return out
 
 
@@ -181,8 +215,9 @@ def op_counts(path: Path) -> dict[str, int]:
     return counts
 
 
-def validate_int8(root: Path, manifest: Manifest, method: str, feeds: dict[str, list],
-                  checkpoint: str | None) -> list[dict]:
+def validate_int8(
+    root: Path, manifest: Manifest, method: str, feeds: dict[str, list], checkpoint: str | None
+) -> list[dict]:
     """Each int8 graph against PyTorch fp32 on up to three recorded inputs (first frame,
     middle, last), per output max/mean |diff| against INT8_ATOL / INT8_MEAN_TOL."""
     import onnxruntime as ort
@@ -197,8 +232,10 @@ def validate_int8(root: Path, manifest: Manifest, method: str, feeds: dict[str, 
     if not ckpt.is_file():
         raise CalibrationError(f"{ckpt}: checkpoint of these artifacts not found; pass --checkpoint")
     model = load_fp32_model(ckpt)
-    fns = {"network": lambda names: (lambda *x: tuple(model.network(*x)[k] for k in names)),
-           "upsample": lambda names: (lambda c, f: to_phases(model.upsample_block(c, f), model.cfg.scale))}
+    fns = {
+        "network": lambda names: lambda *x: tuple(model.network(*x)[k] for k in names),
+        "upsample": lambda names: lambda c, f: to_phases(model.upsample_block(c, f), model.cfg.scale),
+    }
     rows = []
     for name, g in manifest.graphs.items():
         path = root / g.int8[method].file
@@ -231,8 +268,10 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
         if not feeds[name]:
             raise CalibrationError(f"no calibration inputs recorded for graph {name!r}")
         file = f"{Path(g.file).stem}.int8.{cfg.method}.onnx"
-        log(f"quantizing {g.file} -> {file} ({cfg.method}, {cfg.activation_type} activations, "
-            f"{len(feeds[name])} calibration frames)")
+        log(
+            f"quantizing {g.file} -> {file} ({cfg.method}, {cfg.activation_type} activations, "
+            f"{len(feeds[name])} calibration frames)"
+        )
         learned = follow_shared_ranges(root / g.file, overrides.get(name, {}), cfg.op_types)
         # with float edges and learned ranges, the tensors left to the calibrator (the input
         # preprocessing's, the level heads' outputs) see the exposures the output block's head
@@ -241,8 +280,18 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
         # range, and the same stops changed nothing but a little resolution (measured at
         # commit 0c8ead5; int8 against fp32 over exposures: benchmarks/results/exposure_sweep.md)
         stops = STOPS if cfg.method == "qat" and name == "network" and not cfg.u8_edges else (0,)
-        quantize_graph(root / g.file, root / file, feeds[name], cfg.method, cfg.activation_type,
-                       cfg.op_types, qat_overrides(learned), cfg.percentile, cfg.float_nodes, stops)
+        quantize_graph(
+            root / g.file,
+            root / file,
+            feeds[name],
+            cfg.method,
+            cfg.activation_type,
+            cfg.op_types,
+            qat_overrides(learned),
+            cfg.percentile,
+            cfg.float_nodes,
+            stops,
+        )
         model = onnx.load(str(root / file))
         if fast_int8(model):
             write_model(model, root / file)
@@ -253,9 +302,11 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
         if cfg.u8_edges and name == "network" and cfg.activation_type == "u8":
             raw = raw_ranges(model, feeds[name])
             head = channel_ranges(raw)
-            head_ranges = {n: {"min": [float(v) for v in r[:, 0]], "max": [float(v) for v in r[:, 1]], **head[n]}
-                           for n, r in raw.items()}
-        variants = write_variants(root, file, file[:-len(".onnx")])
+            head_ranges = {
+                n: {"min": [float(v) for v in r[:, 0]], "max": [float(v) for v in r[:, 1]], **head[n]}
+                for n, r in raw.items()
+            }
+        variants = write_variants(root, file, file[: -len(".onnx")])
         if head:  # after pruning: the variants slice the float head, then each is quantized
             for f in [file] + [v.file for v in variants.values()]:
                 write_model(u8_edges(onnx.load(str(root / f)), head, manifest.pad_multiple, f), root / f)
@@ -263,17 +314,32 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
             vrows += validate_variant(root / file, root / v.file, feeds[name][0], *INT8_VARIANT_TOL)
             v.sha256 = file_hash(root / v.file)
         g.int8[cfg.method] = Int8Graph(
-            file=file, sha256=file_hash(root / file), activation_type=cfg.activation_type,
-            weights="int8 per output channel, symmetric", op_types=list(cfg.op_types),
+            file=file,
+            sha256=file_hash(root / file),
+            activation_type=cfg.activation_type,
+            weights="int8 per output channel, symmetric",
+            op_types=list(cfg.op_types),
             float_nodes=[n for n in cfg.float_nodes if not (head and n == HEAD_NODE)],
-            ranges=f"calibration.{cfg.method}.json", variants=variants,
-            head=Edge.U8 if head else Edge.FLOAT, inputs=Edge.U8 if head else Edge.FLOAT,
-            block=Block.CUT if head else Block.GRAPH, levels=Edge.U8 if head else Edge.FLOAT)
-    write_json(root / f"calibration.{cfg.method}.json",
-               {"method": cfg.method, "activation_type": cfg.activation_type,
-                "data": [str(d) for d in cfg.data], "frames_per_sequence": cfg.frames,
-                "frames": {k: len(v) for k, v in feeds.items()}, "tensors": ranges,
-                "head": head_ranges, "head_stops": list(STOPS)})
+            ranges=f"calibration.{cfg.method}.json",
+            variants=variants,
+            head=Edge.U8 if head else Edge.FLOAT,
+            inputs=Edge.U8 if head else Edge.FLOAT,
+            block=Block.CUT if head else Block.GRAPH,
+            levels=Edge.U8 if head else Edge.FLOAT,
+        )
+    write_json(
+        root / f"calibration.{cfg.method}.json",
+        {
+            "method": cfg.method,
+            "activation_type": cfg.activation_type,
+            "data": [str(d) for d in cfg.data],
+            "frames_per_sequence": cfg.frames,
+            "frames": {k: len(v) for k, v in feeds.items()},
+            "tensors": ranges,
+            "head": head_ranges,
+            "head_stops": list(STOPS),
+        },
+    )
     manifest.int8_method = cfg.method
     rows = validate_int8(root, manifest, cfg.method, feeds, cfg.checkpoint) + vrows
     manifest.int8_validation[cfg.method] = rows
@@ -282,8 +348,9 @@ def calibrate(cfg: CalibrateConfig, log=print) -> Manifest:
     return manifest
 
 
-def u8_edges(model: onnx.ModelProto, head: dict[str, dict[str, list[float]]], multiple: int,
-             label: str = "the graph") -> onnx.ModelProto:
+def u8_edges(
+    model: onnx.ModelProto, head: dict[str, dict[str, list[float]]], multiple: int, label: str = "the graph"
+) -> onnx.ModelProto:
     """The int8 network graph (or pruned variant) ``model`` with u8 edges, its layouts in its
     metadata (``artifacts.layouts``): its head quantized at the ranges ``head``
     (``calibration.head_ranges``), the input block's preprocessing cut off (``calibration.inputs``),
@@ -299,7 +366,10 @@ def u8_edges(model: onnx.ModelProto, head: dict[str, dict[str, list[float]]], mu
 def _check_overrides(file: str, learned: dict, got: dict) -> None:
     """Every learned range must have become the scale of its tensor (guards against the
     exporter renaming tensors and ONNX Runtime silently ignoring an override)."""
-    bad = [t for t, r in learned.items()
-           if t not in got or not np.isclose(got[t]["scale"], (r["rmax"] - r["rmin"]) / 255, rtol=1e-3)]
+    bad = [
+        t
+        for t, r in learned.items()
+        if t not in got or not np.isclose(got[t]["scale"], (r["rmax"] - r["rmin"]) / 255, rtol=1e-3)
+    ]
     if bad:
         raise CalibrationError(f"{file}: learned ranges not applied to {len(bad)} tensor(s): {', '.join(bad[:5])}")

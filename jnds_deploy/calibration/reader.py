@@ -5,6 +5,7 @@ calibrating on anything else (zeros, the noisy inputs) would give the int8 graph
 it never sees in use. ``collect_feeds`` runs the fp32 artifacts frame after frame, exactly
 as ``jnds run`` does, and records every graph's inputs.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -16,8 +17,13 @@ from ..io import open_sequence
 from ..runtime.pipeline import Pipeline, PipelineConfig
 
 
-def collect_feeds(artifacts: str | Path, sequences: list[str | Path], frames: int | None = None,
-                  threads: int = 2, progress: bool = True) -> dict[str, list[dict[str, np.ndarray]]]:
+def collect_feeds(
+    artifacts: str | Path,
+    sequences: list[str | Path],
+    frames: int | None = None,
+    threads: int = 2,
+    progress: bool = True,
+) -> dict[str, list[dict[str, np.ndarray]]]:
     """{graph name: [feeds of one frame, ...]} from the fp32 pipeline over ``sequences``
     (at most ``frames`` per sequence, from the first, so history builds up as in use)."""
     from tqdm import tqdm
@@ -39,8 +45,9 @@ class FeedReader(CalibrationDataReader):
     every feed once per exposure 2^k, its radiance channels (``radiance``: current and
     history alike) scaled, one copy at a time."""
 
-    def __init__(self, feeds: list[dict[str, np.ndarray]], stops: tuple[float, ...] = (0,),
-                 radiance: slice | None = None):
+    def __init__(
+        self, feeds: list[dict[str, np.ndarray]], stops: tuple[float, ...] = (0,), radiance: slice | None = None
+    ):
         self.feeds, self.stops, self.radiance = feeds, tuple(stops), radiance
         if self.stops != (0,) and radiance is None:
             raise ValueError("FeedReader: stops other than (0,) need the radiance channels")
@@ -65,5 +72,5 @@ def exposed(feed: dict[str, np.ndarray], stop: float, radiance: slice | None) ->
     out = {n: v.copy() for n, v in feed.items()}
     for n, v in out.items():
         if n != "guide":
-            v[:, radiance] *= np.float32(2.0 ** stop)
+            v[:, radiance] *= np.float32(2.0**stop)
     return out

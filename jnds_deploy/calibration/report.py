@@ -7,6 +7,7 @@
 - end to end: the int8 pipeline against the fp32 pipeline and both against the reference,
   PSNR and FLIP per sequence.
 """
+
 from __future__ import annotations
 
 import tempfile
@@ -21,9 +22,12 @@ from .reader import FeedReader
 
 def tensor_errors(fp32_path: Path, int8_path: Path, feeds: list[dict]) -> list[dict]:
     """Per quantized activation: SQNR (dB) of QDQ rounding and of int8 vs fp32, worst first."""
-    from onnxruntime.quantization.qdq_loss_debug import (collect_activations, compute_activation_error,
-                                                          create_activation_matching,
-                                                          modify_model_output_intermediate_tensors)
+    from onnxruntime.quantization.qdq_loss_debug import (
+        collect_activations,
+        compute_activation_error,
+        create_activation_matching,
+        modify_model_output_intermediate_tensors,
+    )
 
     with tempfile.TemporaryDirectory() as tmp:
         aug_f, aug_q = Path(tmp) / "f.onnx", Path(tmp) / "q.onnx"
@@ -32,22 +36,30 @@ def tensor_errors(fp32_path: Path, int8_path: Path, feeds: list[dict]) -> list[d
         acts_f = collect_activations(str(aug_f), FeedReader(feeds))
         acts_q = collect_activations(str(aug_q), FeedReader(feeds))
     errors = compute_activation_error(create_activation_matching(acts_q, acts_f))
-    rows = [{"tensor": k, "qdq_sqnr_db": float(v["qdq_err"]), "vs_fp32_sqnr_db": float(v.get("xmodel_err", np.nan))}
-            for k, v in errors.items()]
+    rows = [
+        {"tensor": k, "qdq_sqnr_db": float(v["qdq_err"]), "vs_fp32_sqnr_db": float(v.get("xmodel_err", np.nan))}
+        for k, v in errors.items()
+    ]
     return sorted(rows, key=lambda r: r["vs_fp32_sqnr_db"])
 
 
-def end_to_end(artifacts: str | Path, method: str, sequences: list[Path], threads: int = 2,
-               progress: bool = True) -> dict:
+def end_to_end(
+    artifacts: str | Path, method: str, sequences: list[Path], threads: int = 2, progress: bool = True
+) -> dict:
     """PSNR/FLIP of the int8 (``method``) and fp32 pipelines against the reference, and of
     int8 against fp32, per sequence and averaged over sequences."""
     from tqdm import tqdm
 
     from ..metrics import flip, psnr
 
-    pipes = {p: Pipeline(PipelineConfig(artifacts=str(artifacts), precision=p, threads=threads,
-                                        int8_method=method if p == "int8" else None))
-             for p in ("fp32", "int8")}
+    pipes = {
+        p: Pipeline(
+            PipelineConfig(
+                artifacts=str(artifacts), precision=p, threads=threads, int8_method=method if p == "int8" else None
+            )
+        )
+        for p in ("fp32", "int8")
+    }
     per_seq = {}
     for path in sequences:
         seq = open_sequence(path)
@@ -77,18 +89,29 @@ def markdown(tensors: dict[str, list[dict]], e2e: dict | None, worst: int = 8) -
     lines = []
     if e2e:
         m = e2e["mean"]
-        lines += [f"### End to end ({e2e['method']}, mean over {len(e2e['per_sequence'])} sequences)", "",
-                  "| pipeline | PSNR dB | FLIP |", "| --- | ---: | ---: |"]
+        lines += [
+            f"### End to end ({e2e['method']}, mean over {len(e2e['per_sequence'])} sequences)",
+            "",
+            "| pipeline | PSNR dB | FLIP |",
+            "| --- | ---: | ---: |",
+        ]
         for p in ("fp32", "int8"):
             if f"{p}_psnr" in m:
                 lines.append(f"| {p} | {m[f'{p}_psnr']:.2f} | {m[f'{p}_flip']:.4f} |")
         if "psnr_loss_db" in m:
-            lines += ["", f"int8 loses {m['psnr_loss_db']:.3f} dB PSNR against fp32 "
-                          f"(int8 vs fp32 output: {m['int8_vs_fp32_psnr']:.2f} dB PSNR)."]
+            lines += [
+                "",
+                f"int8 loses {m['psnr_loss_db']:.3f} dB PSNR against fp32 "
+                f"(int8 vs fp32 output: {m['int8_vs_fp32_psnr']:.2f} dB PSNR).",
+            ]
         lines.append("")
     for graph, rows in tensors.items():
-        lines += [f"### {graph}: {min(worst, len(rows))} worst of {len(rows)} quantized tensors", "",
-                  "| tensor | QDQ SQNR dB | vs fp32 SQNR dB |", "| --- | ---: | ---: |"]
+        lines += [
+            f"### {graph}: {min(worst, len(rows))} worst of {len(rows)} quantized tensors",
+            "",
+            "| tensor | QDQ SQNR dB | vs fp32 SQNR dB |",
+            "| --- | ---: | ---: |",
+        ]
         lines += [f"| `{r['tensor']}` | {r['qdq_sqnr_db']:.1f} | {r['vs_fp32_sqnr_db']:.1f} |" for r in rows[:worst]]
         lines.append("")
     return "\n".join(lines)

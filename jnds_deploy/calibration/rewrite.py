@@ -4,6 +4,7 @@ in its docstring). Written here: ONNX Runtime's own graph transformers do not do
 And the tools the graph surgeries share: ``extracted`` (a model cut down to what its
 outputs need, checked), ``write_model`` (written atomically).
 """
+
 from __future__ import annotations
 
 import os
@@ -48,23 +49,50 @@ def pools_as_convolutions(model: onnx.ModelProto) -> int:
     for node in [n for n in graph.node if n.op_type == "AveragePool"]:
         attrs = {a.name: helper.get_attribute_value(a) for a in node.attribute}
         dq, after = producers.get(node.input[0]), users.get(node.output[0], [])
-        if (attrs.get("kernel_shape") != [2, 2] or attrs.get("strides") != [2, 2]
-                or any(attrs.get("pads", [0])) or dq is None or dq.op_type != "DequantizeLinear"
-                or [u.op_type for u in after] != ["QuantizeLinear"]):
+        if (
+            attrs.get("kernel_shape") != [2, 2]
+            or attrs.get("strides") != [2, 2]
+            or any(attrs.get("pads", [0]))
+            or dq is None
+            or dq.op_type != "DequantizeLinear"
+            or [u.op_type for u in after] != ["QuantizeLinear"]
+        ):
             continue
         channels = shapes[node.input[0]].dim[1].dim_value
         if not channels:
             raise CalibrationError(f"{node.name}: input channels unknown")
         w = f"{node.name}/depthwise"
-        graph.initializer.extend([numpy_helper.from_array(np.full((channels, 1, 2, 2), 127, np.int8), f"{w}_q"),
-                                  numpy_helper.from_array(np.full(channels, 0.25 / 127, np.float32), f"{w}_scale"),
-                                  numpy_helper.from_array(np.zeros(channels, np.int8), f"{w}_zero_point")])
+        graph.initializer.extend(
+            [
+                numpy_helper.from_array(np.full((channels, 1, 2, 2), 127, np.int8), f"{w}_q"),
+                numpy_helper.from_array(np.full(channels, 0.25 / 127, np.float32), f"{w}_scale"),
+                numpy_helper.from_array(np.zeros(channels, np.int8), f"{w}_zero_point"),
+            ]
+        )
         at = list(graph.node).index(node)
         graph.node.remove(node)
-        graph.node.insert(at, helper.make_node("Conv", [node.input[0], w], [node.output[0]], name=node.name,
-                                               group=channels, kernel_shape=[2, 2], strides=[2, 2]))
-        graph.node.insert(at, helper.make_node("DequantizeLinear", [f"{w}_q", f"{w}_scale", f"{w}_zero_point"], [w],
-                                               name=f"{w}_DequantizeLinear", axis=0))
+        graph.node.insert(
+            at,
+            helper.make_node(
+                "Conv",
+                [node.input[0], w],
+                [node.output[0]],
+                name=node.name,
+                group=channels,
+                kernel_shape=[2, 2],
+                strides=[2, 2],
+            ),
+        )
+        graph.node.insert(
+            at,
+            helper.make_node(
+                "DequantizeLinear",
+                [f"{w}_q", f"{w}_scale", f"{w}_zero_point"],
+                [w],
+                name=f"{w}_DequantizeLinear",
+                axis=0,
+            ),
+        )
         done += 1
     return done
 
@@ -88,9 +116,14 @@ def resizes_into_concat_scale(model: onnx.ModelProto) -> int:
         for tensor in concat.input:
             dq = producers.get(tensor)
             q = producers.get(dq.input[0]) if dq is not None and dq.op_type == "DequantizeLinear" else None
-            if (q is None or q.op_type != "QuantizeLinear" or len(users[q.output[0]]) != 1
-                    or len(users[dq.output[0]]) != 1 or producers.get(q.input[0]) is None
-                    or producers[q.input[0]].op_type != "Resize"):
+            if (
+                q is None
+                or q.op_type != "QuantizeLinear"
+                or len(users[q.output[0]]) != 1
+                or len(users[dq.output[0]]) != 1
+                or producers.get(q.input[0]) is None
+                or producers[q.input[0]].op_type != "Resize"
+            ):
                 continue
             q.input[1], q.input[2] = out_scale, out_zero
             dq.input[1], dq.input[2] = out_scale, out_zero
@@ -98,8 +131,13 @@ def resizes_into_concat_scale(model: onnx.ModelProto) -> int:
     return done
 
 
-def extracted(model: onnx.ModelProto, inputs: list[str], outputs: list[str], props: dict,
-              defaults: dict[str, np.ndarray] | None = None) -> onnx.ModelProto:
+def extracted(
+    model: onnx.ModelProto,
+    inputs: list[str],
+    outputs: list[str],
+    props: dict,
+    defaults: dict[str, np.ndarray] | None = None,
+) -> onnx.ModelProto:
     """``model`` reduced to what ``outputs`` need from ``inputs`` (the nodes a surgery cut
     off go), with ``props`` added to its metadata, checked. ``defaults``: values of inputs a
     run may leave out (overridable initializers). ``model`` is left as it is."""

@@ -21,6 +21,7 @@ against PyTorch.
 
 ``convert`` (torch) is imported on first use, so the runtime can read ``prune`` without torch.
 """
+
 __all__ = ["ExportConfig", "export"]
 
 

@@ -1,4 +1,5 @@
 """PyTorch -> ONNX conversion of the two graphs, their pruned variants, the manifest, and validation."""
+
 from __future__ import annotations
 
 import warnings
@@ -14,7 +15,7 @@ from ..checkpoint import default_checkpoint, load_fp32_model
 from ..errors import ValidationError
 from ..filter_spec import to_phases
 from ..layout import GUIDE
-from ..model import CURRENT, HISTORY, N_CURRENT, N_GUIDE, N_HISTORY, JNDS, quant_ranges
+from ..model import CURRENT, HISTORY, JNDS, N_CURRENT, N_GUIDE, N_HISTORY, quant_ranges
 from ..options import option
 from .prune import validate_variant, write_variants
 
@@ -57,8 +58,14 @@ def _validation_inputs(cfg: ExportConfig, model: JNDS) -> dict[str, torch.Tensor
     return feeds
 
 
-def validate_graph(onnx_path: Path, torch_fn, feeds: dict[str, torch.Tensor], names: list[str],
-                   atol: float, mean_tol: float | None = None) -> list[dict]:
+def validate_graph(
+    onnx_path: Path,
+    torch_fn,
+    feeds: dict[str, torch.Tensor],
+    names: list[str],
+    atol: float,
+    mean_tol: float | None = None,
+) -> list[dict]:
     """Run ONNX Runtime and PyTorch on the same inputs; per output max/mean |diff| against
     ``atol`` (max) and ``mean_tol`` (mean, if given)."""
     import onnxruntime as ort
@@ -76,8 +83,17 @@ def validate_graph(onnx_path: Path, torch_fn, feeds: dict[str, torch.Tensor], na
     for name, a, b in zip(names, got, ref):
         d = np.abs(a - b.numpy())
         ok = d.max() <= atol and (mean_tol is None or d.mean() <= mean_tol)
-        rows.append({"graph": onnx_path.name, "output": name, "max_abs": float(d.max()),
-                     "mean_abs": float(d.mean()), "atol": atol, "mean_tol": mean_tol, "ok": bool(ok)})
+        rows.append(
+            {
+                "graph": onnx_path.name,
+                "output": name,
+                "max_abs": float(d.max()),
+                "mean_abs": float(d.mean()),
+                "atol": atol,
+                "mean_tol": mean_tol,
+                "ok": bool(ok),
+            }
+        )
     return rows
 
 
@@ -98,21 +114,34 @@ def export(cfg: ExportConfig, log=print) -> Manifest:
     dyn = {2: "H", 3: "W"}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        torch.onnx.export(_NetworkGraph(model, names), tuple(feeds.values()), str(out / "network.onnx"),
-                          input_names=list(feeds), output_names=names,
-                          dynamic_axes={**{k: dyn for k in feeds}, **{n: dyn for n in names}},
-                          opset_version=OPSET, dynamo=False)
+        torch.onnx.export(
+            _NetworkGraph(model, names),
+            tuple(feeds.values()),
+            str(out / "network.onnx"),
+            input_names=list(feeds),
+            output_names=names,
+            dynamic_axes={**{k: dyn for k in feeds}, **{n: dyn for n in names}},
+            opset_version=OPSET,
+            dynamo=False,
+        )
     _constant_weights_as_initializers(out / "network.onnx")
-    inputs = {"current": _layout(CURRENT, "native, linear as stored"),
-              "history": _layout(HISTORY, "native, warped previous filtered outputs, linear")}
+    inputs = {
+        "current": _layout(CURRENT, "native, linear as stored"),
+        "history": _layout(HISTORY, "native, warped previous filtered outputs, linear"),
+    }
     if "guide" in feeds:
         inputs["guide"] = _layout(((GUIDE.name, N_GUIDE),), "native, the frame's denoising_albedo, else its albedo")
     graphs["network"] = Graph(
-        file="network.onnx", inputs=inputs,
-        outputs={n: {"shape": ["N", int(net_out[n].shape[1]), _res(net_out[n], current), ""],
-                     "meaning": _meaning(n)} for n in names})
-    rows = validate_graph(out / "network.onnx", lambda *x: tuple(model.network(*x)[k] for k in names),
-                          feeds, names, cfg.atol)
+        file="network.onnx",
+        inputs=inputs,
+        outputs={
+            n: {"shape": ["N", int(net_out[n].shape[1]), _res(net_out[n], current), ""], "meaning": _meaning(n)}
+            for n in names
+        },
+    )
+    rows = validate_graph(
+        out / "network.onnx", lambda *x: tuple(model.network(*x)[k] for k in names), feeds, names, cfg.atol
+    )
 
     # one fixed kernel for every pixel: no graph, the manifest carries it (below)
     if model.upsample_block is not None and not model.cfg.fixed_upsample:
@@ -121,24 +150,43 @@ def export(cfg: ExportConfig, log=print) -> Manifest:
         s = model.cfg.scale
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", DeprecationWarning)
-            torch.onnx.export(model.upsample_block.polyphase(), (comp, feats), str(out / "upsample.onnx"),
-                              input_names=["composite", "features"], output_names=["kernel"],
-                              dynamic_axes={"composite": dyn, "features": dyn, "kernel": dyn},
-                              opset_version=OPSET, dynamo=False)
+            torch.onnx.export(
+                model.upsample_block.polyphase(),
+                (comp, feats),
+                str(out / "upsample.onnx"),
+                input_names=["composite", "features"],
+                output_names=["kernel"],
+                dynamic_axes={"composite": dyn, "features": dyn, "kernel": dyn},
+                opset_version=OPSET,
+                dynamo=False,
+            )
         graphs["upsample"] = Graph(
             file="upsample.onnx",
-            inputs={"composite": "N,3,H,W float32: albedo*diffuse+specular of the filtered signals, linear",
-                    "features": f"N,{feats.shape[1]},H,W float32: network output 'features'"},
-            outputs={"kernel": {"shape": ["N", s * s * 9, "H", "W"], "layout": "phases",
-                                "meaning": "3x3 kernel of every target pixel, clamped to [-1, 1], applied "
-                                           "to the bilinearly upsampled linear composite (with "
-                                           "model_config.upsample_root r > 1: its r-th root upsampled, "
-                                           "raised back to the power r), then ReLU; channel "
-                                           "(py * s + px) * 9 + tap at native (i, j) is target pixel "
-                                           "(s*i + py, s*j + px)"}})
+            inputs={
+                "composite": "N,3,H,W float32: albedo*diffuse+specular of the filtered signals, linear",
+                "features": f"N,{feats.shape[1]},H,W float32: network output 'features'",
+            },
+            outputs={
+                "kernel": {
+                    "shape": ["N", s * s * 9, "H", "W"],
+                    "layout": "phases",
+                    "meaning": "3x3 kernel of every target pixel, clamped to [-1, 1], applied "
+                    "to the bilinearly upsampled linear composite (with "
+                    "model_config.upsample_root r > 1: its r-th root upsampled, "
+                    "raised back to the power r), then ReLU; channel "
+                    "(py * s + px) * 9 + tap at native (i, j) is target pixel "
+                    "(s*i + py, s*j + px)",
+                }
+            },
+        )
         # against the reference block, which convolves at target resolution
-        rows += validate_graph(out / "upsample.onnx", lambda c, f: to_phases(model.upsample_block(c, f), s),
-                               {"composite": comp, "features": feats}, ["kernel"], cfg.atol)
+        rows += validate_graph(
+            out / "upsample.onnx",
+            lambda c, f: to_phases(model.upsample_block(c, f), s),
+            {"composite": comp, "features": feats},
+            ["kernel"],
+            cfg.atol,
+        )
 
     # pruned variants: the graphs adaptive execution runs when a frame skips a filter path
     # or the upsample block (export.prune)
@@ -157,9 +205,15 @@ def export(cfg: ExportConfig, log=print) -> Manifest:
     if model.cfg.fixed_upsample:
         with torch.no_grad():
             fixed = [float(v) for v in model.upsample_block(current, None).flatten()]
-    manifest = Manifest(checkpoint={"path": str(ckpt), "sha256": file_hash(ckpt)}, model_config=asdict(model.cfg),
-                        pad_multiple=model.cfg.pad_multiple, graphs=graphs, validation=rows,
-                        package_version=__version__, upsample_kernel=fixed)
+    manifest = Manifest(
+        checkpoint={"path": str(ckpt), "sha256": file_hash(ckpt)},
+        model_config=asdict(model.cfg),
+        pad_multiple=model.cfg.pad_multiple,
+        graphs=graphs,
+        validation=rows,
+        package_version=__version__,
+        upsample_kernel=fixed,
+    )
     write_json(out / manifest.qat_ranges, qat_ranges(model, graphs, out, block_feeds))
     manifest.save(out)
     report_validation(rows, log, cfg.verbose)
@@ -197,29 +251,51 @@ def qat_ranges(model: JNDS, graphs: dict[str, Graph], out: Path, feeds: dict[str
     for name, g in graphs.items():
         block, order = blocks[name], []
         ranges = quant_ranges(block)
-        hooks = [m.register_forward_pre_hook(lambda mod, inp, n=n: order.append(n))
-                 for n, m in block.named_modules() if n in ranges]
+        hooks = [
+            m.register_forward_pre_hook(lambda mod, inp, n=n: order.append(n))
+            for n, m in block.named_modules()
+            if n in ranges
+        ]
         with torch.no_grad():
             block(*feeds[name])
         for h in hooks:
             h.remove()
         # a fixed convolution (model.PhaseMean) learned no range: its input is calibrated
-        nodes = [n for n in onnx.load(str(out / g.file)).graph.node
-                 if n.op_type == "Conv" and not n.name.endswith(FIXED_CONVS)]
+        nodes = [
+            n
+            for n in onnx.load(str(out / g.file)).graph.node
+            if n.op_type == "Conv" and not n.name.endswith(FIXED_CONVS)
+        ]
         bad = [f"{n.name} <-> {m}" for n, m in zip(nodes, order) if not n.name.endswith(f"/{m.split('.')[-1]}/Conv")]
         if len(nodes) != len(order) or bad:
-            raise ValidationError([{"graph": g.file, "output": "Conv nodes", "ok": False,
-                                    "why": f"{len(nodes)} Conv nodes, {len(order)} convolutions run; "
-                                           f"mismatched: {', '.join(bad[:3]) or 'none'}"}])
-        result[name] = {node.input[0]: {"module": m, "rmin": min(ranges[m]["lo"], 0.0), "rmax": ranges[m]["hi"],
-                                        "scale": ranges[m]["scale"], "zero_point_u8": ranges[m]["zero_point"]}
-                        for node, m in zip(nodes, order)}
+            raise ValidationError(
+                [
+                    {
+                        "graph": g.file,
+                        "output": "Conv nodes",
+                        "ok": False,
+                        "why": f"{len(nodes)} Conv nodes, {len(order)} convolutions run; "
+                        f"mismatched: {', '.join(bad[:3]) or 'none'}",
+                    }
+                ]
+            )
+        result[name] = {
+            node.input[0]: {
+                "module": m,
+                "rmin": min(ranges[m]["lo"], 0.0),
+                "rmax": ranges[m]["hi"],
+                "scale": ranges[m]["scale"],
+                "zero_point_u8": ranges[m]["zero_point"],
+            }
+            for node, m in zip(nodes, order)
+        }
     return result
 
 
 def report_validation(rows: list[dict], log=print, verbose: bool = False) -> None:
     """One line: how many outputs passed and the largest difference, where; with
     ``verbose``, a check-mark line per output. One ValidationError lists every failure."""
+
     def line(r):
         tol = f"atol {r['atol']:.0e}" + (f", mean tol {r['mean_tol']:.0e}" if r.get("mean_tol") else "")
         return f"{r['graph']}:{r['output']} max |diff| {r['max_abs']:.2e} mean {r['mean_abs']:.2e} ({tol})"
@@ -230,8 +306,10 @@ def report_validation(rows: list[dict], log=print, verbose: bool = False) -> Non
             log(f"{'✓' if r['ok'] else '✗'} {line(r)}")
     elif rows:
         worst = max(rows, key=lambda r: r["max_abs"] / r["atol"])
-        log(f"{'✓' if not failures else '✗'} {len(rows) - len(failures)} of {len(rows)} outputs within tolerance; "
-            f"closest to its limit: {line(worst)}")
+        log(
+            f"{'✓' if not failures else '✗'} {len(rows) - len(failures)} of {len(rows)} outputs within tolerance; "
+            f"closest to its limit: {line(worst)}"
+        )
     if failures:
         raise ValidationError(failures)
 
@@ -251,7 +329,12 @@ def _res(t: torch.Tensor, current: torch.Tensor) -> str:
 
 def _meaning(name: str) -> str:
     kind = name.split(".")[-1]
-    return {"spatial": "3x3 kernel on the current signal", "temporal": "3x3 kernel on the warped history",
-            "blend": "temporal blend weight in [0, 1]", "down": "3x3 kernel after 2x2 average pooling",
-            "up": "3x3 kernel after bilinear upsampling", "up_blend": "blend of the upsampled result with the skip",
-            "features": "upsample-block features (ReLU)"}.get(kind, kind)
+    return {
+        "spatial": "3x3 kernel on the current signal",
+        "temporal": "3x3 kernel on the warped history",
+        "blend": "temporal blend weight in [0, 1]",
+        "down": "3x3 kernel after 2x2 average pooling",
+        "up": "3x3 kernel after bilinear upsampling",
+        "up_blend": "blend of the upsampled result with the skip",
+        "features": "upsample-block features (ReLU)",
+    }.get(kind, kind)

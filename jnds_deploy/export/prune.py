@@ -15,6 +15,7 @@ used (weights and bias of a float convolution; the head stays float in the int8 
 ``calibration.quantize.FLOAT_NODES``). The remaining outputs are the full graph's,
 computed by the same nodes on the same weights (``validate_variant`` checks).
 """
+
 from __future__ import annotations
 
 import itertools
@@ -26,6 +27,7 @@ import onnx
 from onnx import numpy_helper
 
 from ..artifacts import GROUPS, Variant, variant_key
+
 # (max, mean) |variant - full| allowed for int8 graphs (see validate_variant): 1.5x the
 # largest difference seen, 3x the largest mean (docs/architecture.md, "The int8 graph").
 # Kernels and blend weights lie in [-1, 1]; a broken variant (wrong channels kept) is off
@@ -67,8 +69,11 @@ def _slice_split_heads(graph: onnx.GraphProto) -> dict:
     used = {i for n in graph.node for i in n.input} | {o.name for o in graph.output}
     producers = {o: n for n in graph.node for o in n.output}
     inits = {i.name: i for i in graph.initializer}
-    constants = {n.output[0]: next(a.t for a in n.attribute if a.name == "value")
-                 for n in graph.node if n.op_type == "Constant" and any(a.name == "value" for a in n.attribute)}
+    constants = {
+        n.output[0]: next(a.t for a in n.attribute if a.name == "value")
+        for n in graph.node
+        if n.op_type == "Constant" and any(a.name == "value" for a in n.attribute)
+    }
     readers: dict[str, int] = {}
     for n in graph.node:
         for i in n.input:
@@ -80,10 +85,16 @@ def _slice_split_heads(graph: onnx.GraphProto) -> dict:
             continue
         conv = producers.get(split.input[0])
         axis = next((a.i for a in split.attribute if a.name == "axis"), 0)
-        if (conv is None or conv.op_type != "Conv" or axis != 1 or len(split.input) < 2
-                or not (split.input[1] in inits or split.input[1] in constants) or conv.input[1] not in inits
-                or readers.get(conv.output[0], 0) != 1
-                or (len(conv.input) > 2 and conv.input[2] not in inits)):
+        if (
+            conv is None
+            or conv.op_type != "Conv"
+            or axis != 1
+            or len(split.input) < 2
+            or not (split.input[1] in inits or split.input[1] in constants)
+            or conv.input[1] not in inits
+            or readers.get(conv.output[0], 0) != 1
+            or (len(conv.input) > 2 and conv.input[2] not in inits)
+        ):
             continue  # not a float head conv: leave the dead parts (correct, just not pruned)
         sizes = numpy_helper.to_array(inits.get(split.input[1]) or constants[split.input[1]])
         starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
@@ -126,8 +137,9 @@ def write_variants(root: Path, file: str, stem: str, log=None) -> dict[str, Vari
     return entries
 
 
-def validate_variant(full: Path, variant: Path, feeds: dict[str, np.ndarray], atol: float = 1e-5,
-                     mean_tol: float | None = None) -> list[dict]:
+def validate_variant(
+    full: Path, variant: Path, feeds: dict[str, np.ndarray], atol: float = 1e-5, mean_tol: float | None = None
+) -> list[dict]:
     """The variant's outputs against the full graph's on the same inputs (ONNX Runtime).
 
     fp32 variants are bit-equal in practice. In int8 QDQ graphs ONNX Runtime may group
@@ -146,6 +158,14 @@ def validate_variant(full: Path, variant: Path, feeds: dict[str, np.ndarray], at
     d = [np.abs(got[name].astype(np.float64) - ref[name]) for name in names]
     worst = max(float(x.max()) for x in d)
     mean = float(np.mean([x.mean() for x in d]))
-    return [{"graph": variant.name, "output": f"{len(names)} outputs vs {full.name}", "max_abs": worst,
-             "mean_abs": mean, "atol": atol, "mean_tol": mean_tol,
-             "ok": worst <= atol and (mean_tol is None or mean <= mean_tol)}]
+    return [
+        {
+            "graph": variant.name,
+            "output": f"{len(names)} outputs vs {full.name}",
+            "max_abs": worst,
+            "mean_abs": mean,
+            "atol": atol,
+            "mean_tol": mean_tol,
+            "ok": worst <= atol and (mean_tol is None or mean <= mean_tol),
+        }
+    ]

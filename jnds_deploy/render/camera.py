@@ -8,6 +8,7 @@ Conventions: world space is right-handed with +y up. Image coordinates are conti
 pixel units with (0, 0) at the top-left corner of the top-left pixel; pixel (x, y) has
 its centre at (x + 0.5, y + 0.5).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -47,8 +48,9 @@ class Camera:
         o = np.broadcast_to(np.asarray(self.origin, np.float64), d.shape)
         return o, d
 
-    def project(self, points: np.ndarray, size: tuple[int, int], directions: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
+    def project(
+        self, points: np.ndarray, size: tuple[int, int], directions: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Continuous image positions (N, 2) of world points (N, 3), and a mask of points in
         front of the camera. Where ``directions`` is given (rows where points are NaN, e.g.
         background), the direction is projected as a point at infinity."""
@@ -74,8 +76,9 @@ def _rotate_y(v: np.ndarray, angle: float) -> np.ndarray:
     return np.array([c * v[0] + s * v[2], v[1], -s * v[0] + c * v[2]])
 
 
-def camera_path(kind: str, frames: int, rng: np.random.Generator, extent: float = 4.0
-                ) -> tuple[list[Camera], list[bool]]:
+def camera_path(
+    kind: str, frames: int, rng: np.random.Generator, extent: float = 4.0
+) -> tuple[list[Camera], list[bool]]:
     """Per-frame cameras for a path kind, and per-frame camera-cut flags.
 
     The camera looks at the scene centre region from a random direction and height; the
@@ -88,8 +91,9 @@ def camera_path(kind: str, frames: int, rng: np.random.Generator, extent: float 
         az = rng.uniform(0, 2 * np.pi)
         dist = rng.uniform(1.3, 2.2) * extent
         height = rng.uniform(0.25, 0.9) * extent
-        target = np.array([rng.uniform(-0.3, 0.3) * extent, rng.uniform(0.0, 0.25) * extent,
-                           rng.uniform(-0.3, 0.3) * extent])
+        target = np.array(
+            [rng.uniform(-0.3, 0.3) * extent, rng.uniform(0.0, 0.25) * extent, rng.uniform(-0.3, 0.3) * extent]
+        )
         origin = target + np.array([np.sin(az) * dist, height, np.cos(az) * dist])
         return origin, target, float(rng.uniform(35, 55))
 

@@ -5,6 +5,7 @@ interruption continues from the last finished frame. Validation seeds never appe
 training. ``--engine cycles`` renders the Blender Cycles sets (``blender.scenes``: other
 scene kinds, other seeds) into the same train/ and val/ directories, named ``cycles-*``.
 """
+
 from __future__ import annotations
 
 import os
@@ -23,8 +24,9 @@ SIZE = (192, 108)
 UNSEEN_KINDS = {"test": CYCLES_TEST_KINDS, **CYCLES_HOLDOUT_KINDS}
 
 
-def _specs(split: str, seeds: range, frames: int, spp: int, engine: str = "mitsuba",
-           kind: str | None = None) -> list[tuple[str, RenderConfig]]:
+def _specs(
+    split: str, seeds: range, frames: int, spp: int, engine: str = "mitsuba", kind: str | None = None
+) -> list[tuple[str, RenderConfig]]:
     """``kind``: every sequence of this scene kind (else the split's rotation of kinds)."""
     out = []
     for k, seed in enumerate(seeds):
@@ -52,8 +54,16 @@ TRAIN_SEQUENCES = 24  # the training set's default size; seeds 1000, 1001, ...
 SEEDS = {"mitsuba": (1000, 2000, 8000), "cycles": (5000, 6000, 7000)}
 MOVING_SEEDS = 4000  # Mitsuba training sequences of scene kind ``moving`` (objects that move)
 # first seeds of the Cycles training-only kinds (blender.scenes.CYCLES_EXTRA_KINDS), added on request
-EXTRA_SEEDS = {"mixed": 9000, "lights": 10000, "interior": 11000, "detail": 12000, "layers": 13000,
-               "glass": 14000, "print": 15000, "media": 16000}
+EXTRA_SEEDS = {
+    "mixed": 9000,
+    "lights": 10000,
+    "interior": 11000,
+    "detail": 12000,
+    "layers": 13000,
+    "glass": 14000,
+    "print": 15000,
+    "media": 16000,
+}
 # the Cycles held-out splits' first seeds, in the order the splits were written
 # (blender.scenes.CYCLES_HOLDOUT_KINDS)
 HOLDOUT_SEEDS = {"holdout": 7100, "street-studio": 7200, "grove-haze": 7300, "bathroom-fur": 7400}
@@ -66,9 +76,13 @@ SPLITS = ("train", "val", "all", "test", *HOLDOUT_SEEDS, "media")
 MEDIA_SEEDS = 16100
 
 
-def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
-                  engine: str = "mitsuba", moving_sequences: int = 0,
-                  extra_sequences: Mapping[str, int] | None = None) -> list[tuple[str, RenderConfig]]:
+def dataset_specs(
+    split: str = "all",
+    train_sequences: int = TRAIN_SEQUENCES,
+    engine: str = "mitsuba",
+    moving_sequences: int = 0,
+    extra_sequences: Mapping[str, int] | None = None,
+) -> list[tuple[str, RenderConfig]]:
     """(relative directory, config) of every sequence in a split (``SPLITS``): train, val,
     all (both), test, a held-out split or media.
 
@@ -89,8 +103,12 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     kind ``media`` at unseen seeds (``MEDIA_SEEDS``).
     """
     if split in OLD_SPLIT_NAMES:
-        warnings.warn(f"split {split!r} is now called {OLD_SPLIT_NAMES[split]!r} (and renders into a directory of "
-                      f"that name); the old name will go", FutureWarning, stacklevel=2)
+        warnings.warn(
+            f"split {split!r} is now called {OLD_SPLIT_NAMES[split]!r} (and renders into a directory of "
+            f"that name); the old name will go",
+            FutureWarning,
+            stacklevel=2,
+        )
         split = OLD_SPLIT_NAMES[split]
     if not 1 <= train_sequences <= 1000:
         raise ConfigError(f"train_sequences must be in 1..1000, got {train_sequences}")
@@ -109,17 +127,22 @@ def dataset_specs(split: str = "all", train_sequences: int = TRAIN_SEQUENCES,
     specs = {
         "train": _specs("train", range(train0, train0 + train_sequences), frames=12, spp=64, engine=engine)
         + _specs("train", range(MOVING_SEEDS, MOVING_SEEDS + moving_sequences), frames=12, spp=64, kind="moving")
-        + [spec for kind, n in extra_sequences.items()
-           for spec in _specs("train", range(EXTRA_SEEDS[kind], EXTRA_SEEDS[kind] + n), frames=12, spp=64,
-                              engine="cycles", kind=kind)],
+        + [
+            spec
+            for kind, n in extra_sequences.items()
+            for spec in _specs(
+                "train", range(EXTRA_SEEDS[kind], EXTRA_SEEDS[kind] + n), frames=12, spp=64, engine="cycles", kind=kind
+            )
+        ],
         "val": _specs("val", range(val0, val0 + 6), frames=12, spp=128, engine=engine),
         "test": _specs("test", range(test0, test0 + 6), frames=12, spp=128, engine=engine),
     }
     if engine == "cycles":
         for name, first in HOLDOUT_SEEDS.items():
             specs[name] = _specs(name, range(first, first + 6), frames=12, spp=128, engine=engine)
-        specs["media"] = _specs("media", range(MEDIA_SEEDS, MEDIA_SEEDS + 6), frames=12, spp=128, engine=engine,
-                                kind="media")
+        specs["media"] = _specs(
+            "media", range(MEDIA_SEEDS, MEDIA_SEEDS + 6), frames=12, spp=128, engine=engine, kind="media"
+        )
     elif split in HOLDOUT_SEEDS or split == "media":
         raise ConfigError(f"the {split} split is rendered with Cycles only (--engine cycles)")
     if split == "all":
@@ -136,12 +159,21 @@ def _render_one(job: tuple[RenderConfig, Path]) -> tuple[Path, dict]:
     return path, render_sequence(cfg, path)
 
 
-def render_dataset(out: str | Path, split: str = "all", limit: int | None = None,
-                   variant: str | None = None, train_sequences: int = TRAIN_SEQUENCES,
-                   jobs: int = 1, engine: str = "mitsuba", address: str | None = None,
-                   progress: bool = True, moving_sequences: int = 0,
-                   extra_sequences: Mapping[str, int] | None = None,
-                   reference: bool = True, reference_spp: int | None = None) -> list[tuple[Path, dict]]:
+def render_dataset(
+    out: str | Path,
+    split: str = "all",
+    limit: int | None = None,
+    variant: str | None = None,
+    train_sequences: int = TRAIN_SEQUENCES,
+    jobs: int = 1,
+    engine: str = "mitsuba",
+    address: str | None = None,
+    progress: bool = True,
+    moving_sequences: int = 0,
+    extra_sequences: Mapping[str, int] | None = None,
+    reference: bool = True,
+    reference_spp: int | None = None,
+) -> list[tuple[Path, dict]]:
     """Render every missing sequence of a split; ``jobs`` > 1 renders that many sequences
     at once in separate processes (Mitsuba's Python-side tracing is single-threaded, so
     many cores or a GPU are only kept busy by several sequences at a time). ``address``

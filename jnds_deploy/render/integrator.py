@@ -11,6 +11,7 @@ NEE and MIS.
 The same code runs on Mitsuba's ``llvm_ad_rgb`` variant (all samples at once, vectorized)
 and on ``scalar_rgb`` (one sample at a time, slow) when no usable LLVM is installed.
 """
+
 from __future__ import annotations
 
 import os
@@ -21,8 +22,11 @@ import numpy as np
 
 from ..errors import RenderError
 
-LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/llvm-19/lib/libLLVM-19.so",
-                   "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
+LLVM_CANDIDATES = (
+    "/usr/lib/x86_64-linux-gnu/libLLVM-19.so",
+    "/usr/lib/llvm-19/lib/libLLVM-19.so",
+    "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1",
+)
 
 
 def load_mitsuba(variant: str | None = None):
@@ -32,8 +36,7 @@ def load_mitsuba(variant: str | None = None):
     the first render, so the variant is chosen by whether LLVM 19 is on disk.
     """
     if variant is None:
-        llvm = os.environ.get("DRJIT_LIBLLVM_PATH") or next(
-            (p for p in LLVM_CANDIDATES if Path(p).exists()), None)
+        llvm = os.environ.get("DRJIT_LIBLLVM_PATH") or next((p for p in LLVM_CANDIDATES if Path(p).exists()), None)
         if llvm:
             os.environ["DRJIT_LIBLLVM_PATH"] = llvm
         variant = "llvm_ad_rgb" if llvm else "scalar_rgb"
@@ -95,8 +98,10 @@ class SplitPathTracer:
         emitters = list(self.scene.emitters())
         keys = [emitter_id(e) for e in emitters]
         if len(set(keys)) != len(keys):
-            raise RenderError(f"emitters without unique ids ({sorted(keys)}): their order, and so the render, "
-                              "would change from one load of the scene to the next")
+            raise RenderError(
+                f"emitters without unique ids ({sorted(keys)}): their order, and so the render, "
+                "would change from one load of the scene to the next"
+            )
         order = sorted(range(len(emitters)), key=keys.__getitem__)
         self._emitter_list = [emitters[k] for k in order]
         if self.vectorized and emitters:
@@ -110,8 +115,7 @@ class SplitPathTracer:
         if self.vectorized:
             o = mi.Point3f(*[origins[:, i].astype(np.float32) for i in range(3)])
             d = mi.Vector3f(*[directions[:, i].astype(np.float32) for i in range(3)])
-            rng = mi.PCG32(size=n, initstate=mi.UInt64(seed & 0xFFFFFFFFFFFF),
-                           initseq=dr.arange(mi.UInt64, n))
+            rng = mi.PCG32(size=n, initstate=mi.UInt64(seed & 0xFFFFFFFFFFFF), initseq=dr.arange(mi.UInt64, n))
             out = self._trace(o, d, rng)
             dr.eval(*out)
             cols = [np.asarray(v, np.float32) for v in out]
@@ -223,8 +227,9 @@ class SplitPathTracer:
         specular += nee_s
 
         active = mi.Bool(valid)
-        bs, weight = bsdf.sample(mi.BSDFContext(), si, rng.next_float32(),
-                                 mi.Point2f(rng.next_float32(), rng.next_float32()), active)
+        bs, weight = bsdf.sample(
+            mi.BSDFContext(), si, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()), active
+        )
         first_diffuse = mi.has_flag(bs.sampled_type, F.Diffuse)
         beta = mi.Color3f(weight)
         tail = mi.Color3f(0.0)
@@ -241,8 +246,7 @@ class SplitPathTracer:
                 em_pdf = self.scene.pdf_emitter_direction(prev_si, ds, active & ~prev_delta)
             else:
                 hit_emitter = si.emitter(self.scene) is not None
-                em_pdf = (self.scene.pdf_emitter_direction(prev_si, ds)
-                          if hit_emitter and not prev_delta else 0.0)
+                em_pdf = self.scene.pdf_emitter_direction(prev_si, ds) if hit_emitter and not prev_delta else 0.0
             w = dr.select(prev_delta, 1.0, _mis(prev_pdf, em_pdf, dr))
             tail += dr.select(active, beta * w * self._emitted(si, active), 0.0)
             active &= si.is_valid()
@@ -251,8 +255,9 @@ class SplitPathTracer:
             bsdf = si.bsdf(ray)
             (nee,) = self._nee(si, bsdf, rng, active, (None,))
             tail += beta * nee
-            bs, weight = bsdf.sample(mi.BSDFContext(), si, rng.next_float32(),
-                                     mi.Point2f(rng.next_float32(), rng.next_float32()), active)
+            bs, weight = bsdf.sample(
+                mi.BSDFContext(), si, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()), active
+            )
             beta = dr.select(active, beta * weight, 0.0)
         diffuse += dr.select(first_diffuse, tail, 0.0)
         specular += dr.select(first_diffuse, 0.0, tail)

@@ -12,6 +12,7 @@ lights.
 frame i has them where ``object_motion`` puts them, and the renderer's motion vectors
 follow them.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -55,8 +56,10 @@ def object_motion(seed: int, kind: str, names: list[str]) -> dict[str, ObjectMot
             continue
         heading, speed = rng.uniform(0, 2 * np.pi), rng.uniform(0.08, 0.35)
         lift = rng.uniform(-0.02, 0.04) if rng.random() < 0.3 else 0.0
-        out[name] = ObjectMotion((float(speed * np.cos(heading)), float(lift), float(speed * np.sin(heading))),
-                                 float(rng.choice([-1, 1]) * rng.uniform(3, 15)))
+        out[name] = ObjectMotion(
+            (float(speed * np.cos(heading)), float(lift), float(speed * np.sin(heading))),
+            float(rng.choice([-1, 1]) * rng.uniform(3, 15)),
+        )
     return out
 
 
@@ -74,7 +77,7 @@ def _value_noise(rng: np.random.Generator, res: int, octaves: int = 5) -> np.nda
     out = np.zeros((res, res), np.float32)
     amp, total = 1.0, 0.0
     for o in range(octaves):
-        cells = 4 * 2 ** o
+        cells = 4 * 2**o
         grid = rng.random((cells, cells)).astype(np.float32)
         out += amp * cv2.resize(grid, (res, res), interpolation=cv2.INTER_CUBIC)
         total += amp
@@ -114,9 +117,12 @@ def sky_map(rng: np.random.Generator, res: int = 64) -> np.ndarray:
     sky = np.where(up > 0, hor + (zen - hor) * np.maximum(up, 0) ** 0.5, gnd * np.ones_like(up))
     img = np.broadcast_to(sky, (h, w, 3)).copy()
     st, sp = rng.uniform(0.2, 1.2), rng.uniform(0, 2 * np.pi)
-    d = np.arccos(np.clip(np.sin(theta)[:, None] * np.sin(st) * np.cos(phi[None] - sp)
-                          + np.cos(theta)[:, None] * np.cos(st), -1, 1))
-    img += rng.uniform(20, 80) * np.exp(-(d / 0.04) ** 2)[..., None]
+    d = np.arccos(
+        np.clip(
+            np.sin(theta)[:, None] * np.sin(st) * np.cos(phi[None] - sp) + np.cos(theta)[:, None] * np.cos(st), -1, 1
+        )
+    )
+    img += rng.uniform(20, 80) * np.exp(-((d / 0.04) ** 2))[..., None]
     return img.astype(np.float32)
 
 
@@ -129,22 +135,30 @@ def _bsdf(mi, rng: np.random.Generator, kinds: tuple[str, ...]) -> tuple[dict, M
     if kind == "metal":
         alpha = float(rng.uniform(0.03, 0.5))
         tint = rng.uniform(0.5, 1.0, 3).tolist()
-        return ({"type": "roughconductor", "material": str(rng.choice(["Al", "Au", "Cu", "Ag", "Cr"])),
-                 "alpha": alpha, "specular_reflectance": {"type": "rgb", "value": tint}},
-                Material("metal", alpha))
+        return (
+            {
+                "type": "roughconductor",
+                "material": str(rng.choice(["Al", "Au", "Cu", "Ag", "Cr"])),
+                "alpha": alpha,
+                "specular_reflectance": {"type": "rgb", "value": tint},
+            },
+            Material("metal", alpha),
+        )
     tex, rep = make_texture(rng)
-    refl = ({"type": "bitmap", "bitmap": mi.Bitmap(tex), "raw": True,
-             "to_uv": mi.ScalarTransform4f().scale([rep, rep, 1])}
-            if rng.random() < 0.75 else {"type": "rgb", "value": rng.uniform(0.05, 0.9, 3).tolist()})
+    refl = (
+        {"type": "bitmap", "bitmap": mi.Bitmap(tex), "raw": True, "to_uv": mi.ScalarTransform4f().scale([rep, rep, 1])}
+        if rng.random() < 0.75
+        else {"type": "rgb", "value": rng.uniform(0.05, 0.9, 3).tolist()}
+    )
     if kind == "plastic":
         alpha = float(rng.uniform(0.03, 0.5))
-        return ({"type": "roughplastic", "alpha": alpha, "diffuse_reflectance": refl},
-                Material("plastic", alpha))
+        return ({"type": "roughplastic", "alpha": alpha, "diffuse_reflectance": refl}, Material("plastic", alpha))
     return {"type": "diffuse", "reflectance": refl}, Material("diffuse", 1.0)
 
 
-def build_scene(mi, seed: int, kind: str = "procedural", frame: int = 0, frames: int = 1
-                ) -> tuple[dict, dict[str, Material]]:
+def build_scene(
+    mi, seed: int, kind: str = "procedural", frame: int = 0, frames: int = 1
+) -> tuple[dict, dict[str, Material]]:
     """Mitsuba scene dict and the material of each shape id, for a seed and a scene kind
     (at ``frame`` of ``frames``, for the objects that move: ``object_motion``).
 
@@ -159,17 +173,21 @@ def build_scene(mi, seed: int, kind: str = "procedural", frame: int = 0, frames:
         raise ConfigError(f"unknown scene {kind!r}, expected one of {', '.join(SCENE_KINDS)}")
     rng = np.random.default_rng(seed)
     T = mi.ScalarTransform4f
-    kinds = {"procedural": ("diffuse", "plastic", "metal"), "diffuse": ("diffuse",), "metal": ("metal",),
-             "sky": ("diffuse", "plastic", "metal"), "sunlit": ("diffuse",),
-             "moving": ("diffuse", "plastic", "metal")}[kind]
+    kinds = {
+        "procedural": ("diffuse", "plastic", "metal"),
+        "diffuse": ("diffuse",),
+        "metal": ("metal",),
+        "sky": ("diffuse", "plastic", "metal"),
+        "sunlit": ("diffuse",),
+        "moving": ("diffuse", "plastic", "metal"),
+    }[kind]
     layout = "procedural" if kind == "moving" else kind
     scene: dict = {"type": "scene"}
     materials: dict[str, Material] = {}
 
     if kind != "sky":
         bsdf, mat = _bsdf(mi, rng, ("diffuse", "plastic") if layout == "procedural" else kinds)
-        scene["ground"] = {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(3 * EXTENT),
-                           "bsdf": bsdf}
+        scene["ground"] = {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(3 * EXTENT), "bsdf": bsdf}
         materials["ground"] = mat
 
     n_objects = int(rng.integers(3, 6) if kind == "sky" else rng.integers(5, 12))
@@ -190,37 +208,49 @@ def build_scene(mi, seed: int, kind: str = "procedural", frame: int = 0, frames:
         if shape == "sphere":
             scene[name] = {"type": "sphere", "center": [x, scale_y, z], "radius": scale, "bsdf": bsdf}
         elif shape == "cube":
-            scene[name] = {"type": "cube", "bsdf": bsdf,
-                           "to_world": T().translate([x, scale_y, z]).rotate([0, 1, 0], yaw).scale(scale)}
+            scene[name] = {
+                "type": "cube",
+                "bsdf": bsdf,
+                "to_world": T().translate([x, scale_y, z]).rotate([0, 1, 0], yaw).scale(scale),
+            }
         else:
-            scene[name] = {"type": "rectangle", "bsdf": bsdf,
-                           "to_world": T().translate([x, scale_y + scale, z]).rotate([0, 1, 0], yaw)
-                           .scale([scale, 2 * scale, 1])}
+            scene[name] = {
+                "type": "rectangle",
+                "bsdf": bsdf,
+                "to_world": T().translate([x, scale_y + scale, z]).rotate([0, 1, 0], yaw).scale([scale, 2 * scale, 1]),
+            }
         materials[name] = mat
 
     if kind == "sunlit":
         elevation, azimuth = rng.uniform(0.35, 1.2), rng.uniform(0, 2 * np.pi)
         direction = [-np.cos(elevation) * np.sin(azimuth), -np.sin(elevation), -np.cos(elevation) * np.cos(azimuth)]
-        scene["sun"] = {"type": "directional", "direction": direction,
-                        "irradiance": {"type": "rgb", "value": (rng.uniform(2.0, 5.0) * rng.uniform(0.85, 1.0, 3)).tolist()}}
+        scene["sun"] = {
+            "type": "directional",
+            "direction": direction,
+            "irradiance": {"type": "rgb", "value": (rng.uniform(2.0, 5.0) * rng.uniform(0.85, 1.0, 3)).tolist()},
+        }
         return scene, materials
     if kind in ("metal", "sky") or rng.random() < 0.8:
-        scene["sky"] = {"type": "envmap", "bitmap": mi.Bitmap(sky_map(rng)),
-                        "scale": float(rng.uniform(0.3, 1.5))}
+        scene["sky"] = {"type": "envmap", "bitmap": mi.Bitmap(sky_map(rng)), "scale": float(rng.uniform(0.3, 1.5))}
     for i in range(0 if kind == "sky" else int(rng.integers(0 if "sky" in scene else 1, 3))):
         size = float(rng.uniform(0.5, 2.0))
         pos = [rng.uniform(-EXTENT, EXTENT), rng.uniform(4, 7), rng.uniform(-EXTENT, EXTENT)]
         power = rng.uniform(10, 40) * rng.uniform(0.8, 1.0, 3)
         scene[f"area{i}"] = {
             "type": "rectangle",
-            "to_world": T().look_at(origin=pos, target=[pos[0] * 0.3, 0, pos[2] * 0.3], up=[0, 1, 0])
-            .scale(size),
+            "to_world": T().look_at(origin=pos, target=[pos[0] * 0.3, 0, pos[2] * 0.3], up=[0, 1, 0]).scale(size),
             "emitter": {"type": "area", "radiance": {"type": "rgb", "value": power.tolist()}},
         }
     for i in range(int(rng.integers(0, 4))):
         r = float(rng.uniform(0.03, 0.12))
         pos = [rng.uniform(-EXTENT, EXTENT), rng.uniform(0.5, 3.0), rng.uniform(-EXTENT, EXTENT)]
-        scene[f"bulb{i}"] = {"type": "sphere", "center": pos, "radius": r,
-                             "emitter": {"type": "area",
-                                         "radiance": {"type": "rgb", "value": (rng.uniform(0.5, 2.0, 3) / r ** 2).tolist()}}}
+        scene[f"bulb{i}"] = {
+            "type": "sphere",
+            "center": pos,
+            "radius": r,
+            "emitter": {
+                "type": "area",
+                "radiance": {"type": "rgb", "value": (rng.uniform(0.5, 2.0, 3) / r**2).tolist()},
+            },
+        }
     return scene, materials

@@ -13,6 +13,7 @@ Per frame:
 Frames are written atomically and ``sequence.json`` last, so an interrupted render
 resumes where it stopped (frames already on disk and readable are kept).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -23,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..blender.scenes import CYCLES_SCENE_KINDS
 from ..errors import JndsError, RenderError
 from ..io import (
     INPUT_LAYERS,
@@ -33,7 +35,6 @@ from ..io import (
     SequenceWriter,
     read_layers,
 )
-from ..blender.scenes import CYCLES_SCENE_KINDS
 from ..options import option, parse_size, show_size
 from ..sampling import jitter
 from .camera import CAMERA_PATHS, Camera, camera_path
@@ -49,8 +50,11 @@ ENGINES = ("mitsuba", "cycles")
 @dataclass(frozen=True)
 class RenderConfig:
     scene: str | None = option(
-        None, f"one of the engine's scene kinds (default: {SCENE_KINDS[0]} with mitsuba, {CYCLES_SCENE_KINDS[0]} "
-              f"with cycles)", choices=SCENE_KINDS + CYCLES_SCENE_KINDS)
+        None,
+        f"one of the engine's scene kinds (default: {SCENE_KINDS[0]} with mitsuba, {CYCLES_SCENE_KINDS[0]} "
+        f"with cycles)",
+        choices=SCENE_KINDS + CYCLES_SCENE_KINDS,
+    )
     seed: int = option(0, "scene, camera path and noise seed")
     camera: str = option("orbit", "the camera path", choices=CAMERA_PATHS)
     frames: int = option(8, "frames of the sequence")
@@ -60,10 +64,14 @@ class RenderConfig:
     spp_input: int = option(1, "input samples per native pixel, all at the jittered position")
     max_depth: int = option(5, "path vertices, the first included")
     reference: bool = option(True, "render the reference frames too (off: inputs only)")
-    variant: str | None = option(None, "Mitsuba variant (default: llvm_ad_rgb if LLVM 19 is installed, else "
-                                       "scalar_rgb)")
-    engine: str = option("mitsuba", "mitsuba: this package's path tracer; cycles: Blender (its environment, "
-                                    ".venv-blender; blender.render)", choices=ENGINES)
+    variant: str | None = option(
+        None, "Mitsuba variant (default: llvm_ad_rgb if LLVM 19 is installed, else scalar_rgb)"
+    )
+    engine: str = option(
+        "mitsuba",
+        "mitsuba: this package's path tracer; cycles: Blender (its environment, .venv-blender; blender.render)",
+        choices=ENGINES,
+    )
 
     def __post_init__(self):
         if self.engine not in ENGINES:
@@ -98,8 +106,7 @@ def _pixel_grid(w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
     return x.ravel().astype(np.float64), y.ravel().astype(np.float64)
 
 
-def motion_vectors(tracer, cam: Camera, prev: Camera, size: tuple[int, int], moved: dict | None = None
-                   ) -> np.ndarray:
+def motion_vectors(tracer, cam: Camera, prev: Camera, size: tuple[int, int], moved: dict | None = None) -> np.ndarray:
     """(H, W, 2) offsets from each pixel centre to where its surface point was in ``prev``.
 
     ``moved``: {shape id: (centre now (3,), its move since the previous frame (3,), its
@@ -201,8 +208,9 @@ def _frame_done(out: Path, i: int, cfg: RenderConfig) -> bool:
     try:
         read_layers(out / "inputs" / f"{i:04d}.exr", cfg.size, INPUT_LAYERS, OPTIONAL_INPUT_LAYERS)
         if cfg.reference:
-            read_layers(out / "reference" / f"{i:04d}.exr", cfg.target_size, REFERENCE_LAYERS,
-                        OPTIONAL_REFERENCE_LAYERS)
+            read_layers(
+                out / "reference" / f"{i:04d}.exr", cfg.target_size, REFERENCE_LAYERS, OPTIONAL_REFERENCE_LAYERS
+            )
     except JndsError:
         return False
     return True
@@ -228,16 +236,16 @@ def render_sequence(cfg: RenderConfig, out: str | Path, progress: bool = True) -
     mi, dr = load_mitsuba(cfg.variant)
     marker.write_text(json.dumps({"config": json.loads(cfg_json), "variant": mi.variant()}, indent=1))
 
-    motion = object_motion(cfg.seed, cfg.scene, [k for k in build_scene(mi, cfg.seed, cfg.scene)[0]
-                                                 if k.startswith(OBJECT_PREFIX)])
+    motion = object_motion(
+        cfg.seed, cfg.scene, [k for k in build_scene(mi, cfg.seed, cfg.scene)[0] if k.startswith(OBJECT_PREFIX)]
+    )
 
     def scene_at(i):
         return build_scene(mi, cfg.seed, cfg.scene, i, cfg.frames)
 
     scene_dict, materials = scene_at(0)
     tracer = SplitPathTracer(mi, dr, scene_dict, materials, cfg.max_depth)
-    cams, cuts = camera_path(cfg.camera, cfg.frames, np.random.default_rng(_seed("camera", cfg.seed)),
-                             extent=EXTENT)
+    cams, cuts = camera_path(cfg.camera, cfg.frames, np.random.default_rng(_seed("camera", cfg.seed)), extent=EXTENT)
     frames = [FrameInfo(i, jitter(i), cuts[i]) for i in range(cfg.frames)]
 
     from tqdm import tqdm
@@ -266,7 +274,15 @@ def render_sequence(cfg: RenderConfig, out: str | Path, progress: bool = True) -
         writer.write_inputs(i, layers)
 
     cameras = [{"origin": list(c.origin), "target": list(c.target), "fov_y": c.fov_y} for c in cams]
-    writer.close(frames, {"renderer": {"config": json.loads(cfg_json), "variant": mi.variant(),
-                                       "cameras": cameras,
-                                       "moving_objects": {k: asdict(m) for k, m in motion.items()}}})
+    writer.close(
+        frames,
+        {
+            "renderer": {
+                "config": json.loads(cfg_json),
+                "variant": mi.variant(),
+                "cameras": cameras,
+                "moving_objects": {k: asdict(m) for k, m in motion.items()},
+            }
+        },
+    )
     return {k: float(np.median(v)) if v else None for k, v in times.items()}

@@ -15,6 +15,7 @@ stage, no torch. ``Pipeline`` runs frames; ``jnds run`` (``run``) runs sequences
 ``tune_numba`` is ``jnds_deploy.process.tune_numba``: the runtime changes no process-wide
 setting unless asked (``jnds_deploy.process``).
 """
+
 from ..process import tune_numba
 from .config import PipelineConfig
 

@@ -1,6 +1,7 @@
 """``PipelineConfig``: how ``Pipeline`` runs an artifact directory. Cheap to import (no
 numba, no ONNX Runtime): ``jnds run`` builds its options from it before the runtime loads.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -11,8 +12,9 @@ from ..options import option
 # the network graphs' precisions, the first the default of the library and of every command
 PRECISIONS = ("int8", "fp32")
 DEFAULT_PRECISION = PRECISIONS[0]
-PRECISION_HELP = ("int8: the int8 graphs `jnds calibrate` wrote (the artifacts must have them); fp32: the "
-                  "exported graphs")
+PRECISION_HELP = (
+    "int8: the int8 graphs `jnds calibrate` wrote (the artifacts must have them); fp32: the exported graphs"
+)
 FILTER_DTYPES = ("float32", "float16")
 FILTER_DTYPE_HELP = "the filter stage's arithmetic (float16: the paper's)"
 ARTIFACTS_HELP = "a directory written by `jnds export` (and `jnds calibrate`)"
@@ -28,11 +30,17 @@ class PipelineConfig:
     # graphs that stay fp32 when precision is int8: the upsample block's int8 graph is
     # slower on the CPUs measured (benchmarks/results/calibration.md)
     fp32_graphs: tuple[str, ...] = ("upsample",)
-    adaptive: bool = option(True, "skip the work a frame does not need where the result is the same "
-                                  "(FrameResult.decisions); off: every stage on every frame")
+    adaptive: bool = option(
+        True,
+        "skip the work a frame does not need where the result is the same "
+        "(FrameResult.decisions); off: every stage on every frame",
+    )
     native_output: bool = option(
-        False, "denoise only: output at the input size, no upsample block (a renderer already at display "
-               "resolution); metrics against the reference area-downsampled", flag="--native")
+        False,
+        "denoise only: output at the input size, no upsample block (a renderer already at display "
+        "resolution); metrics against the reference area-downsampled",
+        flag="--native",
+    )
     # with adaptive: pass empty background tiles through the filter stage (approximate; off by
     # default: finding the tiles and putting them back costs about what the smaller upsample
     # box saves, benchmarks/results/adaptive.md)
@@ -42,14 +50,21 @@ class PipelineConfig:
     # process-wide settings with process.tune_process
     keep_freed_memory: bool = False
     firefly_clamp: float | None = option(
-        None, "limit each pixel's current radiance to K x the brightest of its neighbours and its history "
-              "(0: off; default: the model's, model_config.firefly_clamp in the manifest)", metavar="K")
+        None,
+        "limit each pixel's current radiance to K x the brightest of its neighbours and its history "
+        "(0: off; default: the model's, model_config.firefly_clamp in the manifest)",
+        metavar="K",
+    )
     diffuse_fill: bool | None = option(
-        None, "fill the diffuse of samples that hit no diffuse surface from their neighbours' (default: the "
-              "model's, model_config.diffuse_fill in the manifest)")
+        None,
+        "fill the diffuse of samples that hit no diffuse surface from their neighbours' (default: the "
+        "model's, model_config.diffuse_fill in the manifest)",
+    )
     albedo_at_holes: bool | None = option(
-        None, "composite with the local mean of the filtered albedo where samples that hit no diffuse surface "
-              "lie scattered (default: the model's, model_config.albedo_at_holes in the manifest)")
+        None,
+        "composite with the local mean of the filtered albedo where samples that hit no diffuse surface "
+        "lie scattered (default: the model's, model_config.albedo_at_holes in the manifest)",
+    )
 
     def __post_init__(self):
         if self.precision not in PRECISIONS:

@@ -19,6 +19,7 @@ one (docs/architecture.md, "The filter stage"). numba has no float16 arithmetic 
 CPU, so float16 runs the numpy code, which rounds every operation to float16 as a GPU's half
 arithmetic would (and is slow: numpy emulates half precision).
 """
+
 from __future__ import annotations
 
 import cv2
@@ -26,8 +27,20 @@ import numpy as np
 from numba import njit, prange
 
 from ..bicubic import cubic_weights
-from ..layout import (BACKGROUND, DIFFUSE_FILL_MIN, DIFFUSE_FILL_TAPS, HDR_MAX, LUMINANCE, REJECT_ALBEDO, REJECT_COS, RING_MIN, ROOT_FLOOR,
-                      SCATTERED_CHANGES, SCATTERED_SHARE, channels)
+from ..layout import (
+    BACKGROUND,
+    DIFFUSE_FILL_MIN,
+    DIFFUSE_FILL_TAPS,
+    HDR_MAX,
+    LUMINANCE,
+    REJECT_ALBEDO,
+    REJECT_COS,
+    RING_MIN,
+    ROOT_FLOOR,
+    SCATTERED_CHANGES,
+    SCATTERED_SHARE,
+    channels,
+)
 from .head import Coded, decode_row
 
 # channel indices of the stacked inputs (layout.CURRENT; the history shares its first 12):
@@ -153,8 +166,7 @@ def _lerp_head(a, ka, b, kb, t, relu=True) -> np.ndarray | None:
         return None
     h = kb.head
     out = np.empty_like(a)
-    _lerp_coded(a, b, kb.q, -1 if ka is None else ka.c0, kb.c0, t.c0, h.kinds, h.scale, h.offset, h.table,
-                out, relu)
+    _lerp_coded(a, b, kb.q, -1 if ka is None else ka.c0, kb.c0, t.c0, h.kinds, h.scale, h.offset, h.table, out, relu)
     return out
 
 
@@ -210,11 +222,15 @@ def empty_tiles(current, history, tile, flat):
                 for c in range(_GEOMETRY[0], _GEOMETRY[1]):
                     if abs(current[c, y, i]) > 1e-3 or abs(history[c, y, i]) > 1e-3:
                         empty = False
-                for s in (current[_SPECULAR, y, i] + current[_SPECULAR + 1, y, i] + current[_SPECULAR + 2, y, i],
-                          history[_SPECULAR, y, i] + history[_SPECULAR + 1, y, i] + history[_SPECULAR + 2, y, i]):
+                for s in (
+                    current[_SPECULAR, y, i] + current[_SPECULAR + 1, y, i] + current[_SPECULAR + 2, y, i],
+                    history[_SPECULAR, y, i] + history[_SPECULAR + 1, y, i] + history[_SPECULAR + 2, y, i],
+                ):
                     lo, hi = min(lo, s), max(hi, s)
-                for d in (current[_DIFFUSE, y, i] + current[_DIFFUSE + 1, y, i] + current[_DIFFUSE + 2, y, i],
-                          history[_DIFFUSE, y, i] + history[_DIFFUSE + 1, y, i] + history[_DIFFUSE + 2, y, i]):
+                for d in (
+                    current[_DIFFUSE, y, i] + current[_DIFFUSE + 1, y, i] + current[_DIFFUSE + 2, y, i],
+                    history[_DIFFUSE, y, i] + history[_DIFFUSE + 1, y, i] + history[_DIFFUSE + 2, y, i],
+                ):
                     dmax = max(dmax, d)
                 if not empty:
                     break
@@ -231,8 +247,9 @@ def _pool(x, pooled):
     for y in prange(H):
         for c in range(C):
             for i in range(W):
-                pooled[c, y, i] = (x[c, 2 * y, 2 * i] + x[c, 2 * y, 2 * i + 1] + x[c, 2 * y + 1, 2 * i]
-                                   + x[c, 2 * y + 1, 2 * i + 1]) * np.float32(0.25)
+                pooled[c, y, i] = (
+                    x[c, 2 * y, 2 * i] + x[c, 2 * y, 2 * i + 1] + x[c, 2 * y + 1, 2 * i] + x[c, 2 * y + 1, 2 * i + 1]
+                ) * np.float32(0.25)
 
 
 @njit(parallel=True, cache=True)
@@ -279,7 +296,7 @@ def apply_kernel(x: np.ndarray, kernel: np.ndarray, relu: bool = False, skip=Non
     tmp = np.empty_like(out)
     for i in range(1, 9):
         dy, dx = divmod(i, 3)
-        np.multiply(p[:, dy:dy + h, dx:dx + w], kernel[i], out=tmp)
+        np.multiply(p[:, dy : dy + h, dx : dx + w], kernel[i], out=tmp)
         out += tmp
     return np.maximum(out, 0, out=out) if relu else out
 
@@ -320,7 +337,12 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, tol, rej):
         for x in range(W):
             px, py = np.float32(x) + motion[0, y, x], np.float32(y) + motion[1, y, x]
             # jnds_deploy.filter_spec.offscreen
-            off[x] = (px < np.float32(-0.5)) | (px > np.float32(W - 0.5)) | (py < np.float32(-0.5)) | (py > np.float32(H - 0.5))
+            off[x] = (
+                (px < np.float32(-0.5))
+                | (px > np.float32(W - 0.5))
+                | (py < np.float32(-0.5))
+                | (py > np.float32(H - 0.5))
+            )
             # clamped before the integer conversion: beyond 2 px outside, every tap is the edge
             sx = min(max(px, np.float32(-3)), np.float32(W + 2))
             sy = min(max(py, np.float32(-3)), np.float32(H + 2))
@@ -334,16 +356,28 @@ def _warp_rows(src, motion, lo, hi, out, current, cos, background, tol, rej):
             ix, iy = taps[0, x], taps[1, x]
             wx = (weights[0, x], weights[1, x], weights[2, x], weights[3, x])
             wy = (weights[4, x], weights[5, x], weights[6, x], weights[7, x])
-            xs = (min(max(ix - 1, 0), W - 1), min(max(ix, 0), W - 1),
-                  min(max(ix + 1, 0), W - 1), min(max(ix + 2, 0), W - 1))
+            xs = (
+                min(max(ix - 1, 0), W - 1),
+                min(max(ix, 0), W - 1),
+                min(max(ix + 1, 0), W - 1),
+                min(max(ix + 2, 0), W - 1),
+            )
             r0, r1 = src[min(max(iy - 1, 0), H - 1)], src[min(max(iy, 0), H - 1)]
             r2, r3 = src[min(max(iy + 1, 0), H - 1)], src[min(max(iy + 2, 0), H - 1)]
-            v = (_bicubic(r0, r1, r2, r3, xs, wx, wy, 0), _bicubic(r0, r1, r2, r3, xs, wx, wy, 1),
-                 _bicubic(r0, r1, r2, r3, xs, wx, wy, 2), _bicubic(r0, r1, r2, r3, xs, wx, wy, 3),
-                 _bicubic(r0, r1, r2, r3, xs, wx, wy, 4), _bicubic(r0, r1, r2, r3, xs, wx, wy, 5),
-                 _bicubic(r0, r1, r2, r3, xs, wx, wy, 6), _bicubic(r0, r1, r2, r3, xs, wx, wy, 7),
-                 _bicubic(r0, r1, r2, r3, xs, wx, wy, 8), _bicubic(r0, r1, r2, r3, xs, wx, wy, 9),
-                 _bicubic(r0, r1, r2, r3, xs, wx, wy, 10), _bicubic(r0, r1, r2, r3, xs, wx, wy, 11))
+            v = (
+                _bicubic(r0, r1, r2, r3, xs, wx, wy, 0),
+                _bicubic(r0, r1, r2, r3, xs, wx, wy, 1),
+                _bicubic(r0, r1, r2, r3, xs, wx, wy, 2),
+                _bicubic(r0, r1, r2, r3, xs, wx, wy, 3),
+                _bicubic(r0, r1, r2, r3, xs, wx, wy, 4),
+                _bicubic(r0, r1, r2, r3, xs, wx, wy, 5),
+                _bicubic(r0, r1, r2, r3, xs, wx, wy, 6),
+                _bicubic(r0, r1, r2, r3, xs, wx, wy, 7),
+                _bicubic(r0, r1, r2, r3, xs, wx, wy, 8),
+                _bicubic(r0, r1, r2, r3, xs, wx, wy, 9),
+                _bicubic(r0, r1, r2, r3, xs, wx, wy, 10),
+                _bicubic(r0, r1, r2, r3, xs, wx, wy, 11),
+            )
             for c in range(WARP_CHANNELS):
                 row[x, c] = v[c]
         for c in range(out.shape[0]):
@@ -468,8 +502,18 @@ def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None, curr
     out = np.empty((c, h, w), np.float32)
     cur = np.zeros((13, 0, 0), np.float32) if current is None else np.ascontiguousarray(current, np.float32)
     rej = np.empty((h, w) if current is not None else (0, 0), np.uint8)
-    _warp_rows(np.ascontiguousarray(x, np.float32), np.ascontiguousarray(motion, np.float32), lo, hi, out,
-               cur, np.float32(REJECT_COS), np.float32(BACKGROUND), np.float32(REJECT_ALBEDO), rej)
+    _warp_rows(
+        np.ascontiguousarray(x, np.float32),
+        np.ascontiguousarray(motion, np.float32),
+        lo,
+        hi,
+        out,
+        cur,
+        np.float32(REJECT_COS),
+        np.float32(BACKGROUND),
+        np.float32(REJECT_ALBEDO),
+        rej,
+    )
     if current is None:
         return out
     counts = np.zeros(h, np.int64)
@@ -486,7 +530,7 @@ def _disoccluded_row(current, warped, y, cos, background, tol, off, bad):
     _, h, w = current.shape
     cx, cy, cz = current[_NX, y], current[_NY, y], current[_NZ, y]
     hx, hy, hz = warped[_NX, y], warped[_NY, y], warped[_NZ, y]
-    ca, ha = current[_ALBEDO:_ALBEDO + 3, y], warped[_ALBEDO:_ALBEDO + 3, y]
+    ca, ha = current[_ALBEDO : _ALBEDO + 3, y], warped[_ALBEDO : _ALBEDO + 3, y]
     for x in range(w):
         limit = cos * np.sqrt(hx[x] * hx[x] + hy[x] * hy[x] + hz[x] * hz[x])
         background_now = abs(cx[x]) + abs(cy[x]) + abs(cz[x]) < background
@@ -494,9 +538,14 @@ def _disoccluded_row(current, warped, y, cos, background, tol, off, bad):
         far = cx[x] * hx[x] + cy[x] * hy[x] + cz[x] * hz[x] < limit
         # inside [own - tol, own + tol] is inside [min - tol, max + tol] of the neighbourhood
         # (the same float32 operations as the full test: no pixel settled differently)
-        near = ((ha[0, x] >= ca[0, x] - tol) & (ha[0, x] <= ca[0, x] + tol)
-                & (ha[1, x] >= ca[1, x] - tol) & (ha[1, x] <= ca[1, x] + tol)
-                & (ha[2, x] >= ca[2, x] - tol) & (ha[2, x] <= ca[2, x] + tol))
+        near = (
+            (ha[0, x] >= ca[0, x] - tol)
+            & (ha[0, x] <= ca[0, x] + tol)
+            & (ha[1, x] >= ca[1, x] - tol)
+            & (ha[1, x] <= ca[1, x] + tol)
+            & (ha[2, x] >= ca[2, x] - tol)
+            & (ha[2, x] <= ca[2, x] + tol)
+        )
         bad[x] = background_now | (surface_before & far) | (not near) | off[x]
     n = 0
     for x in range(w):
@@ -510,15 +559,23 @@ def _disoccluded_row(current, warped, y, cos, background, tol, off, bad):
             lo2 = hi2 = ca[2, x]
             for yy in range(max(y - 1, 0), min(y + 2, h)):
                 for xx in range(max(x - 1, 0), min(x + 2, w)):
-                    if (current[_NX, yy, xx] * hx[x] + current[_NY, yy, xx] * hy[x]
-                            + current[_NZ, yy, xx] * hz[x] >= limit):
+                    if (
+                        current[_NX, yy, xx] * hx[x] + current[_NY, yy, xx] * hy[x] + current[_NZ, yy, xx] * hz[x]
+                        >= limit
+                    ):
                         normal_ok = True
                     a0, a1, a2 = current[_ALBEDO, yy, xx], current[_ALBEDO + 1, yy, xx], current[_ALBEDO + 2, yy, xx]
                     lo0, hi0 = min(lo0, a0), max(hi0, a0)
                     lo1, hi1 = min(lo1, a1), max(hi1, a1)
                     lo2, hi2 = min(lo2, a2), max(hi2, a2)
-            inside = (ha[0, x] >= lo0 - tol and ha[0, x] <= hi0 + tol and ha[1, x] >= lo1 - tol
-                      and ha[1, x] <= hi1 + tol and ha[2, x] >= lo2 - tol and ha[2, x] <= hi2 + tol)
+            inside = (
+                ha[0, x] >= lo0 - tol
+                and ha[0, x] <= hi0 + tol
+                and ha[1, x] >= lo1 - tol
+                and ha[1, x] <= hi1 + tol
+                and ha[2, x] >= lo2 - tol
+                and ha[2, x] <= hi2 + tol
+            )
             bad[x] = not (normal_ok and inside)
         n += bad[x]
     return n
@@ -589,9 +646,14 @@ def _mark_rows(current, warped, cos, background, tol, rej):
         _mark_row(current, warped, y, cos, background, tol, off, rej)
 
 
-def reject_disoccluded(current: np.ndarray, warped: np.ndarray, cos: float = REJECT_COS,
-                       background: float = BACKGROUND, albedo: float = REJECT_ALBEDO,
-                       offscreen: np.ndarray | None = None) -> int:
+def reject_disoccluded(
+    current: np.ndarray,
+    warped: np.ndarray,
+    cos: float = REJECT_COS,
+    background: float = BACKGROUND,
+    albedo: float = REJECT_ALBEDO,
+    offscreen: np.ndarray | None = None,
+) -> int:
     """``jnds_deploy.filter_spec.history_rejected`` applied in place: where the current sample
     sees background or the warped history shows another surface (or where ``offscreen``,
     (H, W) bool: ``jnds_deploy.filter_spec.offscreen``; None: no motion), and next to such a
@@ -601,7 +663,7 @@ def reject_disoccluded(current: np.ndarray, warped: np.ndarray, cos: float = REJ
     rej = np.empty(warped.shape[1:], np.uint8)
     _mark_rows(current, warped, np.float32(cos), np.float32(background), np.float32(albedo), rej)
     if offscreen is not None:
-        surface = np.abs(current[_NX:_NZ + 1]).sum(0) >= np.float32(background)
+        surface = np.abs(current[_NX : _NZ + 1]).sum(0) >= np.float32(background)
         rej = np.where(offscreen & (rej == 0), 1 + surface, rej).astype(np.uint8)
     counts = np.zeros(warped.shape[1], np.int64)
     _replace_rejected(current, warped, rej, RING_MIN, counts)
@@ -835,10 +897,20 @@ def _composite_at_holes(comp, albedo, diffuse, specular, sums, live, counts):
             continue
         n = 0
         for x in range(w):
-            share = t0 * sums[0, r0, x] + t1 * sums[0, r1, x] + t2 * sums[0, r2, x] + t3 * sums[0, r3, x] \
+            share = (
+                t0 * sums[0, r0, x]
+                + t1 * sums[0, r1, x]
+                + t2 * sums[0, r2, x]
+                + t3 * sums[0, r3, x]
                 + t4 * sums[0, r4, x]
-            moves = t0 * sums[1, r0, x] + t1 * sums[1, r1, x] + t2 * sums[1, r2, x] + t3 * sums[1, r3, x] \
+            )
+            moves = (
+                t0 * sums[1, r0, x]
+                + t1 * sums[1, r1, x]
+                + t2 * sums[1, r2, x]
+                + t3 * sums[1, r3, x]
                 + t4 * sums[1, r4, x]
+            )
             if not (_SHARE_LO < share < _SHARE_HI and moves > _CHANGES_MIN):
                 continue
             n += 1
@@ -854,8 +926,13 @@ def _composite_at_holes(comp, albedo, diffuse, specular, sums, live, counts):
         counts[y] = n
 
 
-def albedo_at_holes(comp: np.ndarray, albedo: np.ndarray, diffuse: np.ndarray, specular: np.ndarray,
-                    holes: tuple[np.ndarray, np.ndarray]) -> int:
+def albedo_at_holes(
+    comp: np.ndarray,
+    albedo: np.ndarray,
+    diffuse: np.ndarray,
+    specular: np.ndarray,
+    holes: tuple[np.ndarray, np.ndarray],
+) -> int:
     """``jnds_deploy.filter_spec.albedo_at_holes`` then the composite, as a patch: the composite
     ``comp`` (3, H, W) of the filtered ``albedo``, ``diffuse`` and ``specular`` is computed
     again, in place, with the albedo's 5x5 binomial mean where ``holes`` (``diffuse_holes`` of
@@ -883,9 +960,9 @@ def warp(x: np.ndarray, motion: np.ndarray) -> np.ndarray:
     c, h, w = x.shape
     out = np.empty((c, h, w), np.float32)
     for c0 in range(0, c, WARP_CHANNELS):
-        part = x[c0:c0 + WARP_CHANNELS]
+        part = x[c0 : c0 + WARP_CHANNELS]
         pad = np.zeros((WARP_CHANNELS - part.shape[0], h, w), np.float32)
-        out[c0:c0 + part.shape[0]] = warp_channels_last(channels_last(part, pad), motion)[:part.shape[0]]
+        out[c0 : c0 + part.shape[0]] = warp_channels_last(channels_last(part, pad), motion)[: part.shape[0]]
     return out.astype(x.dtype, copy=False)
 
 
@@ -937,7 +1014,7 @@ def down_level(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
         k = kernel.head
         _pool_coded(x, kernel.q, kernel.c0, k.kinds, k.scale, k.offset, k.table, out)
         return out
-    kernel, = _decoded(kernel)
+    (kernel,) = _decoded(kernel)
     if _fast(x, kernel):
         c, h, w = x.shape
         out = np.empty((c, h // 2, w // 2), np.float32)
@@ -946,8 +1023,9 @@ def down_level(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     return apply_kernel(downsample(x), kernel, relu=True)
 
 
-def up_level(skip: np.ndarray, coarse: np.ndarray, kernel: np.ndarray, blend: np.ndarray,
-             tiles=None, tile: int = 1) -> np.ndarray:
+def up_level(
+    skip: np.ndarray, coarse: np.ndarray, kernel: np.ndarray, blend: np.ndarray, tiles=None, tile: int = 1
+) -> np.ndarray:
     """One level up: relu(lerp(skip, kernel on the bilinear upsampling of coarse, blend));
     in the tiles set in ``tiles``: skip."""
     up = upsample(coarse)
@@ -962,8 +1040,9 @@ def up_level(skip: np.ndarray, coarse: np.ndarray, kernel: np.ndarray, blend: np
     return relu(lerp(skip, apply_kernel(up, kernel), blend))
 
 
-def filter_path(x: np.ndarray, history: np.ndarray, native: dict, levels: list[dict],
-                skip=None, tile: int = 1) -> np.ndarray:
+def filter_path(
+    x: np.ndarray, history: np.ndarray, native: dict, levels: list[dict], skip=None, tile: int = 1
+) -> np.ndarray:
     """The hierarchical filter of one signal; see ``jnds_deploy.filter_spec.filter_path``.
     ``skip``: empty tiles passed through at native resolution (the levels below native are
     small and filtered whole)."""
@@ -1026,8 +1105,9 @@ def from_phases(kernel: np.ndarray, factor: int) -> np.ndarray:
     return np.ascontiguousarray(kernel.reshape(s, s, -1, h, w).transpose(2, 3, 0, 4, 1).reshape(-1, h * s, w * s))
 
 
-def upsample_filter(color: np.ndarray, kernel: np.ndarray, factor: int, skip=None, tile: int = 1,
-                    root: int = 1) -> np.ndarray:
+def upsample_filter(
+    color: np.ndarray, kernel: np.ndarray, factor: int, skip=None, tile: int = 1, root: int = 1
+) -> np.ndarray:
     """Bilinear upsampling of the linear composite (of its ``root``-th root, raised back to
     the power ``root``: ``jnds_deploy.filter_spec.upsample_filter``), the predicted 3x3 kernel,
     ReLU; in the native tiles set in ``skip``, the upsampling alone. ``kernel`` comes in
@@ -1106,9 +1186,17 @@ def _upsample2_fixed_hwc(r, k, squarings, out):
             for c in range(C):
                 a, m, z, dst = up[t, c], up[t + 1, c], up[t + 2, c], acc[c]
                 for x in range(Wo):
-                    dst[x] = (k[0] * a[x] + k[1] * a[x + 1] + k[2] * a[x + 2]
-                              + k[3] * m[x] + k[4] * m[x + 1] + k[5] * m[x + 2]
-                              + k[6] * z[x] + k[7] * z[x + 1] + k[8] * z[x + 2])
+                    dst[x] = (
+                        k[0] * a[x]
+                        + k[1] * a[x + 1]
+                        + k[2] * a[x + 2]
+                        + k[3] * m[x]
+                        + k[4] * m[x + 1]
+                        + k[5] * m[x + 2]
+                        + k[6] * z[x]
+                        + k[7] * z[x + 1]
+                        + k[8] * z[x + 2]
+                    )
             # stored interleaved with selects, not a branch, and counted as a sum: the
             # branch kept this loop scalar (measured at commit 67e04b5)
             if C == 3:

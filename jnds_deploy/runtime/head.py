@@ -14,6 +14,7 @@ are read once, contiguously, and their decoding vectorizes (measured at commit 5
 The graph's metadata says which channels are which output and how each dequantizes
 (``artifacts.layouts.HeadLayout``).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -39,8 +40,11 @@ def tables(layout: HeadLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     scale = np.array(layout.scale, np.float32)
     offset = (np.array(layout.centre, np.float64) - layout.zero_point * scale.astype(np.float64)).astype(np.float32)
     raw = np.arange(256, dtype=np.float32)[None] * scale[:, None] + offset[:, None]
-    table = np.where((kinds == _KIND_CODE["blend"])[:, None], 1 / (1 + np.exp(-raw.astype(np.float64))),
-                     np.exp(raw.astype(np.float64)))
+    table = np.where(
+        (kinds == _KIND_CODE["blend"])[:, None],
+        1 / (1 + np.exp(-raw.astype(np.float64))),
+        np.exp(raw.astype(np.float64)),
+    )
     return kinds, scale, offset, table.astype(np.float32)
 
 
@@ -96,17 +100,31 @@ def _planes(q, out):
         for g in range(n):
             c = 8 * g
             if blocks:
-                d0, d1, d2, d3 = (out[c, y].view(np.uint64), out[c + 1, y].view(np.uint64),
-                                  out[c + 2, y].view(np.uint64), out[c + 3, y].view(np.uint64))
-                d4, d5, d6, d7 = (out[c + 4, y].view(np.uint64), out[c + 5, y].view(np.uint64),
-                                  out[c + 6, y].view(np.uint64), out[c + 7, y].view(np.uint64))
+                d0, d1, d2, d3 = (
+                    out[c, y].view(np.uint64),
+                    out[c + 1, y].view(np.uint64),
+                    out[c + 2, y].view(np.uint64),
+                    out[c + 3, y].view(np.uint64),
+                )
+                d4, d5, d6, d7 = (
+                    out[c + 4, y].view(np.uint64),
+                    out[c + 5, y].view(np.uint64),
+                    out[c + 6, y].view(np.uint64),
+                    out[c + 7, y].view(np.uint64),
+                )
             # unsigned indices: numba wraps negative signed ones, a test and an add a load
             for b in range(np.uint64(blocks)):
                 i = np.uint64(8) * b * G + np.uint64(g)
                 (d0[b], d1[b], d2[b], d3[b], d4[b], d5[b], d6[b], d7[b]) = transpose8x8(
-                    words[i], words[i + G], words[i + np.uint64(2) * G], words[i + np.uint64(3) * G],
-                    words[i + np.uint64(4) * G], words[i + np.uint64(5) * G], words[i + np.uint64(6) * G],
-                    words[i + np.uint64(7) * G])
+                    words[i],
+                    words[i + G],
+                    words[i + np.uint64(2) * G],
+                    words[i + np.uint64(3) * G],
+                    words[i + np.uint64(4) * G],
+                    words[i + np.uint64(5) * G],
+                    words[i + np.uint64(6) * G],
+                    words[i + np.uint64(7) * G],
+                )
             for x in range(8 * blocks, W):
                 for t in range(8):
                     out[c + t, y, x] = q[y, x, c + t]

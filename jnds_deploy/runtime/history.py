@@ -19,6 +19,7 @@ Array contract: current inputs (13, H, W) float32 in ``layout.CURRENT`` order, m
 (2, H, W) in pixels, warped history (12, H, W) in ``layout.HISTORY`` order; the stored
 history is channels last, (H, W, 12), the warp's input layout.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -109,7 +110,7 @@ class History:
         # non-finite values replaced and counted in the same pass (replace_nonfinite's values)
         self.frame, bad = F.channels_last(*[filtered[n] for n, _ in HISTORY], flush=HISTORY_FLUSH, counted=True)
         if radiance_scale != 1:
-            self.frame[..., :channels("specular").stop] /= radiance_scale
+            self.frame[..., : channels("specular").stop] /= radiance_scale
         self.size = size
         return bad
 

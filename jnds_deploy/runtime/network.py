@@ -13,10 +13,21 @@ any graph the same way. The layouts of those u8 edges are in each graph's metada
 upsampling and concatenation in numba (``reformat.block_input``) between the run that made
 its two u8 tensors and the run it feeds.
 """
+
 from __future__ import annotations
 
-from ..artifacts.layouts import (BLOCK_KEY, HEAD, HEAD_KEY, INPUTS, INPUTS_KEY, LEVELS_KEY, BlockLayout, HeadLayout,
-                                 InputsLayout, levels_of_session)
+from ..artifacts.layouts import (
+    BLOCK_KEY,
+    HEAD,
+    HEAD_KEY,
+    INPUTS,
+    INPUTS_KEY,
+    LEVELS_KEY,
+    BlockLayout,
+    HeadLayout,
+    InputsLayout,
+    levels_of_session,
+)
 from ..errors import ArtifactError
 from ..layout import head_kind
 from .head import Head
@@ -43,14 +54,18 @@ class Edges:
             self.head = Head(layout)
         self.levels = {n: Head(lay) for n, lay in levels_of_session(sess).items()}
         if set(self.levels) - set(outputs):
-            raise ArtifactError(f"network graph's {LEVELS_KEY!r} metadata names outputs it lacks: "
-                                f"{sorted(set(self.levels) - set(outputs))}")
+            raise ArtifactError(
+                f"network graph's {LEVELS_KEY!r} metadata names outputs it lacks: "
+                f"{sorted(set(self.levels) - set(outputs))}"
+            )
         self.block = BlockLayout.of_session(sess)
         if self.block is not None:
             made = [n for _, o in self.block.segments for n in o]
             if {e for e, _ in self.block.segments} - names or sorted(made) != sorted(outputs):
-                raise ArtifactError(f"network graph's {BLOCK_KEY!r} metadata does not match its inputs "
-                                    f"{sorted(names)} and outputs {outputs}")
+                raise ArtifactError(
+                    f"network graph's {BLOCK_KEY!r} metadata does not match its inputs "
+                    f"{sorted(names)} and outputs {outputs}"
+                )
         # what run returns: every output but the ones the cuts are made from
         self.outputs = [n for n in outputs if n not in self.block.internal] if self.block else outputs
 
@@ -111,8 +126,7 @@ def output_names(sess) -> list[str]:
     """The outputs ``run_network`` returns for ``sess``, in order."""
     e = Edges(sess)
     heads = {**({HEAD: e.head} if e.head is not None else {}), **e.levels}
-    return ([n for n in e.outputs if n not in heads]
-            + [p for h in heads.values() for p, _ in h.layout.parts])
+    return [n for n in e.outputs if n not in heads] + [p for h in heads.values() for p, _ in h.layout.parts]
 
 
 def quiet(opts=None):
@@ -124,4 +138,3 @@ def quiet(opts=None):
     opts = opts or ort.SessionOptions()
     opts.log_severity_level = 3
     return opts
-

@@ -15,6 +15,7 @@ filtered signals are stored as the next frame's history. History is reset on the
 frame, on a camera cut and on a change of resolution; odd sizes are padded (edge
 replicate) to the network's multiple and cropped back.
 """
+
 from __future__ import annotations
 
 import copy
@@ -28,8 +29,8 @@ import numpy as np
 
 from ..artifacts import Manifest, variant_key
 from ..errors import ArtifactError, FrameError
-from ..process import keep_freed_memory, shared_arena_registered
 from ..layout import CURRENT, GUIDE, HISTORY, INPUT_CHANNELS, RADIANCE, channels, guide_of
+from ..process import keep_freed_memory, shared_arena_registered
 from . import filters as F
 from .config import PipelineConfig
 from .head import Coded
@@ -98,7 +99,6 @@ class FrameResult:
     filled: int = 0  # current diffuse pixels filled from their neighbours' (filters.fill_diffuse_holes)
 
 
-
 class Timer:
     def __init__(self):
         self.ms: dict[str, float] = {}
@@ -116,9 +116,11 @@ class Pipeline:
         root = Path(cfg.artifacts)
         self.manifest = Manifest.load(root)
         if cfg.precision == "int8" and not any(g.int8 for g in self.manifest.graphs.values()):
-            raise ArtifactError(f"{root}: no int8 graphs, and precision is int8 (the default): run `jnds calibrate "
-                                f"--artifacts {root} --data SEQUENCES` first, or choose precision fp32 "
-                                f"(`--precision fp32`)")
+            raise ArtifactError(
+                f"{root}: no int8 graphs, and precision is int8 (the default): run `jnds calibrate "
+                f"--artifacts {root} --data SEQUENCES` first, or choose precision fp32 "
+                f"(`--precision fp32`)"
+            )
         self.scale = self.manifest.scale
         self.out_scale = 1 if cfg.native_output else self.scale  # output size / input size
         self.multiple = self.manifest.pad_multiple
@@ -181,9 +183,12 @@ class Pipeline:
         with self._sessions_lock:
             sess = self._variant_sessions.get((name, best))
             if sess is None:
-                sess = ort.InferenceSession(str(self.graphs[name].variants[best]), self._opts,
-                                            providers=["CPUExecutionProvider"],
-                                            disabled_optimizers=self.disabled_optimizers(name) or None)
+                sess = ort.InferenceSession(
+                    str(self.graphs[name].variants[best]),
+                    self._opts,
+                    providers=["CPUExecutionProvider"],
+                    disabled_optimizers=self.disabled_optimizers(name) or None,
+                )
                 self._variant_sessions[(name, best)] = sess
         return sess
 
@@ -225,8 +230,9 @@ class Pipeline:
             # non-finite values are counted once, as the albedo's)
             guide = None
             if self.guide_albedo:
-                guide = to_chw({GUIDE.name: guide_of(layers)}, [GUIDE.name], padded,
-                               nonfinite if GUIDE.name in layers else None)
+                guide = to_chw(
+                    {GUIDE.name: guide_of(layers)}, [GUIDE.name], padded, nonfinite if GUIDE.name in layers else None
+                )
         filled, holes = 0, None
         if self.diffuse_fill or self.albedo_at_holes:
             with t("diffuse_fill"):  # finding the holes (one pass), then filling them
@@ -274,8 +280,7 @@ class Pipeline:
             if bad_out:
                 nonfinite["output"] = bad_out
         t.ms["total"] = sum(t.ms.values())
-        return FrameResult(result, t.ms, nonfinite, decisions, warped.disoccluded, warped.rejected, clamped,
-                           filled)
+        return FrameResult(result, t.ms, nonfinite, decisions, warped.disoccluded, warped.rejected, clamped, filled)
 
     def _decide(self, current: np.ndarray, warped: Warped) -> dict:
         """What this frame can skip: a signal that is zero in the frame and its history has
@@ -288,11 +293,13 @@ class Pipeline:
             decisions[f"skip_{path}"] = bool(adaptive and not current[c].any() and not warped.signals[c].any())
         return decisions
 
-    def _network(self, current: np.ndarray, warped: np.ndarray, guide: np.ndarray | None, decisions: dict,
-                 t: Timer) -> dict:
+    def _network(
+        self, current: np.ndarray, warped: np.ndarray, guide: np.ndarray | None, decisions: dict, t: Timer
+    ) -> dict:
         """Input block, feature extractor and output block: {output name: (C, H, W)}."""
-        drops = frozenset([p for p in RADIANCE if decisions[f"skip_{p}"]]
-                          + (["features"] if self.out_scale == 1 else []))
+        drops = frozenset(
+            [p for p in RADIANCE if decisions[f"skip_{p}"]] + (["features"] if self.out_scale == 1 else [])
+        )
         feeds = {"current": current[None], "history": warped[None]}
         if guide is not None:
             feeds["guide"] = guide[None]
@@ -321,15 +328,19 @@ class Pipeline:
     def _filter_inputs(self, current: np.ndarray, warped: np.ndarray, net: dict, rs: float):
         """The current and history layers and the network outputs in the filter stage's
         dtype (radiance scaled by ``rs``)."""
+
         def part(a, name):
             return (a * rs if rs != 1 and name in RADIANCE else a).astype(self.dtype, copy=False)
 
         cur = {n: part(current[channels(n)], n) for n, _ in CURRENT}
         hist = {n: part(warped[channels(n, HISTORY)], n) for n, _ in HISTORY}
         # the int8 head's outputs stay coded for the float32 filter loops (runtime.head)
-        net = {k: a if isinstance(a, Coded) and self.dtype == np.float32
-               else (a.decode() if isinstance(a, Coded) else a).astype(self.dtype, copy=False)
-               for k, a in net.items()}
+        net = {
+            k: a
+            if isinstance(a, Coded) and self.dtype == np.float32
+            else (a.decode() if isinstance(a, Coded) else a).astype(self.dtype, copy=False)
+            for k, a in net.items()
+        }
         return cur, hist, net
 
     def _empty_tiles(self, current: np.ndarray, warped: np.ndarray, decisions: dict, t: Timer):
@@ -351,17 +362,25 @@ class Pipeline:
                 continue
             with t(f"filter_{path}"):
                 native = {k: net[f"{path}.{k}"] for k in KERNEL_PARTS if f"{path}.{k}" in net}
-                levels = [{k: net[f"{path}.level{lv}.{k}"] for k in LEVEL_PARTS if f"{path}.level{lv}.{k}" in net}
-                          for lv in range(1, self.levels + 1)]
+                levels = [
+                    {k: net[f"{path}.level{lv}.{k}"] for k in LEVEL_PARTS if f"{path}.level{lv}.{k}" in net}
+                    for lv in range(1, self.levels + 1)
+                ]
                 filtered[path] = F.filter_path(cur[path], hist[path], native, levels, **sk)
         with t("filter_auxiliary"):
             # albedo and normals in one pass over their 6 adjacent channels. The kernels are
             # normalized (taps >= 0, summing to 1) and the blend convex, so filtering the
             # normals as n * 0.5 + 0.5 and mapping back (the model) equals filtering n, and
             # the ReLU never acts (albedo in [0, 1]): no ReLU and no remapping passes
-            aux = F.spatiotemporal(current[AUX].astype(self.dtype, copy=False),
-                                   warped[AUX].astype(self.dtype, copy=False),
-                                   net["aux.spatial"], net["aux.temporal"], net["aux.blend"], relu=False, **sk)
+            aux = F.spatiotemporal(
+                current[AUX].astype(self.dtype, copy=False),
+                warped[AUX].astype(self.dtype, copy=False),
+                net["aux.spatial"],
+                net["aux.temporal"],
+                net["aux.blend"],
+                relu=False,
+                **sk,
+            )
             filtered["albedo"], filtered["normal"] = aux[:3], aux[3:]
         return filtered
 
@@ -371,15 +390,18 @@ class Pipeline:
         if self._fixed_kernel is not None:
             with t("upsample_filter"):
                 return F.upsample_fixed(comp, self._fixed_kernel, self.scale, root=self.upsample_root)
-        feeds = {"composite": (comp[None] / rs if rs != 1 else comp[None]).astype(np.float32, copy=False),
-                 "features": net["features"][None].astype(np.float32, copy=False)}
+        feeds = {
+            "composite": (comp[None] / rs if rs != 1 else comp[None]).astype(np.float32, copy=False),
+            "features": net["features"][None].astype(np.float32, copy=False),
+        }
         if self.on_feeds:
             self.on_feeds("upsample", feeds)
         with t("upsample_kernel"):
             kernel = self._upsample_kernel(feeds, tiles)
         with t("upsample_filter"):
-            return F.upsample_filter(comp, kernel.astype(self.dtype, copy=False), self.scale, skip=tiles,
-                                     tile=TILE, root=self.upsample_root)
+            return F.upsample_filter(
+                comp, kernel.astype(self.dtype, copy=False), self.scale, skip=tiles, tile=TILE, root=self.upsample_root
+            )
 
     def _upsample_kernel(self, feeds: dict, tiles) -> np.ndarray:
         """The upsample block's kernel in phase layout (s*s*9, H, W) (the graph runs at

@@ -7,6 +7,7 @@ ONNX Runtime keeps that name as the prefix of fused nodes, so node time adds up 
 stage. Layout changes ONNX Runtime inserts (``ReorderInput``, ``Transpose`` of the NHWC
 int8 kernels) are attributed to the stage of the node they feed, or to ``reformat``.
 """
+
 from __future__ import annotations
 
 import json
@@ -28,8 +29,14 @@ def stage_of(node_name: str) -> str:
     return "reformat"
 
 
-def profile_stages(onnx_path: str | Path, feeds: dict[str, np.ndarray], runs: int = 5, threads: int = 2,
-                   optimization: str = "all", disabled_optimizers: list[str] | None = None) -> dict:
+def profile_stages(
+    onnx_path: str | Path,
+    feeds: dict[str, np.ndarray],
+    runs: int = 5,
+    threads: int = 2,
+    optimization: str = "all",
+    disabled_optimizers: list[str] | None = None,
+) -> dict:
     """Median over ``runs`` of the summed node time per stage (ms), mean per operator type,
     and median per node ({node: {"op", "stage", "ms"}}, largest first). ``disabled_optimizers``:
     as the session to be profiled has them (``Pipeline.disabled_optimizers``)."""
@@ -38,12 +45,18 @@ def profile_stages(onnx_path: str | Path, feeds: dict[str, np.ndarray], runs: in
     with tempfile.TemporaryDirectory() as tmp:
         o = ort.SessionOptions()
         o.intra_op_num_threads, o.inter_op_num_threads = threads, 1
-        o.graph_optimization_level = {"all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL,
-                                      "extended": ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED}[optimization]
+        o.graph_optimization_level = {
+            "all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL,
+            "extended": ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED,
+        }[optimization]
         o.enable_profiling = True
         o.profile_file_prefix = os.path.join(tmp, "profile")
-        sess = ort.InferenceSession(str(onnx_path), quiet(o), providers=["CPUExecutionProvider"],
-                                    disabled_optimizers=disabled_optimizers or None)
+        sess = ort.InferenceSession(
+            str(onnx_path),
+            quiet(o),
+            providers=["CPUExecutionProvider"],
+            disabled_optimizers=disabled_optimizers or None,
+        )
         edges = Edges(sess)
         feeds = edges.feeds(feeds)  # an int8 graph's u8 inputs, packed once (not profiled)
         for _ in range(runs + 1):  # the first a warm-up, dropped below
@@ -54,10 +67,15 @@ def profile_stages(onnx_path: str | Path, feeds: dict[str, np.ndarray], runs: in
     calls = [ev for ev in events if ev.get("cat") == "Session" and ev.get("name") == "model_run"]
     per = len(edges.block.segments) if edges.block else 1
     events = [ev for ev in events if not (ev.get("cat") == "Session" and ev.get("name") == "model_run")] + [
-        {"cat": "Session", "name": "model_run", "ts": calls[i]["ts"],
-         "dur": calls[i + per - 1]["ts"] + calls[i + per - 1]["dur"] - calls[i]["ts"],
-         "graph_ms": sum(c["dur"] for c in calls[i:i + per]) / 1000}
-        for i in range(0, len(calls) - per + 1, per)]
+        {
+            "cat": "Session",
+            "name": "model_run",
+            "ts": calls[i]["ts"],
+            "dur": calls[i + per - 1]["ts"] + calls[i + per - 1]["dur"] - calls[i]["ts"],
+            "graph_ms": sum(c["dur"] for c in calls[i : i + per]) / 1000,
+        }
+        for i in range(0, len(calls) - per + 1, per)
+    ]
     runs_ms: list[dict[str, float]] = []
     ops: dict[str, list[float]] = {}
     nodes: dict[str, list[float]] = {}
@@ -77,7 +95,7 @@ def profile_stages(onnx_path: str | Path, feeds: dict[str, np.ndarray], runs: in
                 r[stage] = r.get(stage, 0.0) + ev["dur"] / 1000
                 op = ev.get("args", {}).get("op_name", "?")
                 ops.setdefault(op, []).append(ev["dur"] / 1000)
-                node = ev["name"][:-len("_kernel_time")]
+                node = ev["name"][: -len("_kernel_time")]
                 # summed per run: a cut graph runs every node once per segment a frame,
                 # on the small defaults of the entries a run is not fed
                 r["_nodes"][node] = r["_nodes"].get(node, 0.0) + ev["dur"] / 1000
@@ -91,6 +109,8 @@ def profile_stages(onnx_path: str | Path, feeds: dict[str, np.ndarray], runs: in
     by_op = {k: float(np.sum(v)) / len(runs_ms) for k, v in sorted(ops.items(), key=lambda kv: -sum(kv[1]))}
     # median over the runs (a node runs once a run): one slow run (page faults while an
     # arena grows) would dominate a mean
-    by_node = {k: {"op": node_op[k], "stage": stage_of(k), "ms": float(np.median(v))}
-               for k, v in sorted(nodes.items(), key=lambda kv: -float(np.median(kv[1])))}
+    by_node = {
+        k: {"op": node_op[k], "stage": stage_of(k), "ms": float(np.median(v))}
+        for k, v in sorted(nodes.items(), key=lambda kv: -float(np.median(kv[1])))
+    }
     return {"median_ms": med, "by_op_ms": by_op, "by_node_ms": by_node, "runs": len(runs_ms)}

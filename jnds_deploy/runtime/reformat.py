@@ -12,6 +12,7 @@ numpy's ``concatenate(...).transpose(2, 0, 1)`` + copy is a strided gather on on
 thread; these numba loops write each element once, rows in parallel (measured at commit
 fe226b2). The layout of ``pack_inputs``' output is ``artifacts.layouts.InputsLayout``.
 """
+
 from __future__ import annotations
 
 import functools
@@ -26,8 +27,9 @@ from .simd import N, binned_codes16, lerp_codes16, requantize16, transpose8x8
 
 # layer -> (low, high, renormalize), from the one table of input layers (layout.LAYERS) and
 # the guide albedo (layout.GUIDE)
-LIMITS: dict[str, tuple[float, float, bool]] = {layer.name: (layer.lo, layer.hi, layer.unit_vector)
-                                                for layer in (*LAYERS, GUIDE)}
+LIMITS: dict[str, tuple[float, float, bool]] = {
+    layer.name: (layer.lo, layer.hi, layer.unit_vector) for layer in (*LAYERS, GUIDE)
+}
 
 
 @njit(inline="always")
@@ -97,8 +99,9 @@ def _chw_into_hwc(src, out):
                 out[y, i, c] = src[c, y, i]
 
 
-def to_chw(layers: dict[str, np.ndarray], names, padded: tuple[int, int] | None = None,
-           nonfinite: dict[str, int] | None = None) -> np.ndarray:
+def to_chw(
+    layers: dict[str, np.ndarray], names, padded: tuple[int, int] | None = None, nonfinite: dict[str, int] | None = None
+) -> np.ndarray:
     """Stack the HWC float32 layers ``names`` (all one size) into a (sum C, H', W')
     float32 array, sanitized by ``LIMITS``; ``padded`` = (H', W') >= (H, W) replicates the
     last row and column. Non-finite counts of the layers that have any are added to ``nonfinite``."""
@@ -141,7 +144,7 @@ def _tonemap_codes(layout: InputsLayout) -> tuple[np.ndarray, np.ndarray]:
     k = np.arange(256, dtype=np.float64)
     t = np.maximum((k - z - 0.5) * s, 0.0)  # code k from tonemap value t on
     with np.errstate(over="ignore"):  # a code out of float range is reached at +inf
-        at = np.where(t > TONEMAP_FLOOR ** (1 / 2.2), np.expm1(t ** 2.2), -np.inf)
+        at = np.where(t > TONEMAP_FLOOR ** (1 / 2.2), np.expm1(t**2.2), -np.inf)
     at[: z + 1] = -np.inf  # the codes up to the zero point: every x >= 0
     at = np.append(at, np.inf)  # no code 256
     with np.errstate(invalid="ignore"):  # bins of NaN/Inf bits (x is clamped to HDR_MAX first)
@@ -220,22 +223,42 @@ def _store_pixels(codes, pads, zero_point, out_row):
         for g in range(C // 8):
             c = 8 * g
             if blocks:
-                r0, r1, r2, r3 = (codes[c].view(np.uint64), codes[c + 1].view(np.uint64),
-                                  codes[c + 2].view(np.uint64), codes[c + 3].view(np.uint64))
-                r4, r5, r6, r7 = (codes[c + 4].view(np.uint64), codes[c + 5].view(np.uint64),
-                                  codes[c + 6].view(np.uint64), codes[c + 7].view(np.uint64))
+                r0, r1, r2, r3 = (
+                    codes[c].view(np.uint64),
+                    codes[c + 1].view(np.uint64),
+                    codes[c + 2].view(np.uint64),
+                    codes[c + 3].view(np.uint64),
+                )
+                r4, r5, r6, r7 = (
+                    codes[c + 4].view(np.uint64),
+                    codes[c + 5].view(np.uint64),
+                    codes[c + 6].view(np.uint64),
+                    codes[c + 7].view(np.uint64),
+                )
             # unsigned indices: numba wraps negative signed ones, a test and an add a store
             for b in range(np.uint64(blocks)):
                 i = np.uint64(8) * b * G + np.uint64(g)
-                (words[i], words[i + G], words[i + np.uint64(2) * G], words[i + np.uint64(3) * G],
-                 words[i + np.uint64(4) * G], words[i + np.uint64(5) * G], words[i + np.uint64(6) * G],
-                 words[i + np.uint64(7) * G]) = transpose8x8(r0[b], r1[b], r2[b], r3[b], r4[b], r5[b], r6[b], r7[b])
+                (
+                    words[i],
+                    words[i + G],
+                    words[i + np.uint64(2) * G],
+                    words[i + np.uint64(3) * G],
+                    words[i + np.uint64(4) * G],
+                    words[i + np.uint64(5) * G],
+                    words[i + np.uint64(6) * G],
+                    words[i + np.uint64(7) * G],
+                ) = transpose8x8(r0[b], r1[b], r2[b], r3[b], r4[b], r5[b], r6[b], r7[b])
             for i in range(8 * blocks, w):
                 words[i * (C // 8) + g] = (
-                    np.uint64(codes[c, i]) | (np.uint64(codes[c + 1, i]) << np.uint64(8))
-                    | (np.uint64(codes[c + 2, i]) << np.uint64(16)) | (np.uint64(codes[c + 3, i]) << np.uint64(24))
-                    | (np.uint64(codes[c + 4, i]) << np.uint64(32)) | (np.uint64(codes[c + 5, i]) << np.uint64(40))
-                    | (np.uint64(codes[c + 6, i]) << np.uint64(48)) | (np.uint64(codes[c + 7, i]) << np.uint64(56)))
+                    np.uint64(codes[c, i])
+                    | (np.uint64(codes[c + 1, i]) << np.uint64(8))
+                    | (np.uint64(codes[c + 2, i]) << np.uint64(16))
+                    | (np.uint64(codes[c + 3, i]) << np.uint64(24))
+                    | (np.uint64(codes[c + 4, i]) << np.uint64(32))
+                    | (np.uint64(codes[c + 5, i]) << np.uint64(40))
+                    | (np.uint64(codes[c + 6, i]) << np.uint64(48))
+                    | (np.uint64(codes[c + 7, i]) << np.uint64(56))
+                )
     else:
         for i in range(w):
             for c in range(C):
@@ -265,8 +288,9 @@ def _pack_blocks(current, history, guide, kinds, scale, zero_point, first, step,
         _store_pixels(codes, pads, zero_point, out[0, y])
 
 
-def pack_inputs(current: np.ndarray, history: np.ndarray, layout: InputsLayout,
-                guide: np.ndarray | None = None) -> np.ndarray:
+def pack_inputs(
+    current: np.ndarray, history: np.ndarray, layout: InputsLayout, guide: np.ndarray | None = None
+) -> np.ndarray:
     """The int8 network graph's ``inputs`` (1, H, W, channels) u8 (H/2, W/2 in 2x2 blocks,
     ``InputsLayout.block``) from its float ``current``
     (1, 13, H, W) and ``history`` (1, 12, H, W), linear as the float graph takes them (and
@@ -285,8 +309,18 @@ def pack_inputs(current: np.ndarray, history: np.ndarray, layout: InputsLayout,
     first, step = _tables(layout)
     slots, pads = _placement(layout)
     (_pack if b == 1 else _pack_blocks)(
-        np.ascontiguousarray(current[0], np.float32), np.ascontiguousarray(history[0], np.float32), guide,
-        preprocess(len(slots)), np.float32(layout.scale), layout.zero_point, first, step, slots, pads, out)
+        np.ascontiguousarray(current[0], np.float32),
+        np.ascontiguousarray(history[0], np.float32),
+        guide,
+        preprocess(len(slots)),
+        np.float32(layout.scale),
+        layout.zero_point,
+        first,
+        step,
+        slots,
+        pads,
+        out,
+    )
     return out
 
 
@@ -340,8 +374,9 @@ def _upsample_concat(dec, nat, sd, zd, sn, zn, sb, zb, phases, out):
             for c in range(0, vd, N):
                 lerp_codes16(col, ia + c, col, ib + c, wx, four - wx, zd16, kd16, zbf, o, j + c)
             for c in range(vd, cd):
-                o[j + c] = np.uint8(min(max(np.rint((wx * col[ia + c] + (four - wx) * col[ib + c] - zd16) * kd16) + zbf,
-                                            lo), hi))
+                o[j + c] = np.uint8(
+                    min(max(np.rint((wx * col[ia + c] + (four - wx) * col[ib + c] - zd16) * kd16) + zbf, lo), hi)
+                )
             # pixel (y, x)'s skip features: in phases, phase 2 (y % 2) + x % 2 of (y // 2, x // 2)
             s = x * cn if phases == 1 else (4 * (x // 2) + 2 * (y % 2) + x % 2) * cn
             for c in range(0, vn, N):
@@ -356,10 +391,15 @@ def block_input(up: np.ndarray, skip: np.ndarray, cut: Cut) -> np.ndarray:
     channels last."""
     dec, nat = np.ascontiguousarray(up[0]), np.ascontiguousarray(skip[0])
     p = cut.skip_phases
-    if (dec.dtype != np.uint8 or nat.dtype != np.uint8 or nat.shape[2] % (p * p)
-            or (2 * dec.shape[0], 2 * dec.shape[1]) != (p * nat.shape[0], p * nat.shape[1])):
-        raise ArtifactError(f"{cut.entry}: {cut.up} {dec.dtype} {dec.shape} and {cut.skip} {nat.dtype} {nat.shape} "
-                            "do not fit")
+    if (
+        dec.dtype != np.uint8
+        or nat.dtype != np.uint8
+        or nat.shape[2] % (p * p)
+        or (2 * dec.shape[0], 2 * dec.shape[1]) != (p * nat.shape[0], p * nat.shape[1])
+    ):
+        raise ArtifactError(
+            f"{cut.entry}: {cut.up} {dec.dtype} {dec.shape} and {cut.skip} {nat.dtype} {nat.shape} do not fit"
+        )
     out = np.empty((1, 2 * dec.shape[0], 2 * dec.shape[1], dec.shape[2] + nat.shape[2] // (p * p)), np.uint8)
     (sd, zd), (sn, zn), (sb, zb) = cut.up_q, cut.skip_q, cut.entry_q
     _upsample_concat(dec, nat, float(sd), zd, float(sn), zn, float(sb), zb, p, out)

@@ -3,6 +3,7 @@
 against the reference when the sequence has one), and for a sequence with references a
 contact sheet ``OUT/contact.png``: input, OIDN (where ``pyoidn`` is installed), the
 output and the reference of the first, middle and last frames."""
+
 from __future__ import annotations
 
 import json
@@ -19,9 +20,21 @@ from ..metrics import changed_mask
 from ..video import Mp4Writer, display
 from .pipeline import Pipeline, PipelineConfig
 
-
-STAGE_ORDER = ("reformat", "diffuse_fill", "warp", "firefly_clamp", "tile_skip", "network", "filter_diffuse", "filter_specular", "filter_auxiliary",
-               "composite", "albedo_at_holes", "upsample_kernel", "upsample_filter")
+STAGE_ORDER = (
+    "reformat",
+    "diffuse_fill",
+    "warp",
+    "firefly_clamp",
+    "tile_skip",
+    "network",
+    "filter_diffuse",
+    "filter_specular",
+    "filter_auxiliary",
+    "composite",
+    "albedo_at_holes",
+    "upsample_kernel",
+    "upsample_filter",
+)
 
 
 def stage_table(report: dict) -> str:
@@ -42,14 +55,23 @@ def score_lines(report: dict) -> list[str]:
     lines = []
     for name, m in (("JNDS", report.get("metrics")), (BASELINE, report.get("baseline"))):
         if m:
-            lines.append(f"{name:>24}: PSNR {m['psnr']:.2f} dB, FLIP {m['flip']:.4f}, changed pixels "
-                         f"({100 * m['changed_fraction']:.1f} %) PSNR {m['changed_psnr']:.2f} dB")
+            lines.append(
+                f"{name:>24}: PSNR {m['psnr']:.2f} dB, FLIP {m['flip']:.4f}, changed pixels "
+                f"({100 * m['changed_fraction']:.1f} %) PSNR {m['changed_psnr']:.2f} dB"
+            )
     return lines
 
 
-def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path,
-                 progress: bool = True, metrics: bool = True, output_format: str = "float",
-                 video: bool = False, png: str | Path | None = None) -> dict:
+def run_sequence(
+    cfg: PipelineConfig,
+    input_path: str | Path,
+    output: str | Path,
+    progress: bool = True,
+    metrics: bool = True,
+    output_format: str = "float",
+    video: bool = False,
+    png: str | Path | None = None,
+) -> dict:
     """The sequence through a new pipeline; returns the report ``OUT/run.json`` holds.
     ``output_format``: one of ``io.OUTPUT_FORMATS``; ``video``, ``png``: see ``iter_run``."""
     from tqdm import tqdm
@@ -63,8 +85,15 @@ def run_sequence(cfg: PipelineConfig, input_path: str | Path, output: str | Path
     raise AssertionError("iter_run ends with its report")
 
 
-def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics: bool = True,
-             output_format: str = "float", video: bool = False, png: str | Path | None = None):
+def iter_run(
+    pipe: Pipeline,
+    input_path: str | Path,
+    output: str | Path,
+    metrics: bool = True,
+    output_format: str = "float",
+    video: bool = False,
+    png: str | Path | None = None,
+):
     """``run_sequence`` on an existing pipeline (its history is reset first), one step at a
     time: yields each frame's index once the frame is written, then the report, after
     ``OUT/run.json`` (written last, atomically: a directory with it is complete). The
@@ -89,8 +118,10 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
     # reading and writing beside the computation: OpenEXR lets go of the GIL while it reads
     # and writes, so frame i + 1 is read and frame i - 1 written while frame i runs
     # (benchmarks/results/memory.md). Leaving the block waits for the writes, also on an error.
-    with ThreadPoolExecutor(1, thread_name_prefix="jnds-read") as reader, \
-            ThreadPoolExecutor(1, thread_name_prefix="jnds-write") as writer:
+    with (
+        ThreadPoolExecutor(1, thread_name_prefix="jnds-read") as reader,
+        ThreadPoolExecutor(1, thread_name_prefix="jnds-write") as writer,
+    ):
         pending = reader.submit(seq.inputs, 0) if len(seq) else None
         writing = None  # (index, future) of the frame being written
         for i in range(len(seq)):
@@ -101,13 +132,28 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
             if writing is not None:
                 writing[1].result()
                 yield writing[0]
-            writing = (i, writer.submit(_write, out / f"{i:04d}.exr", color, output_format, mp4,
-                                        None if png is None else Path(png) / f"{i:04d}.png"))
+            writing = (
+                i,
+                writer.submit(
+                    _write,
+                    out / f"{i:04d}.exr",
+                    color,
+                    output_format,
+                    mp4,
+                    None if png is None else Path(png) / f"{i:04d}.png",
+                ),
+            )
             frames.append(frame.ms)
             nonfinite.append(frame.nonfinite)
             decisions.append({k: v for k, v in frame.decisions.items() if v})
-            rejected.append({"pixels": frame.disoccluded, "tiles": frame.rejected, "fireflies_clamped": frame.clamped,
-                             "diffuse_filled": frame.filled})
+            rejected.append(
+                {
+                    "pixels": frame.disoccluded,
+                    "tiles": frame.rejected,
+                    "fireflies_clamped": frame.clamped,
+                    "diffuse_filled": frame.filled,
+                }
+            )
             ref = baseline = mask = None
             if seq.has_reference and (metrics or i in shown):
                 ref = seq.reference(i)["color"]
@@ -132,18 +178,24 @@ def iter_run(pipe: Pipeline, input_path: str | Path, output: str | Path, metrics
         mp4.close()
     stages = sorted({k for f in frames for k in f})
     report = {
-        "input": str(seq.path), "artifacts": str(Path(cfg.artifacts)),
+        "input": str(seq.path),
+        "artifacts": str(Path(cfg.artifacts)),
         "checkpoint_sha256": pipe.manifest.checkpoint["sha256"],
-        "precision": cfg.precision, "filter_dtype": cfg.filter_dtype, "threads": cfg.threads,
-        "native_size": list(seq.native_size), "output_size": [seq.native_size[0] * pipe.out_scale,
-                                                            seq.native_size[1] * pipe.out_scale],
-        "frames": len(seq), "output_format": output_format,
+        "precision": cfg.precision,
+        "filter_dtype": cfg.filter_dtype,
+        "threads": cfg.threads,
+        "native_size": list(seq.native_size),
+        "output_size": [seq.native_size[0] * pipe.out_scale, seq.native_size[1] * pipe.out_scale],
+        "frames": len(seq),
+        "output_format": output_format,
         "median_ms": {k: float(np.median([f.get(k, 0.0) for f in frames])) for k in stages},
         "frame_ms": frames,
         # NaN/Inf values replaced per frame and input layer (only layers that had any)
         "nonfinite": nonfinite,
         # adaptive execution per frame: what was skipped (FrameResult.decisions)
-        "adaptive": cfg.adaptive, "native_output": cfg.native_output, "decisions": decisions,
+        "adaptive": cfg.adaptive,
+        "native_output": cfg.native_output,
+        "decisions": decisions,
         # history replaced by the current inputs per frame: pixels by the geometric test
         # (filters.disoccluded), 32x32 tiles by the brightness test (history.reject_history)
         "history_rejected": rejected,
@@ -197,11 +249,13 @@ def _summary(scores: list[dict]) -> dict:
     from ..metrics import psnr_of
 
     changed = [s for s in scores if "changed_n" in s]
-    return {"psnr": float(np.mean([s["psnr"] for s in scores])),
-            "flip": float(np.mean([s["flip"] for s in scores])),
-            "changed_psnr": psnr_of(sum(s["changed_sq"] for s in changed), sum(s["changed_n"] for s in changed)),
-            "changed_fraction": float(np.mean([s["changed_fraction"] for s in changed])) if changed else float("nan"),
-            "per_frame": [{"psnr": s["psnr"], "flip": s["flip"]} for s in scores]}
+    return {
+        "psnr": float(np.mean([s["psnr"] for s in scores])),
+        "flip": float(np.mean([s["flip"] for s in scores])),
+        "changed_psnr": psnr_of(sum(s["changed_sq"] for s in changed), sum(s["changed_n"] for s in changed)),
+        "changed_fraction": float(np.mean([s["changed_fraction"] for s in changed])) if changed else float("nan"),
+        "per_frame": [{"psnr": s["psnr"], "flip": s["flip"]} for s in scores],
+    }
 
 
 def _sheet_row(inputs: dict, output, reference, baseline, mask) -> dict:

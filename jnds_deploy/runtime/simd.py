@@ -24,6 +24,7 @@ scalar form computes, bit for bit (tests/runtime/test_head.py, test_reformat.py)
 is hand-written: docs/architecture.md, "The filter stage"; what they bought: the record in
 docs/performance.md at commit 5431ce1.
 """
+
 from __future__ import annotations
 
 from llvmlite import ir
@@ -93,8 +94,12 @@ def lerp_codes16(typingctx, a, ia, b, ib, wa, wb, z, k, zb, out, j):
     """out[j + n] = u8(min(max(rint((wa * a[ia + n] + wb * b[ib + n] - z) * k) + zb, 0), 255))
     for n < 16: float32 ``a``, ``b``, u8 ``out``, all 1-d and contiguous; float32 scalars (no fused
     multiply-add: the products are rounded as numba rounds them)."""
-    if not (_is_1d(a, types.float32) and _is_1d(b, types.float32) and _is_1d(out, types.uint8)
-            and all(t == types.float32 for t in (wa, wb, z, k, zb))):
+    if not (
+        _is_1d(a, types.float32)
+        and _is_1d(b, types.float32)
+        and _is_1d(out, types.uint8)
+        and all(t == types.float32 for t in (wa, wb, z, k, zb))
+    ):
         return None
     sig = types.void(a, ia, b, ib, wa, wb, z, k, zb, out, j)
 
@@ -144,8 +149,9 @@ def _gather(builder, base, index, element):
     addr = builder.inttoptr(builder.add(_splat_i64(builder, builder.ptrtoint(base, ir.IntType(64))), offset), ptrs)
     vt, mask = ir.VectorType(element, N), ir.VectorType(ir.IntType(1), N)
     kind = "i32" if element == _I32 else "f32"
-    fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(vt, [ptrs, _I32, mask, vt]),
-                                        f"llvm.masked.gather.v{N}{kind}.v{N}p0")
+    fn = cgutils.get_or_insert_function(
+        builder.module, ir.FunctionType(vt, [ptrs, _I32, mask, vt]), f"llvm.masked.gather.v{N}{kind}.v{N}p0"
+    )
     return builder.call(fn, [addr, ir.Constant(_I32, 4), ir.Constant(mask, [1] * N), ir.Constant(vt, ir.Undefined)])
 
 
@@ -155,8 +161,13 @@ def binned_codes16(typingctx, src, i, first, step, top, out, j):
     and b its bin, the top 17 bits of its float32 with the sign cleared (``v.view(uint32) &
     0x7FFFFFFF) >> 15``): ``reformat._tonemap_codes``' tables, read by two gathers. float32
     ``src`` and ``step``, int32 ``first``, u8 ``out``, all 1-d and contiguous."""
-    if not (_is_1d(src, types.float32) and _is_1d(first, types.int32) and _is_1d(step, types.float32)
-            and _is_1d(out, types.uint8) and top == types.float32):
+    if not (
+        _is_1d(src, types.float32)
+        and _is_1d(first, types.int32)
+        and _is_1d(step, types.float32)
+        and _is_1d(out, types.uint8)
+        and top == types.float32
+    ):
         return None
     sig = types.void(src, i, first, step, top, out, j)
 
@@ -169,8 +180,9 @@ def binned_codes16(typingctx, src, i, first, step, top, out, j):
         cap = _splat(builder, top_)
         v = builder.select(builder.fcmp_ordered(">", v, cap), cap, v)
         vi = ir.VectorType(_I32, N)
-        bins = builder.lshr(builder.and_(builder.bitcast(v, vi), ir.Constant(vi, [0x7FFFFFFF] * N)),
-                            ir.Constant(vi, [15] * N))
+        bins = builder.lshr(
+            builder.and_(builder.bitcast(v, vi), ir.Constant(vi, [0x7FFFFFFF] * N)), ir.Constant(vi, [15] * N)
+        )
         q = _gather(builder, context.make_array(tf)(context, builder, f_).data, bins, _I32)
         t = _gather(builder, context.make_array(tt)(context, builder, t_).data, bins, _F32)
         q = builder.add(q, builder.zext(builder.fcmp_ordered(">=", v, t), vi))

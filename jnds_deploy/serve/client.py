@@ -11,6 +11,7 @@ per stream).
 ``denoise`` waits and retries while the server answers 429 (the stream's queue is
 full) or 503 with Retry-After, up to ``retry_for`` seconds.
 """
+
 from __future__ import annotations
 
 import http.client
@@ -32,8 +33,9 @@ class _Connection:
         self.timeout = timeout
         self.conn: http.client.HTTPConnection | None = None
 
-    def request(self, method: str, path: str, body: bytes | None = None,
-                headers: dict | None = None) -> tuple[int, dict, bytes]:
+    def request(
+        self, method: str, path: str, body: bytes | None = None, headers: dict | None = None
+    ) -> tuple[int, dict, bytes]:
         for attempt in (0, 1):
             if self.conn is None:
                 self.conn = http.client.HTTPConnection(self.host, self.port, timeout=self.timeout)
@@ -107,8 +109,7 @@ class ClientStream:
         path = f"/streams/{self.id}/frames" + ("?cut=1" if camera_cut else "")
         deadline = time.monotonic() + self.retry_for
         while True:
-            status, headers, data = self._conn.request(
-                "POST", path, exr, {"Content-Type": "image/x-exr"})
+            status, headers, data = self._conn.request("POST", path, exr, {"Content-Type": "image/x-exr"})
             if status in (429, 503) and "retry-after" in headers and time.monotonic() < deadline:
                 time.sleep(float(headers["retry-after"]))
                 continue

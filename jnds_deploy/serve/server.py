@@ -8,6 +8,7 @@ order, one at a time; frames of different streams run concurrently on a bounded 
 ``Retry-After``) instead of piling up in memory. The protocol is in ``PROTOCOL``
 (``jnds_deploy/serve/__init__.py`` re-exports it; the README shows a render loop).
 """
+
 from __future__ import annotations
 
 import io
@@ -87,19 +88,25 @@ class ServeConfig:
     # checked on the EXR header before anything is decoded: the pipeline's memory grows with
     # the frame (a compressed EXR of zeros declaring 4000x4000 is a few hundred kB), so the
     # size a body declares is refused, not discovered
-    max_pixels: int = option(1920 * 1080, "native pixels a frame may have (checked on its EXR header before "
-                                          "decoding; 413 beyond)")
+    max_pixels: int = option(
+        1920 * 1080, "native pixels a frame may have (checked on its EXR header before decoding; 413 beyond)"
+    )
     # estimated at FRAME_BYTES_PER_PIXEL per native pixel. A frame that alone exceeds it gets
     # 413, one that does not fit beside the frames in flight 503 + Retry-After
-    max_memory: int | None = option(None, "GiB the frames in flight may take (estimated per pixel); default: half "
-                                          "the machine's memory", type=gib, metavar="GIB")
+    max_memory: int | None = option(
+        None,
+        "GiB the frames in flight may take (estimated per pixel); default: half the machine's memory",
+        type=gib,
+        metavar="GIB",
+    )
     max_channels: int = 64  # EXR channels per frame (the format uses 15 or 16)
     # slow or careless clients: a connection is closed when a read waits longer than
     # request_timeout (the request line and headers, or idle between keep-alive requests),
     # or its body takes longer than body_timeout in all (408); at most max_connections at
     # once, each a thread, the next one refused with 503
-    request_timeout: float = option(30.0, "seconds a read may wait (request line, headers, keep-alive idle) "
-                                          "before the connection closes")
+    request_timeout: float = option(
+        30.0, "seconds a read may wait (request line, headers, keep-alive idle) before the connection closes"
+    )
     body_timeout: float = 60.0
     max_connections: int = option(256, "connections at once; the next gets a 503")
     max_nonfinite: float = 0.5  # a layer with more NaN/Inf than this fraction: 400 (a NaN flood)
@@ -109,15 +116,21 @@ class ServeConfig:
     # the first frame at a new size otherwise pays ONNX Runtime's allocations at that size
     # (docs/performance.md)
     warmup: tuple[tuple[int, int], ...] = option(
-        (), "run one frame at each of these native sizes before serving, so that a stream's first frame at that "
-            "size is not the slow one", type=parse_size, nargs="+", metavar="WxH")
+        (),
+        "run one frame at each of these native sizes before serving, so that a stream's first frame at that "
+        "size is not the slow one",
+        type=parse_size,
+        nargs="+",
+        metavar="WxH",
+    )
 
     def __post_init__(self):
         object.__setattr__(self, "warmup", tuple(tuple(int(v) for v in size) for size in self.warmup))
         for w, h in self.warmup:
             if w < 1 or h < 1 or w * h > self.max_pixels:
-                raise ConfigError(f"warm-up size {w}x{h}: must be positive and at most max_pixels "
-                                  f"({self.max_pixels}) native pixels")
+                raise ConfigError(
+                    f"warm-up size {w}x{h}: must be positive and at most max_pixels ({self.max_pixels}) native pixels"
+                )
 
 
 class Stream:
@@ -163,11 +176,16 @@ class Metrics:
         self.started = time.time()
         self.registry = CollectorRegistry()
         self.frames_total = Counter("jnds_frames", "Frames served", registry=self.registry)
-        self.errors_total = Counter("jnds_errors", "Requests refused or failed, by HTTP status", ["status"],
-                                    registry=self.registry)
-        self.latency = Histogram("jnds_stage_latency_seconds", "Time per pipeline stage and frame (queue, "
-                                 "server: the whole request)", ["stage"], buckets=LATENCY_BUCKETS,
-                                 registry=self.registry)
+        self.errors_total = Counter(
+            "jnds_errors", "Requests refused or failed, by HTTP status", ["status"], registry=self.registry
+        )
+        self.latency = Histogram(
+            "jnds_stage_latency_seconds",
+            "Time per pipeline stage and frame (queue, server: the whole request)",
+            ["stage"],
+            buckets=LATENCY_BUCKETS,
+            registry=self.registry,
+        )
 
     def frame(self, ms: dict) -> None:
         with self.lock:
@@ -185,11 +203,16 @@ class Metrics:
     def snapshot(self) -> dict:
         with self.lock:
             timings = list(self.timings)
-            out = {"frames_served": self.frames, "errors": dict(self.errors),
-                   "uptime_s": round(time.time() - self.started, 3)}
+            out = {
+                "frames_served": self.frames,
+                "errors": dict(self.errors),
+                "uptime_s": round(time.time() - self.started, 3),
+            }
         stages = sorted({k for t in timings for k in t})
-        out["latency_ms"] = {k: {f"p{q}": float(np.percentile([t.get(k, 0.0) for t in timings], q))
-                                 for q in (50, 90, 99)} for k in stages}
+        out["latency_ms"] = {
+            k: {f"p{q}": float(np.percentile([t.get(k, 0.0) for t in timings], q)) for q in (50, 90, 99)}
+            for k in stages
+        }
         out["latency_window"] = len(timings)
         return out
 
@@ -206,12 +229,17 @@ def rss_bytes(pid: int | str = "self") -> int | None:
 class _Gauges:
     """A Prometheus collector of a server's ``snapshot`` values, read when scraped."""
 
-    GAUGES = (("streams_open", "Open streams"), ("queue_depth", "Frames queued, all streams"),
-              ("streams_running", "Streams with a frame running"), ("requests_in_flight", "HTTP requests being handled"),
-              ("rss_bytes", "Resident memory of the process"), ("workers", "Worker threads"),
-              ("memory_reserved_bytes", "Memory budget held by frames in flight"),
-              ("memory_budget_bytes", "The memory budget (jnds serve --max-memory)"),
-              ("uptime_s", "Seconds since the server started"))
+    GAUGES = (
+        ("streams_open", "Open streams"),
+        ("queue_depth", "Frames queued, all streams"),
+        ("streams_running", "Streams with a frame running"),
+        ("requests_in_flight", "HTTP requests being handled"),
+        ("rss_bytes", "Resident memory of the process"),
+        ("workers", "Worker threads"),
+        ("memory_reserved_bytes", "Memory budget held by frames in flight"),
+        ("memory_budget_bytes", "The memory budget (jnds serve --max-memory)"),
+        ("uptime_s", "Seconds since the server started"),
+    )
 
     def __init__(self, server: "FrameServer"):
         self.server = server
@@ -230,8 +258,14 @@ class FrameServer:
 
     def __init__(self, cfg: ServeConfig):
         self.cfg = cfg
-        self.base = Pipeline(PipelineConfig(artifacts=cfg.artifacts, precision=cfg.precision, threads=cfg.threads,
-                                            keep_freed_memory=cfg.keep_freed_memory))
+        self.base = Pipeline(
+            PipelineConfig(
+                artifacts=cfg.artifacts,
+                precision=cfg.precision,
+                threads=cfg.threads,
+                keep_freed_memory=cfg.keep_freed_memory,
+            )
+        )
         self.pool = ThreadPoolExecutor(max_workers=cfg.workers, thread_name_prefix="jnds-worker")
         self._warm_up(cfg.workers, [(self.base.multiple,) * 2, *cfg.warmup])
         self.streams: dict[str, Stream] = {}
@@ -259,11 +293,20 @@ class FrameServer:
             barrier.wait()  # every worker thread takes one job
             for i, (w, h) in enumerate(sizes):
                 t0 = time.perf_counter()
-                self.base.fork()({n: np.full((h, w, c), 0.0 if n == "motion" or i == 0 else 0.5, np.float32)
-                                  for n, c in INPUT_CHANNELS.items()})
+                self.base.fork()(
+                    {
+                        n: np.full((h, w, c), 0.0 if n == "motion" or i == 0 else 0.5, np.float32)
+                        for n, c in INPUT_CHANNELS.items()
+                    }
+                )
                 if i:
-                    log.info("warmed up at %dx%d in %.0f ms (%s)", w, h, 1000 * (time.perf_counter() - t0),
-                             threading.current_thread().name)
+                    log.info(
+                        "warmed up at %dx%d in %.0f ms (%s)",
+                        w,
+                        h,
+                        1000 * (time.perf_counter() - t0),
+                        threading.current_thread().name,
+                    )
 
         for fut in [self.pool.submit(job) for _ in range(workers)]:
             fut.result()
@@ -275,8 +318,9 @@ class FrameServer:
             if self.closing:
                 raise BadRequest(503, "server is shutting down")
             if len(self.streams) >= self.cfg.max_streams:
-                raise BadRequest(503, f"too many open streams ({self.cfg.max_streams}); close one first",
-                                 retry_after=1.0)
+                raise BadRequest(
+                    503, f"too many open streams ({self.cfg.max_streams}); close one first", retry_after=1.0
+                )
             s = Stream(self.base.fork())
             self.streams[s.id] = s
         log.info("stream %s opened (%d open)", s.id, len(self.streams))
@@ -286,8 +330,9 @@ class FrameServer:
         with self.lock:
             s = self.streams.get(sid)
         if s is None:
-            raise BadRequest(404, f"stream {sid!r} is not open (closed, or idle longer than "
-                                  f"{self.cfg.idle_timeout:g} s)")
+            raise BadRequest(
+                404, f"stream {sid!r} is not open (closed, or idle longer than {self.cfg.idle_timeout:g} s)"
+            )
         s.last_used = time.monotonic()
         return s
 
@@ -322,8 +367,11 @@ class FrameServer:
             time.sleep(max(0.05, min(self.cfg.idle_timeout / 4, 5.0)))
             now = time.monotonic()
             with self.lock:
-                stale = [s for s in self.streams.values()
-                         if now - s.last_used > self.cfg.idle_timeout and not (s.users or s.jobs or s.running)]
+                stale = [
+                    s
+                    for s in self.streams.values()
+                    if now - s.last_used > self.cfg.idle_timeout and not (s.users or s.jobs or s.running)
+                ]
                 for s in stale:
                     del self.streams[s.id]
                     s.closed = True
@@ -345,15 +393,23 @@ class FrameServer:
             if w < 1 or h < 1:
                 raise BadRequest(400, f"request body: EXR data window {w}x{h} is empty")
             if w * h > self.cfg.max_pixels:
-                raise BadRequest(413, f"request body: a {w}x{h} frame ({w * h} pixels) exceeds the server's "
-                                      f"limit of {self.cfg.max_pixels} pixels (jnds serve --max-pixels)")
+                raise BadRequest(
+                    413,
+                    f"request body: a {w}x{h} frame ({w * h} pixels) exceeds the server's "
+                    f"limit of {self.cfg.max_pixels} pixels (jnds serve --max-pixels)",
+                )
             if w * h * FRAME_BYTES_PER_PIXEL > self.budget:
-                raise BadRequest(413, f"request body: a {w}x{h} frame needs about "
-                                      f"{w * h * FRAME_BYTES_PER_PIXEL / 2**20:.0f} MiB, more than the server's memory "
-                                      f"budget of {self.budget / 2**20:.0f} MiB (jnds serve --max-memory)")
+                raise BadRequest(
+                    413,
+                    f"request body: a {w}x{h} frame needs about "
+                    f"{w * h * FRAME_BYTES_PER_PIXEL / 2**20:.0f} MiB, more than the server's memory "
+                    f"budget of {self.budget / 2**20:.0f} MiB (jnds serve --max-memory)",
+                )
             if len(channels) > self.cfg.max_channels:
-                raise BadRequest(413, f"request body: {len(channels)} EXR channels exceed the server's limit "
-                                      f"of {self.cfg.max_channels}")
+                raise BadRequest(
+                    413,
+                    f"request body: {len(channels)} EXR channels exceed the server's limit of {self.cfg.max_channels}",
+                )
 
     def decode(self, body: bytes) -> dict:
         """An EXR request body into the pipeline's layers, or BadRequest naming the problem."""
@@ -366,8 +422,11 @@ class FrameServer:
         for name, a in layers.items():
             bad = a.size - int(np.count_nonzero(np.isfinite(a)))
             if bad > self.cfg.max_nonfinite * a.size:
-                raise BadRequest(400, f"request body: layer {name!r} has {bad} of {a.size} values NaN or Inf "
-                                      f"(more than {self.cfg.max_nonfinite:.0%}); frame refused, stream unchanged")
+                raise BadRequest(
+                    400,
+                    f"request body: layer {name!r} has {bad} of {a.size} values NaN or Inf "
+                    f"(more than {self.cfg.max_nonfinite:.0%}); frame refused, stream unchanged",
+                )
         return layers
 
     def denoise(self, s: Stream, layers: dict, cut: bool) -> tuple[np.ndarray, dict, dict, int]:
@@ -378,9 +437,12 @@ class FrameServer:
         need = w * h * FRAME_BYTES_PER_PIXEL
         with self.lock:
             if self.reserved + need > self.budget:
-                raise BadRequest(503, f"memory budget: {self.reserved / 2**20:.0f} of {self.budget / 2**20:.0f} MiB "
-                                      f"reserved by frames in flight, this one needs {need / 2**20:.0f}",
-                                 retry_after=1.0)
+                raise BadRequest(
+                    503,
+                    f"memory budget: {self.reserved / 2**20:.0f} of {self.budget / 2**20:.0f} MiB "
+                    f"reserved by frames in flight, this one needs {need / 2**20:.0f}",
+                    retry_after=1.0,
+                )
             self.reserved += need
         try:
             return self._submit(s, (layers, cut, time.perf_counter())).result()
@@ -396,9 +458,12 @@ class FrameServer:
             if s.closed:
                 raise BadRequest(404, f"stream {s.id!r} is not open")
             if len(s.jobs) + (1 if s.running else 0) > self.cfg.queue:
-                raise BadRequest(429, f"stream {s.id}: {len(s.jobs)} frame(s) already queued "
-                                      f"(limit {self.cfg.queue}); send the next frame after a response",
-                                 retry_after=0.05)
+                raise BadRequest(
+                    429,
+                    f"stream {s.id}: {len(s.jobs)} frame(s) already queued "
+                    f"(limit {self.cfg.queue}); send the next frame after a response",
+                    retry_after=0.05,
+                )
             s.jobs.append((job, fut))
             start = not s.running
             s.running = True
@@ -439,19 +504,31 @@ class FrameServer:
     # status -------------------------------------------------------------------------
 
     def health(self) -> dict:
-        return {"status": "closing" if self.closing else "ok", "streams": len(self.streams),
-                "artifacts": self.cfg.artifacts, "precision": self.cfg.precision,
-                "graphs": dict(self.base.graph_precision), "scale": self.base.out_scale}
+        return {
+            "status": "closing" if self.closing else "ok",
+            "streams": len(self.streams),
+            "artifacts": self.cfg.artifacts,
+            "precision": self.cfg.precision,
+            "graphs": dict(self.base.graph_precision),
+            "scale": self.base.out_scale,
+        }
 
     def snapshot(self) -> dict:
         with self.lock:
             queued = sum(len(s.jobs) for s in self.streams.values())
             running = sum(1 for s in self.streams.values() if s.running)
             streams = len(self.streams)
-        return {**self.metrics.snapshot(), "streams_open": streams, "queue_depth": queued,
-                "streams_running": running, "requests_in_flight": self.inflight,
-                "rss_bytes": rss_bytes(), "workers": self.cfg.workers, "memory_reserved_bytes": self.reserved,
-                "memory_budget_bytes": self.budget}
+        return {
+            **self.metrics.snapshot(),
+            "streams_open": streams,
+            "queue_depth": queued,
+            "streams_running": running,
+            "requests_in_flight": self.inflight,
+            "rss_bytes": rss_bytes(),
+            "workers": self.cfg.workers,
+            "memory_reserved_bytes": self.reserved,
+            "memory_budget_bytes": self.budget,
+        }
 
     def prometheus(self) -> bytes:
         """The metrics in Prometheus' text format: the counters and histogram kept per
@@ -535,7 +612,9 @@ class _Handler(BaseHTTPRequestHandler):
                 chunks.append(chunk)
                 left -= len(chunk)
         except TimeoutError:
-            raise BadRequest(408, f"body not received within {cfg.body_timeout:g} s ({n - left} of {n} bytes)") from None
+            raise BadRequest(
+                408, f"body not received within {cfg.body_timeout:g} s ({n - left} of {n} bytes)"
+            ) from None
         finally:
             self.connection.settimeout(cfg.request_timeout)
         return b"".join(chunks)
@@ -556,8 +635,15 @@ class _Handler(BaseHTTPRequestHandler):
                 if self.headers.get("Content-Length"):
                     self._body()
                 s = fs.open_stream()
-                return self._json(201, {"stream": s.id, "scale": fs.base.scale,
-                                        "precision": fs.cfg.precision, "idle_timeout_s": fs.cfg.idle_timeout})
+                return self._json(
+                    201,
+                    {
+                        "stream": s.id,
+                        "scale": fs.base.scale,
+                        "precision": fs.cfg.precision,
+                        "idle_timeout_s": fs.cfg.idle_timeout,
+                    },
+                )
             if len(parts) >= 2 and parts[0] == "streams":
                 sid = parts[1]
                 if method == "POST" and parts[2:] == ["frames"]:
@@ -566,9 +652,16 @@ class _Handler(BaseHTTPRequestHandler):
                     with fs.using(sid) as stream:  # 404 before decoding a body for nothing
                         color, ms, nonfinite, index = fs.denoise(stream, fs.decode(body), cut)
                     out = exr_bytes({"color": color}, OUTPUT_LAYERS, compression=OpenEXR.NO_COMPRESSION)
-                    return self._send(200, out, "image/x-exr", {
-                        "X-JNDS-Frame": str(index), "X-JNDS-Timings": json.dumps({k: round(v, 3) for k, v in ms.items()}),
-                        "X-JNDS-Nonfinite": json.dumps(nonfinite)})
+                    return self._send(
+                        200,
+                        out,
+                        "image/x-exr",
+                        {
+                            "X-JNDS-Frame": str(index),
+                            "X-JNDS-Timings": json.dumps({k: round(v, 3) for k, v in ms.items()}),
+                            "X-JNDS-Nonfinite": json.dumps(nonfinite),
+                        },
+                    )
                 if method == "POST" and parts[2:] == ["reset"]:
                     fs.reset_stream(sid)
                     return self._json(200, {"stream": sid, "reset": True})
@@ -577,8 +670,16 @@ class _Handler(BaseHTTPRequestHandler):
                     return self._json(200, {"stream": sid, "closed": True})
                 if method == "GET" and parts[2:] == []:
                     s = fs.stream(sid)
-                    return self._json(200, {"stream": sid, "frames": s.frames, "errors": s.errors,
-                                            "queued": len(s.jobs), "running": s.running})
+                    return self._json(
+                        200,
+                        {
+                            "stream": sid,
+                            "frames": s.frames,
+                            "errors": s.errors,
+                            "queued": len(s.jobs),
+                            "running": s.running,
+                        },
+                    )
             raise BadRequest(404, f"no such endpoint: {method} {url.path}")
         except BadRequest as exc:
             self._error(exc)
@@ -622,8 +723,10 @@ class _BoundedServer(ThreadingHTTPServer):
                 self.connections += 1
         if full:
             try:
-                request.sendall(b"HTTP/1.1 503 Service Unavailable\r\nRetry-After: 1\r\nContent-Length: 0\r\n"
-                                b"Connection: close\r\n\r\n")
+                request.sendall(
+                    b"HTTP/1.1 503 Service Unavailable\r\nRetry-After: 1\r\nContent-Length: 0\r\n"
+                    b"Connection: close\r\n\r\n"
+                )
             except OSError:
                 pass
             self.shutdown_request(request)

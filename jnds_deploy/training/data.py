@@ -1,5 +1,6 @@
 """Training data in memory: whole sequences as NCHW-ready arrays, and random patches of
 consecutive frames drawn from them."""
+
 from __future__ import annotations
 
 import json
@@ -61,10 +62,15 @@ def load_sequence(path: str | Path, clean: str | None = None) -> SequenceArrays:
         r = seq.reference(i) if refs else {}
         for k in refs:
             refs[k].append(r[k].transpose(2, 0, 1))
-    return SequenceArrays(Path(path).name, np.stack(cur), np.stack(mot),
-                          {k: np.stack(v) for k, v in refs.items()},
-                          [f.camera_cut for f in seq.frames], _renderer(Path(path)),
-                          np.stack(guide) if len(guide) == len(cur) else None)
+    return SequenceArrays(
+        Path(path).name,
+        np.stack(cur),
+        np.stack(mot),
+        {k: np.stack(v) for k, v in refs.items()},
+        [f.camera_cut for f in seq.frames],
+        _renderer(Path(path)),
+        np.stack(guide) if len(guide) == len(cur) else None,
+    )
 
 
 def _renderer(path: Path) -> str:
@@ -142,6 +148,7 @@ def clean_references(seq: SequenceArrays, path: str | Path) -> SequenceArrays:
 def oidn_version() -> str:
     """The installed pyoidn's version (the cleaned-reference cache's key)."""
     from importlib.metadata import PackageNotFoundError, version
+
     try:
         return version("pyoidn")
     except PackageNotFoundError:
@@ -232,7 +239,9 @@ class Augment:
                 out["current"][:, c] = out["current"][:, c][:, perm] * (tint if name in RADIANCE else 1)
             if "guide" in out:  # an albedo: permuted, not tinted
                 out["guide"] = np.ascontiguousarray(out["guide"][:, perm])
-            for name in (c for c in REFERENCE_COMPONENTS if c in out):  # color = albedo * diffuse + specular: tinted too
+            for name in (
+                c for c in REFERENCE_COMPONENTS if c in out
+            ):  # color = albedo * diffuse + specular: tinted too
                 out[name] = np.ascontiguousarray(out[name][:, perm] * (1 if name == "albedo" else tint))
         if self.rotate_normals:
             n = channels("normal")
@@ -268,16 +277,27 @@ class PatchSampler:
     ``guide``: the batches hold the guide albedo too (``SequenceArrays.guide``, the albedo
     where a sequence has none), for a model that reads it (``ModelConfig.guide_albedo``)."""
 
-    def __init__(self, seqs: list[SequenceArrays], patch: int, unroll: int, rng: np.random.Generator,
-                 augment: Augment = Augment(), cross_cuts: bool = False, balance_renderers: bool = False,
-                 references: bool = True, guide: bool = False):
+    def __init__(
+        self,
+        seqs: list[SequenceArrays],
+        patch: int,
+        unroll: int,
+        rng: np.random.Generator,
+        augment: Augment = Augment(),
+        cross_cuts: bool = False,
+        balance_renderers: bool = False,
+        references: bool = True,
+        guide: bool = False,
+    ):
         self.seqs, self.patch, self.unroll, self.rng, self.augment = seqs, patch, unroll, rng, augment
         self.guide = guide
         self.components = REFERENCE_COMPONENTS if references else ()
         for s in seqs:
             if missing := [c for c in self.components if c not in s.ref]:
-                raise TrainError(f"{s.name}: the reference has no {', '.join(missing)}; training needs every "
-                                 "component (the renderers write them)")
+                raise TrainError(
+                    f"{s.name}: the reference has no {', '.join(missing)}; training needs every "
+                    "component (the renderers write them)"
+                )
         self.windows = []
         for si, s in enumerate(seqs):
             starts = [0] + ([] if cross_cuts else [t for t, c in enumerate(s.cuts) if c]) + [len(s.cuts)]
@@ -314,10 +334,13 @@ class PatchSampler:
             x = int(self.rng.integers(0, w - p + 1))
             sl = np.maximum(np.arange(t - burn_in, t + self.unroll), 0)
             cuts.append([False] + [bool(s.cuts[b]) or a == b for a, b in zip(sl[:-1], sl[1:])])
-            sample = {"current": s.current[sl, :, y:y + p, x:x + p], "motion": s.motion[sl, :, y:y + p, x:x + p]}
+            sample = {
+                "current": s.current[sl, :, y : y + p, x : x + p],
+                "motion": s.motion[sl, :, y : y + p, x : x + p],
+            }
             if self.guide:
                 g = s.guide if s.guide is not None else s.current[:, channels("albedo")]
-                sample["guide"] = g[sl, :, y:y + p, x:x + p]
+                sample["guide"] = g[sl, :, y : y + p, x : x + p]
             for c in self.components:
                 k = s.scale
                 sample[c] = _window(s.ref, c, (sl, slice(None), slice(k * y, k * (y + p)), slice(k * x, k * (x + p))))

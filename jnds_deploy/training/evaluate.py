@@ -5,6 +5,7 @@ scored by the same ``jnds_deploy.metrics`` (PSNR, SSIM, FLIP per frame; temporal
 per sequence) against the reference colour. The model runs in PyTorch (``infer_sequence``,
 as in training's validation); the ONNX pipeline's own scores come from ``jnds run``.
 """
+
 from __future__ import annotations
 
 import json
@@ -32,14 +33,14 @@ def infer_sequence(model, seq: SequenceArrays) -> list[np.ndarray]:
     dev = next(model.parameters()).device
     with torch.no_grad():
         for t in range(len(seq.cuts)):
-            cur, (h, w) = pad_to_multiple(torch.from_numpy(seq.current[t:t + 1]).to(dev), model.cfg.pad_multiple)
-            mv, _ = pad_to_multiple(torch.from_numpy(seq.motion[t:t + 1]).to(dev), model.cfg.pad_multiple)
+            cur, (h, w) = pad_to_multiple(torch.from_numpy(seq.current[t : t + 1]).to(dev), model.cfg.pad_multiple)
+            mv, _ = pad_to_multiple(torch.from_numpy(seq.motion[t : t + 1]).to(dev), model.cfg.pad_multiple)
             guide = None
             if model.cfg.guide_albedo and seq.guide is not None:
-                guide, _ = pad_to_multiple(torch.from_numpy(seq.guide[t:t + 1]).to(dev), model.cfg.pad_multiple)
+                guide, _ = pad_to_multiple(torch.from_numpy(seq.guide[t : t + 1]).to(dev), model.cfg.pad_multiple)
             out = model(cur, mv, None if (t == 0 or seq.cuts[t]) else history, guide=guide)
             history = out.history()
-            outs.append(out.output[0, :, :h * s, :w * s].permute(1, 2, 0).cpu().numpy())
+            outs.append(out.output[0, :, : h * s, : w * s].permute(1, 2, 0).cpu().numpy())
     return outs
 
 
@@ -48,8 +49,13 @@ def evaluate_model(model, seqs: list[SequenceArrays], with_flip: bool = True) ->
     per_seq = {}
     for seq in seqs:
         outs = infer_sequence(model, seq)
-        per_seq[seq.name] = score_frames(outs, [r.transpose(1, 2, 0) for r in seq.ref["color"]],
-                                         [m.transpose(1, 2, 0) for m in seq.motion], seq.cuts, with_flip)
+        per_seq[seq.name] = score_frames(
+            outs,
+            [r.transpose(1, 2, 0) for r in seq.ref["color"]],
+            [m.transpose(1, 2, 0) for m in seq.motion],
+            seq.cuts,
+            with_flip,
+        )
     return {"mean": mean_over_sequences(per_seq), "sequences": per_seq}
 
 
@@ -102,8 +108,7 @@ def model_outputs(model, seq_path: Path) -> list[np.ndarray]:
     return infer_sequence(model, load_sequence(seq_path))
 
 
-def evaluate_methods(seq_paths: list[Path], methods: dict, with_flip: bool = True,
-                     shown: dict | None = None) -> dict:
+def evaluate_methods(seq_paths: list[Path], methods: dict, with_flip: bool = True, shown: dict | None = None) -> dict:
     """``methods``: name -> callable(seq_path) -> list of HWC frames. Returns per method
     the mean over sequences of each metric, the per-sequence values and ms per frame.
     ``shown``, if given, receives the contact sheet's images: {sequence: {column: middle
@@ -124,8 +129,11 @@ def evaluate_methods(seq_paths: list[Path], methods: dict, with_flip: bool = Tru
                     shown[p.name] = {"input": baselines.noisy_composite(open_sequence(p).inputs(mid))}
                 shown[p.name][name] = outs[mid]
         # ms_per_frame includes reading the input EXRs: a rough figure, not a benchmark
-        report[name] = {"mean": mean_over_sequences(per_seq), "ms_per_frame": float(np.median(ms)),
-                        "sequences": per_seq}
+        report[name] = {
+            "mean": mean_over_sequences(per_seq),
+            "ms_per_frame": float(np.median(ms)),
+            "sequences": per_seq,
+        }
     for p in seq_paths if shown is not None else []:
         refs = truth[p][0]
         shown[p.name]["reference"] = refs[len(refs) // 2]
@@ -133,12 +141,16 @@ def evaluate_methods(seq_paths: list[Path], methods: dict, with_flip: bool = Tru
 
 
 def markdown_table(report: dict) -> str:
-    lines = ["| method | PSNR (dB) ↑ | SSIM ↑ | FLIP ↓ | temporal error ↓ | changed-pixel PSNR (dB) ↑ |",
-             "| --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        "| method | PSNR (dB) ↑ | SSIM ↑ | FLIP ↓ | temporal error ↓ | changed-pixel PSNR (dB) ↑ |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
     for name, r in report.items():
         m = r["mean"]
-        lines.append(f"| {name} | {m['psnr']:.2f} | {m['ssim']:.4f} | {m.get('flip', float('nan')):.4f} | "
-                     f"{m['temporal']:.5f} | {m.get('changed_psnr', float('nan')):.2f} |")
+        lines.append(
+            f"| {name} | {m['psnr']:.2f} | {m['ssim']:.4f} | {m.get('flip', float('nan')):.4f} | "
+            f"{m['temporal']:.5f} | {m.get('changed_psnr', float('nan')):.2f} |"
+        )
     return "\n".join(lines)
 
 
@@ -149,14 +161,19 @@ def method_name(checkpoint: str | Path) -> str:
     return p.parent.name if p.stem == "checkpoint" and p.parent.name else p.stem
 
 
-def run_evaluation(checkpoints: list[str], data: str, baselines_: list[str], out: str | None,
-                   threads: int = 2) -> dict:
+def run_evaluation(checkpoints: list[str], data: str, baselines_: list[str], out: str | None, threads: int = 2) -> dict:
     """``evaluate_sets`` on one set: its report."""
     return next(iter(evaluate_sets(checkpoints, [data], baselines_, out, threads).values()))
 
 
-def evaluate_sets(checkpoints: list[str], sets: list[str], baselines_: list[str], out: str | None = None,
-                  threads: int = 2, sheet: str | None = None) -> dict:
+def evaluate_sets(
+    checkpoints: list[str],
+    sets: list[str],
+    baselines_: list[str],
+    out: str | None = None,
+    threads: int = 2,
+    sheet: str | None = None,
+) -> dict:
     """Every checkpoint and baseline on each set (a sequence or a directory of sequences,
     e.g. data/val and a test set): {set name: report}, written to ``out`` as JSON (one
     set: its report alone, the format of ``benchmarks/results/model_eval.json``), and a
@@ -200,12 +217,20 @@ def markdown_sets(reports: dict) -> str:
     for name, report in reports.items():
         methods = list(report)
         seqs = list(next(iter(report.values()))["sequences"])
-        lines = [f"### {name} ({len(seqs)} sequences)", "", markdown_table(report), "",
-                 "| sequence | " + " | ".join(f"{m} PSNR / FLIP / changed PSNR" for m in methods) + " |",
-                 "| --- |" + " --- |" * len(methods)]
+        lines = [
+            f"### {name} ({len(seqs)} sequences)",
+            "",
+            markdown_table(report),
+            "",
+            "| sequence | " + " | ".join(f"{m} PSNR / FLIP / changed PSNR" for m in methods) + " |",
+            "| --- |" + " --- |" * len(methods),
+        ]
         for sq in seqs:
-            cells = [f"{report[m]['sequences'][sq]['psnr']:.2f} / {report[m]['sequences'][sq].get('flip', float('nan')):.4f}"
-                 f" / {report[m]['sequences'][sq].get('changed_psnr', float('nan')):.2f}" for m in methods]
+            cells = [
+                f"{report[m]['sequences'][sq]['psnr']:.2f} / {report[m]['sequences'][sq].get('flip', float('nan')):.4f}"
+                f" / {report[m]['sequences'][sq].get('changed_psnr', float('nan')):.2f}"
+                for m in methods
+            ]
             lines.append(f"| {sq} | " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
     return "\n\n".join(parts)

@@ -12,6 +12,7 @@ The loss is Eq. 6: sum over the first three feature maps of w_j * L1(f_j(o), f_j
 with w_j = 1 / mean|f_j(r)| measured on the training data so each layer contributes
 about equally. Inputs are tonemapped NCHW images with 3 channels.
 """
+
 from __future__ import annotations
 
 import os
@@ -51,8 +52,7 @@ def l1(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def _block(cin, cout):
-    return nn.Sequential(nn.Conv2d(cin, cout, 3, padding=1), nn.ReLU(),
-                         nn.Conv2d(cout, cout, 3, padding=1), nn.ReLU())
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, padding=1), nn.ReLU(), nn.Conv2d(cout, cout, 3, padding=1), nn.ReLU())
 
 
 class FeatureNet(nn.Module):
@@ -112,7 +112,8 @@ class FeatureNetConfig:
     threads: int = option(2, "torch threads")
     # cheap references keep too much noise to read a G-buffer from (docs/dataset.md)
     clean_references: str | None = option(
-        None, "learn from the references cleaned as jnds train --clean-references cleans them", choices=("oidn",))
+        None, "learn from the references cleaned as jnds train --clean-references cleans them", choices=("oidn",)
+    )
 
 
 def _examples(data_root: str, clean: str | None = None):
@@ -127,8 +128,9 @@ def _examples(data_root: str, clean: str | None = None):
         cur = s.current
         normal = cur[:, channels("normal")]
         coverage = (np.abs(normal).sum(1, keepdims=True) > 0).astype(np.float32)
-        ys.append(np.concatenate([cur[:, channels("albedo")], normal * 0.5 + 0.5, cur[:, channels("roughness")],
-                                  coverage], 1))
+        ys.append(
+            np.concatenate([cur[:, channels("albedo")], normal * 0.5 + 0.5, cur[:, channels("roughness")], coverage], 1)
+        )
     return np.concatenate(xs), np.concatenate(ys)
 
 
@@ -146,8 +148,8 @@ def train_feature_net(cfg: FeatureNetConfig, progress: bool = True) -> Path:
     for step in tqdm(range(cfg.steps), desc="feature net", disable=not progress):
         idx = rng.integers(0, n, cfg.batch)
         ys_, xs_ = rng.integers(0, h - p + 1, cfg.batch), rng.integers(0, w - p + 1, cfg.batch)
-        xb = torch.from_numpy(np.stack([x[i, :, a:a + p, b:b + p] for i, a, b in zip(idx, ys_, xs_)]))
-        yb = torch.from_numpy(np.stack([y[i, :, a:a + p, b:b + p] for i, a, b in zip(idx, ys_, xs_)]))
+        xb = torch.from_numpy(np.stack([x[i, :, a : a + p, b : b + p] for i, a, b in zip(idx, ys_, xs_)]))
+        yb = torch.from_numpy(np.stack([y[i, :, a : a + p, b : b + p] for i, a, b in zip(idx, ys_, xs_)]))
         for g in opt.param_groups:
             g["lr"] = cfg.lr * 0.1 ** (step / cfg.steps)
         loss = (net(xb) - yb).abs().mean()
@@ -161,7 +163,9 @@ def train_feature_net(cfg: FeatureNetConfig, progress: bool = True) -> Path:
     out = Path(cfg.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp")
-    torch.save({"model": net.state_dict(), "widths": (16, 32, 64), "final_l1": float(loss.detach()),
-                "config": cfg.__dict__}, tmp)
+    torch.save(
+        {"model": net.state_dict(), "widths": (16, 32, 64), "final_l1": float(loss.detach()), "config": cfg.__dict__},
+        tmp,
+    )
     os.replace(tmp, out)
     return out

@@ -7,6 +7,7 @@ Eq. 5. L_spatial is L1, the feature loss of ``training.feature_loss``, or their 
 L1 of box averages over 4 to 16 target pixels (not in the paper: on scene kinds it was not
 trained on, the shipped model's excess error over OIDN lies in blotches of 2 to 64+ target
 pixels, docs/model-gap.md, "Unseen content")."""
+
 from __future__ import annotations
 
 import torch
@@ -78,18 +79,26 @@ class Loss:
     def targets(self, batch: dict) -> dict[str, torch.Tensor]:
         """The reference of each task, (T * N, C, H, W) linear: native tasks box-downsampled."""
         s = self.scale
-        return {"diffuse": F.avg_pool2d(batch["diffuse"].flatten(0, 1), s),
-                "specular": F.avg_pool2d(batch["specular"].flatten(0, 1), s),
-                "auxiliary": F.avg_pool2d(batch["albedo"].flatten(0, 1), s),
-                "upsample": batch["color"].flatten(0, 1)}
+        return {
+            "diffuse": F.avg_pool2d(batch["diffuse"].flatten(0, 1), s),
+            "specular": F.avg_pool2d(batch["specular"].flatten(0, 1), s),
+            "auxiliary": F.avg_pool2d(batch["albedo"].flatten(0, 1), s),
+            "upsample": batch["color"].flatten(0, 1),
+        }
 
     @staticmethod
     def teacher_targets(outs: list) -> dict[str, torch.Tensor]:
         """A teacher's outputs as each task's target (``targets``' layout): distillation."""
+
         def stack(name):
             return torch.cat([getattr(o, name) for o in outs]).detach()
-        return {"diffuse": stack("diffuse"), "specular": stack("specular"), "auxiliary": stack("albedo"),
-                "upsample": stack("output")}
+
+        return {
+            "diffuse": stack("diffuse"),
+            "specular": stack("specular"),
+            "auxiliary": stack("albedo"),
+            "upsample": stack("output"),
+        }
 
     def __call__(self, outs: list, batch: dict, targets: dict | None = None) -> tuple[torch.Tensor, dict[str, float]]:
         """``targets``: each task's target (``teacher_targets``); the batch's reference by default."""

@@ -10,6 +10,7 @@ over the state dict and keeps what the checkpoint computed (exactly, or nearly w
 
 ``carried`` chains them for a checkpoint and the model a run trains.
 """
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -30,7 +31,7 @@ def without_upsample_block(cfg: ModelConfig, weights: dict) -> tuple[ModelConfig
     n = cfg.upsample_features
     weights = {k: v for k, v in weights.items() if not k.startswith("upsample_block.")}
     for k in ("network.output_block.head.weight", "network.output_block.head.bias"):
-        weights[k] = weights[k][:len(weights[k]) - n] if n else weights[k]
+        weights[k] = weights[k][: len(weights[k]) - n] if n else weights[k]
     fixed = torch.zeros(9)
     fixed[4] = 1.0
     weights["upsample_block.fixed"] = fixed
@@ -63,11 +64,15 @@ WIDTHS = ("input_width", "encoder_widths", "bottleneck_width", "output_width")
 
 def widens(old: ModelConfig, new: ModelConfig) -> bool:
     """``new`` is ``old`` with some of its network's widths larger (the same depth)."""
+
     def widths(c: ModelConfig) -> tuple[int, ...]:
         return (c.input_width, *c.encoder_widths, c.bottleneck_width, c.output_width)
 
-    return (replace(old, **{k: getattr(new, k) for k in WIDTHS}) == new and old.depth == new.depth
-            and all(b >= a for a, b in zip(widths(old), widths(new))))
+    return (
+        replace(old, **{k: getattr(new, k) for k in WIDTHS}) == new
+        and old.depth == new.depth
+        and all(b >= a for a, b in zip(widths(old), widths(new)))
+    )
 
 
 def _concat_first(cfg: ModelConfig) -> dict[str, int]:
@@ -126,7 +131,7 @@ def narrowed(cfg: ModelConfig, weights: dict, width: int) -> dict:
     The dropped channels' contribution is lost; a fine-tune recovers it (written here: a
     few lines over the state dict)."""
     conv, head = "network.output_block.conv", "network.output_block.head"
-    score = (weights[f"{conv}.weight"].flatten(1).norm(dim=1) * weights[f"{head}.weight"].flatten(1).norm(dim=0))
+    score = weights[f"{conv}.weight"].flatten(1).norm(dim=1) * weights[f"{head}.weight"].flatten(1).norm(dim=0)
     keep = score.argsort(descending=True)[:width].sort().values
     out = dict(weights)
     out[f"{conv}.weight"] = weights[f"{conv}.weight"][keep].clone()
@@ -140,9 +145,12 @@ def deepens(old: ModelConfig, new: ModelConfig) -> bool:
     (``new.encoder_widths`` = ``old``'s + the old bottleneck width), a new bottleneck below
     it, and one filter level more if ``old`` filtered down to its bottleneck."""
     levels = old.filter_levels + (old.filter_levels == old.depth + 1)
-    return (new.encoder_widths == (*old.encoder_widths, old.bottleneck_width) and new.filter_levels == levels
-            and replace(old, encoder_widths=new.encoder_widths, bottleneck_width=new.bottleneck_width,
-                        filter_levels=levels) == new)
+    return (
+        new.encoder_widths == (*old.encoder_widths, old.bottleneck_width)
+        and new.filter_levels == levels
+        and replace(old, encoder_widths=new.encoder_widths, bottleneck_width=new.bottleneck_width, filter_levels=levels)
+        == new
+    )
 
 
 @torch.no_grad()
@@ -164,18 +172,23 @@ def deepened(cfg: ModelConfig, weights: dict, model: JNDS, blend: float = DEEPEN
     for key, v in weights.items():
         for old, new in rename.items():
             if key.startswith(old):
-                key = new + key[len(old):]
+                key = new + key[len(old) :]
                 break
         moved[key] = v
     fresh = model.state_dict()
     # only the old coarsest filter level's heads change shape (they gain up kernels, below);
     # anything else that does not carry over means the renaming above is wrong
-    grown = ({f"{fe}heads.{path}{cfg.filter_levels}.{p}" for path in ("diffuse", "specular") for p in ("weight", "bias")}
-             if cfg.filter_levels == d + 1 else set())
+    grown = (
+        {f"{fe}heads.{path}{cfg.filter_levels}.{p}" for path in ("diffuse", "specular") for p in ("weight", "bias")}
+        if cfg.filter_levels == d + 1
+        else set()
+    )
     lost = sorted(k for k in moved if k not in fresh or (moved[k].shape != fresh[k].shape and k not in grown))
     if lost:
-        raise ConfigError(f"deepening {cfg.encoder_widths} -> {model.cfg.encoder_widths}: weights that do not carry "
-                          f"over: {', '.join(lost[:6])}{' ...' if len(lost) > 6 else ''}")
+        raise ConfigError(
+            f"deepening {cfg.encoder_widths} -> {model.cfg.encoder_widths}: weights that do not carry "
+            f"over: {', '.join(lost[:6])}{' ...' if len(lost) > 6 else ''}"
+        )
     out = {key: (moved[key] if key in moved and key not in grown else f).clone() for key, f in fresh.items()}
     width, below = model.cfg.encoder_widths[d], model.cfg.bottleneck_width
     for conv, first in ((f"{fe}decoders.0.a", below), (f"{fe}decoders.0.b", 0)):
@@ -192,16 +205,22 @@ def deepened(cfg: ModelConfig, weights: dict, model: JNDS, blend: float = DEEPEN
     return out
 
 
-def carried(cfg: ModelConfig, weights: dict, model: JNDS, guide_init: str = "zero",
-            deepen_blend: float = DEEPENED_BLEND) -> tuple[ModelConfig, dict]:
+def carried(
+    cfg: ModelConfig, weights: dict, model: JNDS, guide_init: str = "zero", deepen_blend: float = DEEPENED_BLEND
+) -> tuple[ModelConfig, dict]:
     """A checkpoint's config ``cfg`` and ``weights`` carried as far as surgery goes towards
     ``model``: the config the returned weights have, ``model.cfg`` where every difference
     was one surgery handles. The settings that change no weight (upsample root, firefly
     clamp, diffuse fill, albedo at holes) are taken from ``model``; an input block of the
     other design is replaced by ``model``'s fresh one (fitted afterwards by
     ``training.train``)."""
-    cfg = replace(cfg, upsample_root=model.cfg.upsample_root, firefly_clamp=model.cfg.firefly_clamp,
-                  diffuse_fill=model.cfg.diffuse_fill, albedo_at_holes=model.cfg.albedo_at_holes)
+    cfg = replace(
+        cfg,
+        upsample_root=model.cfg.upsample_root,
+        firefly_clamp=model.cfg.firefly_clamp,
+        diffuse_fill=model.cfg.diffuse_fill,
+        albedo_at_holes=model.cfg.albedo_at_holes,
+    )
     if model.cfg.guide_albedo and not cfg.guide_albedo:
         cfg, weights = guided(cfg, weights, guide_init)
     if model.cfg.fixed_upsample and not cfg.fixed_upsample:

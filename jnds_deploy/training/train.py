@@ -9,6 +9,7 @@ a camera cut) and back-propagates through the whole unroll (losses: ``training.l
 Everything needed to resume lives in ``<run>/checkpoint.pt``, written atomically every
 ``checkpoint_every`` steps; ``<run>/log.jsonl`` has one line per log/validation event.
 """
+
 from __future__ import annotations
 
 import json
@@ -45,8 +46,13 @@ def run_unroll(model: JNDS, batch: dict, burn_in: int = 0) -> list:
     for t in range(batch["current"].shape[0]):
         reset = cut[t] if cut is not None and t > 0 and bool(cut[t].any()) else None
         with torch.set_grad_enabled(torch.is_grad_enabled() and t >= burn_in):
-            out = model(batch["current"][t], batch["motion"][t], history, reset=reset,
-                        guide=batch["guide"][t] if "guide" in batch else None)
+            out = model(
+                batch["current"][t],
+                batch["motion"][t],
+                history,
+                reset=reset,
+                guide=batch["guide"][t] if "guide" in batch else None,
+            )
         if t >= burn_in:
             outs.append(out)
         history = out.history()
@@ -59,25 +65,36 @@ def after_burn_in(batch: dict, burn_in: int) -> dict:
 
 
 def _lr(cfg: TrainConfig, state: TrainState) -> float:
-    base, steps, start = ((cfg.lr, cfg.fp32_steps, 0) if state.phase == "fp32"
-                          else (cfg.qat_lr, cfg.qat_steps, cfg.fp32_steps))
+    base, steps, start = (
+        (cfg.lr, cfg.fp32_steps, 0) if state.phase == "fp32" else (cfg.qat_lr, cfg.qat_steps, cfg.fp32_steps)
+    )
     frac = min(1.0, (state.step - start) / max(1, steps))
     warmup = min(1.0, (state.step + 1) / cfg.warmup_steps) if state.phase == "fp32" and cfg.warmup_steps else 1.0
-    return warmup * base * cfg.lr_decay ** frac
+    return warmup * base * cfg.lr_decay**frac
 
 
-def save_checkpoint(path: Path, model: JNDS, opt, state: TrainState, cfg: TrainConfig, rng,
-                    train_sequences: list[str] | None = None) -> None:
+def save_checkpoint(
+    path: Path, model: JNDS, opt, state: TrainState, cfg: TrainConfig, rng, train_sequences: list[str] | None = None
+) -> None:
     """``train_sequences``: names of the sequences the run sampled from (data/train grows
     with ``jnds dataset --train-sequences``, so the config alone does not say)."""
     tmp = path.with_name(path.name + ".tmp")
     # saved on the host, so that a checkpoint trained on a GPU loads anywhere (the
     # optimizer moves its state back to its parameters' device when it is loaded)
-    torch.save({"model": _on_host(model.state_dict()), "optimizer": _on_host(opt.state_dict()), "state": asdict(state),
-                "train_config": asdict(cfg), "model_config": asdict(model.cfg),
-                "quantized": state.phase != "fp32", "rng": rng.bit_generator.state,
-                "quant_ranges": quant_ranges(model) if state.phase != "fp32" else None,
-                "train_sequences": train_sequences}, tmp)
+    torch.save(
+        {
+            "model": _on_host(model.state_dict()),
+            "optimizer": _on_host(opt.state_dict()),
+            "state": asdict(state),
+            "train_config": asdict(cfg),
+            "model_config": asdict(model.cfg),
+            "quantized": state.phase != "fp32",
+            "rng": rng.bit_generator.state,
+            "quant_ranges": quant_ranges(model) if state.phase != "fp32" else None,
+            "train_sequences": train_sequences,
+        },
+        tmp,
+    )
     os.replace(tmp, path)
 
 
@@ -121,20 +138,29 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
     elif cfg.init:
         state = _init_from(model, cfg)
     names = [s.name for s in train_seqs]
-    (run / "config.json").write_text(json.dumps({"train": asdict(cfg), "model": asdict(model.cfg),
-                                                 "train_sequences": names}, indent=1))
+    (run / "config.json").write_text(
+        json.dumps({"train": asdict(cfg), "model": asdict(model.cfg), "train_sequences": names}, indent=1)
+    )
     val_seqs: dict[Path, SequenceArrays] = {}
 
     def validation_set() -> list[SequenceArrays]:
         # re-scanned at every validation: sequences still rendering join when finished
-        for p in find_sequences(Path(cfg.data) / "val")[:cfg.val_sequences]:
+        for p in find_sequences(Path(cfg.data) / "val")[: cfg.val_sequences]:
             if p not in val_seqs:
                 val_seqs[p] = load_sequence(p)
         return list(val_seqs.values())
-    sampler = PatchSampler(train_seqs, cfg.patch, cfg.unroll, rng,
-                           Augment(cfg.exposure, cfg.rotate_normals, cfg.flips, cfg.colours), cross_cuts=cfg.cross_cuts,
-                           balance_renderers=cfg.balance_renderers, references=cfg.teacher is None,
-                           guide=model.cfg.guide_albedo)
+
+    sampler = PatchSampler(
+        train_seqs,
+        cfg.patch,
+        cfg.unroll,
+        rng,
+        Augment(cfg.exposure, cfg.rotate_normals, cfg.flips, cfg.colours),
+        cross_cuts=cfg.cross_cuts,
+        balance_renderers=cfg.balance_renderers,
+        references=cfg.teacher is None,
+        guide=model.cfg.guide_albedo,
+    )
     loss_fn = Loss(cfg, model.cfg.scale)
     if state.step == 0 and not ckpt.exists() and (old := _other_input_block(cfg, model)) is not None:
         _fit_input_block(model, old, sampler, cfg, emit_to=run / "log.jsonl")
@@ -152,8 +178,7 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
         log.write(json.dumps(rec) + "\n")
         log.flush()
 
-    bar = tqdm(total=total_steps, initial=state.step, desc=f"train {run.name}", unit="step",
-               disable=not progress)
+    bar = tqdm(total=total_steps, initial=state.step, desc=f"train {run.name}", unit="step", disable=not progress)
     running = []
     while state.step < total_steps:
         if state.phase == "fp32" and state.step >= cfg.fp32_steps:
@@ -197,8 +222,9 @@ def train(cfg: TrainConfig, progress: bool = True) -> Path:
 def _freeze_except(model: JNDS, prefixes: tuple[str, ...]) -> None:
     """Only the parameters named with one of ``prefixes`` train; ConfigError if none is."""
     if not any(n.startswith(prefixes) for n, _ in model.named_parameters()):
-        raise ConfigError(f"train_only {list(prefixes)}: no parameter of the model is named so "
-                          f"(e.g. network.output_block)")
+        raise ConfigError(
+            f"train_only {list(prefixes)}: no parameter of the model is named so (e.g. network.output_block)"
+        )
     for n, p in model.named_parameters():
         p.requires_grad_(n.startswith(prefixes))
 
@@ -212,8 +238,10 @@ def _teacher(cfg: TrainConfig, student: ModelConfig) -> JNDS:
     teacher = load_model(cfg.teacher).to(cfg.device)
     same = ("upsample_root", "firefly_clamp", "diffuse_fill", "albedo_at_holes", "scale")
     if diff := [k for k in same if getattr(teacher.cfg, k) != getattr(student, k)]:
-        raise ConfigError(f"--teacher {cfg.teacher}: {', '.join(f'{k} {getattr(teacher.cfg, k)}' for k in diff)} "
-                          f"where the trained model has {', '.join(str(getattr(student, k)) for k in diff)}")
+        raise ConfigError(
+            f"--teacher {cfg.teacher}: {', '.join(f'{k} {getattr(teacher.cfg, k)}' for k in diff)} "
+            f"where the trained model has {', '.join(str(getattr(student, k)) for k in diff)}"
+        )
     for p in teacher.parameters():
         p.requires_grad_(False)
     return teacher
@@ -231,8 +259,9 @@ def _other_input_block(cfg: TrainConfig, model: JNDS) -> JNDS | None:
     return old.to(cfg.device)
 
 
-def _fit_input_block(model: JNDS, old: JNDS, sampler: PatchSampler, cfg: TrainConfig, emit_to: Path,
-                     reuse: int = 4) -> float:
+def _fit_input_block(
+    model: JNDS, old: JNDS, sampler: PatchSampler, cfg: TrainConfig, emit_to: Path, reuse: int = 4
+) -> float:
     """Fit ``model``'s input block to ``old``'s native features (mean squared error; the pooled
     ones are their average either way) on the inputs ``old``'s input block sees in training
     windows, its own recurrence making the history; each window's inputs serve ``reuse``
@@ -265,8 +294,18 @@ def _fit_input_block(model: JNDS, old: JNDS, sampler: PatchSampler, cfg: TrainCo
             opt.step()
             rel = float(loss.detach().sqrt() / target.pow(2).mean().sqrt())
             if (step + 1) % 50 == 0 or step + 1 == steps:
-                log.write(json.dumps({"event": "input_fit", "fit_step": step + 1, "mse": float(loss.detach()),
-                                      "relative_rms": rel, "time": time.time()}) + "\n")
+                log.write(
+                    json.dumps(
+                        {
+                            "event": "input_fit",
+                            "fit_step": step + 1,
+                            "mse": float(loss.detach()),
+                            "relative_rms": rel,
+                            "time": time.time(),
+                        }
+                    )
+                    + "\n"
+                )
                 log.flush()
         if quantized:
             # the rest of the network keeps its learned ranges; the new block's are observed
@@ -281,8 +320,9 @@ def _fit_input_block(model: JNDS, old: JNDS, sampler: PatchSampler, cfg: TrainCo
                     block(*window()[0])
             set_observing(block, False)
             set_quantization(block, True)
-            log.write(json.dumps({"event": "input_fit_ranges", "ranges": quant_ranges(block),
-                                  "time": time.time()}) + "\n")
+            log.write(
+                json.dumps({"event": "input_fit_ranges", "ranges": quant_ranges(block), "time": time.time()}) + "\n"
+            )
     hook.remove()
     return rel
 
@@ -293,11 +333,13 @@ def _init_from(model: JNDS, cfg: TrainConfig) -> TrainState:
     ``fp32_steps == 0`` goes on in the QAT phase with its ranges; with fp32 steps it is
     fine-tuned in full precision first and its ranges are observed afresh."""
     data = read_checkpoint(cfg.init, map_location=cfg.device)
-    init_cfg, weights = carried(ModelConfig(**data["model_config"]), data["model"], model, cfg.guide_init,
-                                cfg.deepen_blend)
+    init_cfg, weights = carried(
+        ModelConfig(**data["model_config"]), data["model"], model, cfg.guide_init, cfg.deepen_blend
+    )
     if init_cfg != model.cfg:
-        raise ConfigError(f"--init {cfg.init}: model config {data['model_config']} is not preset "
-                          f"{cfg.preset!r} ({asdict(model.cfg)})")
+        raise ConfigError(
+            f"--init {cfg.init}: model config {data['model_config']} is not preset {cfg.preset!r} ({asdict(model.cfg)})"
+        )
     model.load_state_dict(weights)
     if data.get("quantized") and cfg.fp32_steps == 0:
         set_quantization(model, True)

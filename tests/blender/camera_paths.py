@@ -5,6 +5,7 @@
 Builds each job's scene with ``blender.scenes.build`` (nothing is rendered) and prints one JSON
 line per job: its seed, the room's half-size (null without a room) and the frames (1-based)
 whose camera is outside the room's walls."""
+
 import json
 import sys
 

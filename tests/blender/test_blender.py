@@ -1,6 +1,7 @@
 """Blender in: a real Blender (bpy in its own environment) sets up and renders a scene, and
 ``jnds import cycles`` turns it into a sequence the pipeline runs. Skipped only where the
 Blender environment is absent (``tools/setup.sh`` makes it; CI has it)."""
+
 import json
 import os
 import subprocess
@@ -9,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from jnds_deploy.blender.importer import components, import_cycles, read_passes
 from jnds_deploy.blender.scenes import CYCLES_SCENE_KINDS
 from jnds_deploy.cli import main
-from jnds_deploy.blender.importer import components, import_cycles, read_passes
 from jnds_deploy.errors import RenderError, SequenceError
 from jnds_deploy.io import open_sequence, read_exr, validate
 from jnds_deploy.runtime import filters as N
@@ -32,8 +33,9 @@ def _blender_python():
 
 def _render(out: Path, mode: str) -> Path:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run([str(_blender_python()), str(SCENE), str(out), mode], env=env, capture_output=True,
-                          text=True, timeout=300)
+    proc = subprocess.run(
+        [str(_blender_python()), str(SCENE), str(out), mode], env=env, capture_output=True, text=True, timeout=300
+    )
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     return out
 
@@ -46,11 +48,25 @@ def renders(tmp_path_factory):
 
 
 def test_configured_render_imports_validates_and_runs(renders, tmp_path, tiny_artifacts, capsys):
-    assert main(["import", "cycles", str(renders["inputs"]), "--out", str(tmp_path / "seq"),
-                 "--reference", str(renders["reference"]), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "import",
+                "cycles",
+                str(renders["inputs"]),
+                "--out",
+                str(tmp_path / "seq"),
+                "--reference",
+                str(renders["reference"]),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     report = validate(tmp_path / "seq")
     assert report.clean
     from jnds_deploy.training.data import load_sequence
+
     assert load_sequence(tmp_path / "seq").renderer == "cycles"  # for --balance-renderers
     seq = open_sequence(tmp_path / "seq")
     assert len(seq) == 4 and seq.native_size == (64, 40) and seq.target_size == (128, 80)
@@ -61,14 +77,30 @@ def test_configured_render_imports_validates_and_runs(renders, tmp_path, tiny_ar
     assert metal.mean() > 0.01 and layers["denoising_albedo"][metal].mean() > 0.3
     roughness = layers["roughness"]
     assert roughness.min() >= 0 and np.isclose(roughness.max(), 1.0)  # the background
-    assert np.isclose(np.median(roughness[roughness < 1]), 0.6 ** 2, atol=1e-3)  # floor: alpha = r^2
+    assert np.isclose(np.median(roughness[roughness < 1]), 0.6**2, atol=1e-3)  # floor: alpha = r^2
     assert main(["validate", str(tmp_path / "seq"), "--strict"]) == 0
-    assert main(["run", "--artifacts", str(tiny_artifacts[0]), "--input", str(tmp_path / "seq"),
-                 "--output", str(tmp_path / "run"), "--precision", "fp32", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--artifacts",
+                str(tiny_artifacts[0]),
+                "--input",
+                str(tmp_path / "seq"),
+                "--output",
+                str(tmp_path / "run"),
+                "--precision",
+                "fp32",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     # on Cycles' data the run computes what the torch specification does (as on the sample,
     # tests/runtime/test_pipeline.py), and scores the frames it wrote against the reference
     from jnds_deploy.metrics import psnr
     from jnds_deploy.training.evaluate import infer_sequence
+
     want = infer_sequence(tiny_artifacts[1], load_sequence(tmp_path / "seq"))
     scores = json.loads((tmp_path / "run" / "run.json").read_text())["metrics"]["per_frame"]
     assert len(want) == len(scores) == len(seq)
@@ -125,16 +157,35 @@ def test_reference_after_configure_is_not_jittered(renders, tmp_path):
 
 def test_a_render_missing_passes_is_refused_naming_them(tmp_path):
     raw = _render(tmp_path / "plain", "plain")
-    with pytest.raises(SequenceError, match=r"missing Cycles pass\(es\): .*Diffuse Direct \(Passes > Light.*"
-                                            r"Vector \(Passes > Data > Vector.*Roughness"):
+    with pytest.raises(
+        SequenceError,
+        match=r"missing Cycles pass\(es\): .*Diffuse Direct \(Passes > Light.*"
+        r"Vector \(Passes > Data > Vector.*Roughness",
+    ):
         import_cycles(raw, tmp_path / "seq", progress=False)
     assert not (tmp_path / "seq" / "sequence.json").exists()
 
 
 def test_jnds_render_cycles_is_deterministic(tmp_path):
     _blender_python()
-    args = ["render", "--engine", "cycles", "--scene", "metals", "--seed", "4", "--camera", "orbit",
-            "--frames", "2", "--size", "32x18", "--spp", "4", "--quiet"]
+    args = [
+        "render",
+        "--engine",
+        "cycles",
+        "--scene",
+        "metals",
+        "--seed",
+        "4",
+        "--camera",
+        "orbit",
+        "--frames",
+        "2",
+        "--size",
+        "32x18",
+        "--spp",
+        "4",
+        "--quiet",
+    ]
     for d in ("a", "b"):
         assert main(args + ["--out", str(tmp_path / d)]) == 0
     a, b = open_sequence(tmp_path / "a"), open_sequence(tmp_path / "b")
@@ -149,8 +200,31 @@ def test_jnds_render_cycles_is_deterministic(tmp_path):
 def test_every_cycles_scene_kind_renders_a_lit_valid_frame(kind, tmp_path):
     _blender_python()
     out = tmp_path / kind
-    assert main(["render", "--engine", "cycles", "--scene", kind, "--seed", "3", "--camera", "static",
-                 "--frames", "1", "--size", "32x18", "--spp", "2", "--quiet", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "--engine",
+                "cycles",
+                "--scene",
+                kind,
+                "--seed",
+                "3",
+                "--camera",
+                "static",
+                "--frames",
+                "1",
+                "--size",
+                "32x18",
+                "--spp",
+                "2",
+                "--quiet",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert validate(out).clean
     seq = open_sequence(out)
     inputs, ref = seq.inputs(0), seq.reference(0)["color"]
@@ -164,11 +238,15 @@ def test_the_cycles_test_and_holdout_splits_are_made_of_kinds_training_never_has
     from jnds_deploy.blender.scenes import CYCLES_EXTRA_KINDS, CYCLES_GHOST_KINDS, CYCLES_SCENE_KINDS
     from jnds_deploy.cli import EXTRA_KIND_HELP
     from jnds_deploy.render.dataset import EXTRA_SEEDS, UNSEEN_KINDS, dataset_specs
+
     assert set(EXTRA_SEEDS) == set(CYCLES_EXTRA_KINDS)  # every training-only kind has its seeds
     assert set(EXTRA_KIND_HELP) == set(CYCLES_EXTRA_KINDS)  # and its --<kind>-sequences
     extra = dict.fromkeys(CYCLES_EXTRA_KINDS, 20)
-    seen = [(cfg.scene, cfg.seed) for split in ("train", "val")
-            for _, cfg in dataset_specs(split, 200, engine="cycles", extra_sequences=extra)]
+    seen = [
+        (cfg.scene, cfg.seed)
+        for split in ("train", "val")
+        for _, cfg in dataset_specs(split, 200, engine="cycles", extra_sequences=extra)
+    ]
     kinds, seeds = {k for k, _ in seen}, {s for _, s in seen}
     assert set(CYCLES_EXTRA_KINDS) <= kinds
     assert list(UNSEEN_KINDS) == ["test", "holdout", "street-studio", "grove-haze", "bathroom-fur"]
@@ -187,6 +265,7 @@ def test_the_held_out_splits_old_names_are_their_new_ones_with_a_warning(capsys)
     """``holdout2``, ``holdout3`` and ``holdout4`` are what ``street-studio``, ``grove-haze`` and
     ``bathroom-fur`` were called: the same sequences under the new name, and a warning."""
     from jnds_deploy.render.dataset import OLD_SPLIT_NAMES, dataset_specs
+
     assert OLD_SPLIT_NAMES == {"holdout2": "street-studio", "holdout3": "grove-haze", "holdout4": "bathroom-fur"}
     for old, new in OLD_SPLIT_NAMES.items():
         with pytest.warns(FutureWarning, match=f"{old}.*now called.*{new}"):
@@ -201,6 +280,7 @@ def test_the_held_out_splits_old_names_are_their_new_ones_with_a_warning(capsys)
 def test_the_media_split_is_unseen_seeds_of_the_media_training_kind():
     from jnds_deploy.errors import ConfigError
     from jnds_deploy.render.dataset import dataset_specs
+
     train = {cfg.seed for _, cfg in dataset_specs("train", 200, engine="cycles", extra_sequences={"media": 100})}
     media = [cfg for _, cfg in dataset_specs("media", engine="cycles")]
     assert len(media) == 6 and {cfg.scene for cfg in media} == {"media"}
@@ -218,12 +298,19 @@ def test_procedural_cameras_stay_inside_their_rooms():
     from jnds_deploy.blender.render import scene_job
     from jnds_deploy.render.dataset import dataset_specs
 
-    jobs = [scene_job(c) for _, c in dataset_specs("train", 1, "cycles",
-                                                   extra_sequences={"mixed": 24, "lights": 24, "interior": 16})
-            if c.scene in ("mixed", "lights", "interior")]
+    jobs = [
+        scene_job(c)
+        for _, c in dataset_specs("train", 1, "cycles", extra_sequences={"mixed": 24, "lights": 24, "interior": 16})
+        if c.scene in ("mixed", "lights", "interior")
+    ]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run([str(_blender_python()), str(Path(__file__).with_name("camera_paths.py")),
-                           json.dumps(jobs)], env=env, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [str(_blender_python()), str(Path(__file__).with_name("camera_paths.py")), json.dumps(jobs)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     found = [json.loads(line[7:]) for line in proc.stdout.splitlines() if line.startswith("CAMERA ")]
     assert len(found) == len(jobs) == 64
@@ -249,7 +336,9 @@ def test_pixels_scattered_in_a_volume_import_facing_the_camera_not_as_background
         volume = no_surface & np.any(passes["Denoising Normal"][..., :3] != 0, -1)
         assert volume.mean() > 0.02 and (no_surface & ~volume).mean() > 0.005, (volume.mean(), no_surface.mean())
         layers = seq.inputs(i)
-        np.testing.assert_allclose(layers["normal"][volume], np.broadcast_to(expected, (volume.sum(), 3)), atol=1e-3)  # stored as half
+        np.testing.assert_allclose(
+            layers["normal"][volume], np.broadcast_to(expected, (volume.sum(), 3)), atol=1e-3
+        )  # stored as half
         assert not layers["normal"][no_surface & ~volume].any()
         assert not layers["motion"][no_surface & ~volume].any() and (layers["roughness"][no_surface] == 1).all()
         if i > 0:  # the camera moves: volume pixels take the surfaces' motion around them
@@ -264,12 +353,33 @@ def _volume_passes(volume_mark: bool) -> dict:
     z3 = np.zeros((2, 2, 3), np.float32)
     normal = z3.copy()
     normal[0, 0] = (0, 0, 1)
-    passes = {n: z3.copy() for n in ("Combined", "Diffuse Direct", "Diffuse Indirect", "Diffuse Color", "Glossy Direct",
-                                     "Glossy Indirect", "Glossy Color", "Transmission Direct", "Transmission Indirect",
-                                     "Transmission Color", "Volume Direct", "Volume Indirect", "Emission",
-                                     "Environment")}
-    passes.update({"Normal": normal, "Vector": np.zeros((2, 2, 4), np.float32),
-                   "Depth": np.full((2, 2, 1), 1e10, np.float32), "Roughness": np.full((2, 2, 1), 0.5, np.float32)})
+    passes = {
+        n: z3.copy()
+        for n in (
+            "Combined",
+            "Diffuse Direct",
+            "Diffuse Indirect",
+            "Diffuse Color",
+            "Glossy Direct",
+            "Glossy Indirect",
+            "Glossy Color",
+            "Transmission Direct",
+            "Transmission Indirect",
+            "Transmission Color",
+            "Volume Direct",
+            "Volume Indirect",
+            "Emission",
+            "Environment",
+        )
+    }
+    passes.update(
+        {
+            "Normal": normal,
+            "Vector": np.zeros((2, 2, 4), np.float32),
+            "Depth": np.full((2, 2, 1), 1e10, np.float32),
+            "Roughness": np.full((2, 2, 1), 0.5, np.float32),
+        }
+    )
     passes["Volume Direct"][1, 0] = 0.7
     if volume_mark:
         passes["Denoising Normal"] = z3.copy()

@@ -6,6 +6,7 @@ A checker floor, a metal cube that moves on its own, a sun, a world colour, a ca
 dollies and trucks: set up by ``jnds_deploy.blender.configure`` (``plain``: not at all) and rendered
 by Blender's own ``render(animation=True)``; ``volume``: as ``inputs``, with a block of scattering
 medium in front of the cube."""
+
 import math
 import sys
 

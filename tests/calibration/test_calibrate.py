@@ -1,4 +1,5 @@
 """`jnds calibrate`: int8 QDQ graphs, learned ranges applied, validation that can fail."""
+
 import json
 from collections import Counter
 
@@ -7,20 +8,29 @@ import onnx
 import pytest
 from onnx import numpy_helper
 
+from jnds_deploy.artifacts import (
+    BLOCK_KEY,
+    HEAD,
+    HEAD_KEY,
+    INPUTS,
+    INPUTS_KEY,
+    Block,
+    BlockLayout,
+    Edge,
+    HeadLayout,
+    InputsLayout,
+)
 from jnds_deploy.calibration import CalibrateConfig, calibrate
-from jnds_deploy.errors import CalibrationError
 from jnds_deploy.calibration.head_ranges import BOUNDS, HEAD_NODE, MIN_RANGE, STOPS
 from jnds_deploy.calibration.inputs import PROJECT
 from jnds_deploy.calibration.quantize import FLOAT_NODES, validate_int8
 from jnds_deploy.calibration.reader import collect_feeds
-from jnds_deploy.errors import ValidationError
+from jnds_deploy.errors import CalibrationError, ValidationError
 from jnds_deploy.export import ExportConfig, export
 from jnds_deploy.export.convert import report_validation
 from jnds_deploy.io import open_sequence
 from jnds_deploy.layout import head_kind
 from jnds_deploy.metrics import psnr
-from jnds_deploy.artifacts import (BLOCK_KEY, HEAD, HEAD_KEY, INPUTS, INPUTS_KEY, Block, BlockLayout, Edge, HeadLayout,
-                                   InputsLayout)
 from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
 
 from ..conftest import SAMPLE
@@ -32,8 +42,9 @@ def calibrated(tmp_path_factory):
     d = tmp_path_factory.mktemp("artifacts")
     export(ExportConfig(out=str(d)), log=lambda s: None)
     lines = []
-    manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="qat", frames=3,
-                                         verbose=True), log=lines.append)
+    manifest = calibrate(
+        CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="qat", frames=3, verbose=True), log=lines.append
+    )
     return d, manifest, lines
 
 
@@ -47,8 +58,12 @@ def _check_concats(model):
     prod = _producers(model)
     for concat in [n for n in model.graph.node if n.op_type == "Concat"]:
         out = next(u for u in model.graph.node if concat.output[0] in u.input)
-        resized = [prod[i] for i in concat.input if prod[prod[i].input[0]].op_type == "QuantizeLinear"
-                   and prod[prod[prod[i].input[0]].input[0]].op_type == "Resize"]
+        resized = [
+            prod[i]
+            for i in concat.input
+            if prod[prod[i].input[0]].op_type == "QuantizeLinear"
+            and prod[prod[prod[i].input[0]].input[0]].op_type == "Resize"
+        ]
         assert len(resized) == 1 and resized[0].input[1:] == out.input[1:], concat.name
 
 
@@ -116,11 +131,18 @@ def test_a_quantized_pool_rewritten_as_a_depthwise_convolution_pools_the_same(tm
     from jnds_deploy.calibration.rewrite import pools_as_convolutions
 
     scale, zp = numpy_helper.from_array(np.float32(0.02), "s"), numpy_helper.from_array(np.uint8(3), "z")
-    nodes = [helper.make_node("DequantizeLinear", ["x", "s", "z"], ["xf"]),
-             helper.make_node("AveragePool", ["xf"], ["pf"], name="pool", kernel_shape=[2, 2], strides=[2, 2]),
-             helper.make_node("QuantizeLinear", ["pf", "s", "z"], ["y"])]
-    graph = helper.make_graph(nodes, "g", [helper.make_tensor_value_info("x", TensorProto.UINT8, [1, 16, None, None])],
-                              [helper.make_tensor_value_info("y", TensorProto.UINT8, None)], [scale, zp])
+    nodes = [
+        helper.make_node("DequantizeLinear", ["x", "s", "z"], ["xf"]),
+        helper.make_node("AveragePool", ["xf"], ["pf"], name="pool", kernel_shape=[2, 2], strides=[2, 2]),
+        helper.make_node("QuantizeLinear", ["pf", "s", "z"], ["y"]),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "g",
+        [helper.make_tensor_value_info("x", TensorProto.UINT8, [1, 16, None, None])],
+        [helper.make_tensor_value_info("y", TensorProto.UINT8, None)],
+        [scale, zp],
+    )
     path = tmp_path / "pool.onnx"
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     onnx.save(model, path)
@@ -133,7 +155,7 @@ def test_a_quantized_pool_rewritten_as_a_depthwise_convolution_pools_the_same(tm
     after = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"]).run(None, {"x": x})[0]
     ops = [n.op_type for n in onnx.load(tmp_path / "optimized.onnx").graph.node]
     assert "QLinearConv" in ops and not {"AveragePool", "QLinearAveragePool"} & set(ops), ops
-    mean = (x.reshape(1, 16, 18, 2, 32, 2).astype(np.float64).mean((3, 5)))  # codes share the zero point
+    mean = x.reshape(1, 16, 18, 2, 32, 2).astype(np.float64).mean((3, 5))  # codes share the zero point
     np.testing.assert_allclose(after, mean, atol=0.5)  # rounded to nearest
     diff = np.abs(after.astype(int) - before.astype(int))
     assert diff.max() <= 1 and (diff > 0).mean() < 0.3  # ties only (a quarter of the means end in .5)
@@ -168,8 +190,10 @@ def test_int8_pipeline_stays_close_to_fp32(calibrated):
     assert manifest.int8_method == "qat" and any(line.startswith("✓") for line in lines)
     assert not any(line.startswith("✗") for line in lines)
     seq = open_sequence(SAMPLE)
-    pipes = [Pipeline(PipelineConfig(artifacts=str(d), precision=p, filter_dtype=f))
-             for p, f in (("fp32", "float32"), ("int8", "float32"), ("int8", "float16"))]
+    pipes = [
+        Pipeline(PipelineConfig(artifacts=str(d), precision=p, filter_dtype=f))
+        for p, f in (("fp32", "float32"), ("int8", "float32"), ("int8", "float16"))
+    ]
     for i in range(4):
         a, b, c = (p(seq.inputs(i), seq.frames[i].camera_cut).output for p in pipes)
         assert np.isfinite(b).all() and np.isfinite(c).all()
@@ -203,8 +227,10 @@ def test_validation_catches_a_corrupted_int8_graph(calibrated, tmp_path):
 @pytest.mark.parametrize("method", ["minmax", "percentile", "entropy"])
 def test_post_training_methods(calibrated, method):
     d, _, _ = calibrated
-    manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method=method, frames=2,
-                                         activation_type="s8"), log=lambda s: None)
+    manifest = calibrate(
+        CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method=method, frames=2, activation_type="s8"),
+        log=lambda s: None,
+    )
     entry = manifest.graphs["network"].int8[method]
     assert (d / entry.file).is_file() and entry.activation_type == "s8"
     saved = json.loads((d / f"calibration.{method}.json").read_text())
@@ -274,8 +300,10 @@ def test_head_ranges_and_the_float_head_option(calibrated):
             assert min(b, hi) - 1e-6 <= c + rng <= hi + MIN_RANGE
             if head_kind(name) == "kernel":  # the whole clamp, not what these frames reached
                 assert (c, rng) == (0.0, 1.0)
-    manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="minmax", frames=2,
-                                         u8_edges=False), log=lambda s: None)
+    manifest = calibrate(
+        CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="minmax", frames=2, u8_edges=False),
+        log=lambda s: None,
+    )
     entry = manifest.graphs["network"].int8["minmax"]
     outputs = [o.name for o in onnx.load(d / entry.file).graph.output]
     assert entry.head == entry.inputs == "float" and HEAD_NODE in entry.float_nodes
@@ -361,8 +389,9 @@ def test_coded_level_heads_give_the_outputs_their_nodes_gave(calibrated, tmp_pat
     calibrate(CalibrateConfig(artifacts=str(plain), data=(str(SAMPLE),), method="qat", frames=3), log=lambda s: None)
     feeds = collect_feeds(d, [SAMPLE], frames=2)["network"]
     for file in [entry.file] + [v.file for v in entry.variants.values()]:
-        coded, ref = (ort.InferenceSession(str(p / file), quiet(), providers=["CPUExecutionProvider"])
-                      for p in (d, plain))
+        coded, ref = (
+            ort.InferenceSession(str(p / file), quiet(), providers=["CPUExecutionProvider"]) for p in (d, plain)
+        )
         levels = Edges(coded).levels
         outputs = [o.name for o in coded.get_outputs()]
         assert Edges(ref).levels == {} and LEVELS_KEY not in ref.get_modelmeta().custom_metadata_map
@@ -383,9 +412,12 @@ def test_coded_level_heads_give_the_outputs_their_nodes_gave(calibrated, tmp_pat
 def test_feed_reader_gives_every_feed_at_every_exposure():
     from jnds_deploy.calibration.head_ranges import RADIANCE
     from jnds_deploy.calibration.reader import FeedReader
+
     rng = np.random.default_rng(0)
-    feeds = [{"current": rng.random((1, 13, 4, 4), np.float32), "history": rng.random((1, 12, 4, 4), np.float32)}
-             for _ in range(2)]
+    feeds = [
+        {"current": rng.random((1, 13, 4, 4), np.float32), "history": rng.random((1, 12, 4, 4), np.float32)}
+        for _ in range(2)
+    ]
     kept = [{k: v.copy() for k, v in f.items()} for f in feeds]
     reader = FeedReader(feeds, (-2, 0, 3), RADIANCE)
     for _ in range(2):  # and again after a rewind
@@ -394,8 +426,8 @@ def test_feed_reader_gives_every_feed_at_every_exposure():
         for i, g in enumerate(got):
             f, k = feeds[i // 3], (-2, 0, 3)[i % 3]
             for name in f:
-                assert np.allclose(g[name][:, RADIANCE], f[name][:, RADIANCE] * 2.0 ** k)
-                assert np.array_equal(g[name][:, RADIANCE.stop:], f[name][:, RADIANCE.stop:])
+                assert np.allclose(g[name][:, RADIANCE], f[name][:, RADIANCE] * 2.0**k)
+                assert np.array_equal(g[name][:, RADIANCE.stop :], f[name][:, RADIANCE.stop :])
         reader.rewind()
     assert all(np.array_equal(f[n], k[n]) for f, k in zip(feeds, kept) for n in f)  # the feeds untouched
     with pytest.raises(ValueError):
@@ -408,12 +440,16 @@ def test_float_edges_ranges_left_to_the_calibrator_cover_every_exposure(tmp_path
     the output block's head is."""
     import onnxruntime as ort
     from onnx import helper
+
     from jnds_deploy.calibration.head_ranges import RADIANCE
     from jnds_deploy.calibration.reader import exposed
+
     d = tmp_path
     export(ExportConfig(out=str(d)), log=lambda s: None)
-    calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="qat", frames=2, u8_edges=False),
-              log=lambda s: None)
+    calibrate(
+        CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="qat", frames=2, u8_edges=False),
+        log=lambda s: None,
+    )
     saved = json.loads((d / "calibration.qat.json").read_text())["tensors"]["network"]
     model = onnx.load(d / "network.onnx")
     tensors = [t for t in saved if t.endswith("Exp_output_0") or t.endswith("specular1/Conv_output_0")]
@@ -441,6 +477,7 @@ def _pair_extremes(w, bounds):
 
 def test_safe_slots_keep_every_pair_within_16_bits():
     from jnds_deploy.calibration.inputs import I16, code_bounds, safe_slots
+
     scale = 2.9 / 255  # below the tonemap's top: the brightest radiance saturates at 255
     bounds = code_bounds(scale, 0)
     assert bounds.max() == 255 and bounds.min() < 128  # radiance to the top, the other layers to 1.0
@@ -463,10 +500,13 @@ def test_the_calibrated_projection_cannot_overflow_16_bits(calibrated):
     """In the int8 graph every pair of the projection's input channels stays within a 16-bit
     sum at any code the packed inputs can hold (AVX2's vpmaddubsw)."""
     from jnds_deploy.calibration.inputs import I16, code_bounds
+
     d, manifest, _ = calibrated
     model = onnx.load(d / manifest.graphs["network"].int8["qat"].file)
     layout = InputsLayout.from_json({p.key: p.value for p in model.metadata_props}[INPUTS_KEY])
-    w = next(numpy_helper.to_array(i) for i in model.graph.initializer if i.name.endswith("project.weight_quantized_padded"))
+    w = next(
+        numpy_helper.to_array(i) for i in model.graph.initializer if i.name.endswith("project.weight_quantized_padded")
+    )
     b = np.zeros(layout.channels, np.int64)
     b[list(layout.slots)] = code_bounds(layout.scale, layout.zero_point)
     lo, hi = _pair_extremes(w[:, :, 0, 0].astype(np.int64), b)
@@ -477,11 +517,13 @@ def _calibrated_copy(src, sequence, tmp_path):
     """A copy of fp32 artifacts ``src`` calibrated (minmax) on 3 frames of ``sequence``, every
     graph passing validation: the copy and its int8 network graph's metadata."""
     import shutil
+
     d = tmp_path / "a"
     shutil.copytree(src, d)
     lines = []
-    manifest = calibrate(CalibrateConfig(artifacts=str(d), data=(str(sequence),), method="minmax", frames=3),
-                         log=lines.append)
+    manifest = calibrate(
+        CalibrateConfig(artifacts=str(d), data=(str(sequence),), method="minmax", frames=3), log=lines.append
+    )
     assert not any(line.startswith("✗") for line in lines)
     model = onnx.load(d / manifest.graphs["network"].int8["minmax"].file)
     return d, {p.key: p.value for p in model.metadata_props}

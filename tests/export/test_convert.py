@@ -6,9 +6,9 @@ import pytest
 import torch
 
 from jnds_deploy.errors import ValidationError
-from jnds_deploy.filter_spec import to_phases
 from jnds_deploy.export import ExportConfig, export
 from jnds_deploy.export.convert import report_validation, validate_graph
+from jnds_deploy.filter_spec import to_phases
 from jnds_deploy.model import JNDS, ModelConfig
 
 
@@ -17,8 +17,17 @@ def tiny_checkpoint(tmp_path_factory):
     d = tmp_path_factory.mktemp("ckpt")
     model = JNDS(ModelConfig.preset("tiny"))
     path = d / "tiny.pt"
-    torch.save({"model": model.state_dict(), "model_config": model.cfg.__dict__, "train_config": {},
-                "quantized": False, "quant_ranges": None, "state": {}}, path)
+    torch.save(
+        {
+            "model": model.state_dict(),
+            "model_config": model.cfg.__dict__,
+            "train_config": {},
+            "quantized": False,
+            "quant_ranges": None,
+            "state": {},
+        },
+        path,
+    )
     return path
 
 
@@ -49,8 +58,13 @@ def test_validation_catches_a_corrupted_graph(tiny_checkpoint, tmp_path):
     net = JNDS(ModelConfig(**torch.load(tiny_checkpoint, weights_only=False)["model_config"]))
     net.load_state_dict(torch.load(tiny_checkpoint, weights_only=False)["model"])
     comp, feats = torch.rand(1, 3, 8, 8), torch.rand(1, 2, 8, 8)
-    rows = validate_graph(tmp_path / "upsample.onnx", lambda c, f: to_phases(net.upsample_block(c, f), 2),
-                          {"composite": comp, "features": feats}, ["kernel"], 1e-4)
+    rows = validate_graph(
+        tmp_path / "upsample.onnx",
+        lambda c, f: to_phases(net.upsample_block(c, f), 2),
+        {"composite": comp, "features": feats},
+        ["kernel"],
+        1e-4,
+    )
     assert not rows[0]["ok"] and rows[0]["max_abs"] > 0.1
     lines = []
     with pytest.raises(ValidationError, match="1 output.* upsample.onnx:kernel max"):
@@ -60,6 +74,7 @@ def test_validation_catches_a_corrupted_graph(tiny_checkpoint, tmp_path):
 
 def test_shipped_checkpoint_exports_and_validates(tmp_path):
     from jnds_deploy.checkpoint import default_checkpoint
+
     ckpt = torch.load(default_checkpoint(), weights_only=False)
     assert ckpt["quantized"] and ckpt["quant_ranges"]  # QAT-trained, ranges exportable
     manifest = export(ExportConfig(out=str(tmp_path)), log=lambda s: None)
@@ -68,6 +83,7 @@ def test_shipped_checkpoint_exports_and_validates(tmp_path):
     # the fp32 network graph runs the weights QAT trained: per output channel, int8 codes of
     # max|w| / 127 (the upsample graph's are those with the bilinear taps folded in)
     from onnx import numpy_helper
+
     graph = onnx.load(tmp_path / "network.onnx").graph
     inits = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
     convs = [inits[n.input[1]] for n in graph.node if n.op_type == "Conv" and n.input[1] in inits]
@@ -85,8 +101,15 @@ def test_pruned_variants_drop_their_kernels(tiny_checkpoint, tmp_path):
 
     manifest = export(ExportConfig(checkpoint=str(tiny_checkpoint), out=str(tmp_path)), log=lambda s: None)
     variants = manifest.graphs["network"].variants
-    assert set(variants) == {"no-diffuse", "no-specular", "no-features", "no-diffuse-specular",
-                             "no-diffuse-features", "no-specular-features", "no-diffuse-specular-features"}
+    assert set(variants) == {
+        "no-diffuse",
+        "no-specular",
+        "no-features",
+        "no-diffuse-specular",
+        "no-diffuse-features",
+        "no-specular-features",
+        "no-diffuse-specular-features",
+    }
     full = onnx.load(tmp_path / "network.onnx")
 
     def head_channels(model):
@@ -113,8 +136,10 @@ def test_validation_report_is_one_line_unless_verbose():
     from jnds_deploy.errors import ValidationError
     from jnds_deploy.export.convert import report_validation
 
-    rows = [{"graph": "g.onnx", "output": f"o{i}", "ok": True, "max_abs": d, "mean_abs": d / 10, "atol": 1e-4}
-            for i, d in enumerate((1e-6, 5e-5, 2e-5))]
+    rows = [
+        {"graph": "g.onnx", "output": f"o{i}", "ok": True, "max_abs": d, "mean_abs": d / 10, "atol": 1e-4}
+        for i, d in enumerate((1e-6, 5e-5, 2e-5))
+    ]
     lines = []
     report_validation(rows, lines.append)
     assert len(lines) == 1 and lines[0].startswith("✓ 3 of 3 outputs") and "g.onnx:o1" in lines[0]

@@ -1,5 +1,6 @@
 """Adaptive execution: the exact skips give the full pipeline's output (and run the pruned
 network graph); empty-tile skipping passes background through; denoise-only output."""
+
 import json
 
 import cv2
@@ -68,9 +69,14 @@ def test_skip_decision_looks_at_the_history(tiny_artifacts):
 def _sky_frame(h=40, w=64, split=32):
     """Geometry on the left (x < split), a flat sky (specular only, no geometry) on the right."""
     rng = np.random.default_rng(0)
-    f = {"diffuse": rng.random((h, w, 3), np.float32), "specular": rng.random((h, w, 3), np.float32) * 0.2,
-         "albedo": rng.random((h, w, 3), np.float32), "normal": np.tile(np.float32([0, 0, 1]), (h, w, 1)),
-         "roughness": rng.random((h, w, 1), np.float32), "motion": np.zeros((h, w, 2), np.float32)}
+    f = {
+        "diffuse": rng.random((h, w, 3), np.float32),
+        "specular": rng.random((h, w, 3), np.float32) * 0.2,
+        "albedo": rng.random((h, w, 3), np.float32),
+        "normal": np.tile(np.float32([0, 0, 1]), (h, w, 1)),
+        "roughness": rng.random((h, w, 1), np.float32),
+        "motion": np.zeros((h, w, 2), np.float32),
+    }
     for k in ("diffuse", "albedo", "normal", "roughness"):
         f[k][:, split:] = 0
     f["specular"][:, split:] = np.float32([0.4, 0.6, 0.9])
@@ -137,7 +143,11 @@ def test_native_output_is_the_composite_without_the_upsample_block(tiny_artifact
         assert out.shape == (h, w, 3) and "upsample_kernel" not in ms
         assert frame.decisions["network_graph"].endswith("features")  # variant without the features
         np.testing.assert_array_equal(out, comps[-1][:, :h, :w].transpose(1, 2, 0))
-    report = run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32", native_output=True),
-                          SAMPLE, tmp_path / "run", progress=False)
+    report = run_sequence(
+        PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32", native_output=True),
+        SAMPLE,
+        tmp_path / "run",
+        progress=False,
+    )
     assert report["output_size"] == list(seq.native_size) and "psnr" in report["metrics"]
     assert json.loads((tmp_path / "run" / "run.json").read_text())["native_output"] is True

@@ -1,4 +1,5 @@
 """The numpy/opencv filter stage against the torch specification (jnds_deploy.filter_spec)."""
+
 import numpy as np
 import pytest
 import torch
@@ -113,8 +114,13 @@ def test_filter_path_matches_torch(source):
         x = seq.inputs(5)["diffuse"].transpose(2, 0, 1)[:, :88, :160]
         hist = seq.inputs(4)["diffuse"].transpose(2, 0, 1)[:, :88, :160]
         h, w = 88, 160
-    native = {"spatial": _kernel(h, w), "temporal": _kernel(h, w), "blend": RNG.random((1, h, w), dtype=np.float32),
-              "up": _kernel(h, w), "up_blend": RNG.random((1, h, w), dtype=np.float32)}
+    native = {
+        "spatial": _kernel(h, w),
+        "temporal": _kernel(h, w),
+        "blend": RNG.random((1, h, w), dtype=np.float32),
+        "up": _kernel(h, w),
+        "up_blend": RNG.random((1, h, w), dtype=np.float32),
+    }
     levels = _levels(h, w, 3)
     got = N.filter_path(x, hist, native, levels)
     tt = lambda d: {k: _t(v) for k, v in d.items()}  # noqa: E731
@@ -149,6 +155,7 @@ def test_fixed_upsample_kernel_matches_torch(root):
     scale and the fused 2x pass into the output (cropped, channels last) against the torch
     upsample filter with that kernel broadcast; the fused pass counts and replaces NaN/Inf."""
     from jnds_deploy.runtime.reformat import to_hwc
+
     h, w = 12, 20
     c = RNG.random((3, h, w), dtype=np.float32) * RNG.exponential(5.0, size=(3, h, w)).astype(np.float32)
     k = np.clip(RNG.normal(size=9).astype(np.float32) * 0.3 + np.eye(9, dtype=np.float32)[4], -1, 1)
@@ -173,9 +180,13 @@ def test_fixed_upsample_kernel_matches_torch(root):
 def test_fp16_filter_stays_close_to_fp32():
     h, w = 32, 48
     x = RNG.exponential(size=(3, h, w)).astype(np.float32)
-    native = {"spatial": _kernel(h, w, True), "temporal": _kernel(h, w, True),
-              "blend": RNG.random((1, h, w), dtype=np.float32), "up": _kernel(h, w, True),
-              "up_blend": RNG.random((1, h, w), dtype=np.float32)}
+    native = {
+        "spatial": _kernel(h, w, True),
+        "temporal": _kernel(h, w, True),
+        "blend": RNG.random((1, h, w), dtype=np.float32),
+        "up": _kernel(h, w, True),
+        "up_blend": RNG.random((1, h, w), dtype=np.float32),
+    }
     levels = _levels(h, w, 3)
     f32 = N.filter_path(x, x, native, levels)
     h16 = lambda d: {k: v.astype(np.float16) for k, v in d.items()}  # noqa: E731
@@ -184,14 +195,13 @@ def test_fp16_filter_stays_close_to_fp32():
     np.testing.assert_allclose(f16.astype(np.float32), f32, rtol=1e-2, atol=1e-2)
 
 
-
 def _taps(a, k):
     """The numpy formula: shifted views of the edge-padded image, taps summed in order."""
     h, w = a.shape[1:]
     p = np.pad(a, ((0, 0), (1, 1), (1, 1)), mode="edge")
     out = p[:, :h, :w] * k[0]
     for i in range(1, 9):
-        out = out + p[:, i // 3:i // 3 + h, i % 3:i % 3 + w] * k[i]
+        out = out + p[:, i // 3 : i // 3 + h, i % 3 : i % 3 + w] * k[i]
     return out
 
 
@@ -212,8 +222,12 @@ def test_fused_float32_loops_equal_numpy_formulas(h, w):
     if h % 2 == 0 and w % 2 == 0:
         # numpy's mean pools in another order: rounding of the O(1) terms, which the
         # kernel's cancellation can make large relative to a small sum (3e-6 seen)
-        np.testing.assert_allclose(N.down_level(x, ks[:, ::2, ::2].copy()),
-                                   np.maximum(_taps(N.downsample(x), ks[:, ::2, ::2]), 0), rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(
+            N.down_level(x, ks[:, ::2, ::2].copy()),
+            np.maximum(_taps(N.downsample(x), ks[:, ::2, ::2]), 0),
+            rtol=1e-6,
+            atol=1e-6,
+        )
 
 
 def test_one_pass_auxiliary_filter_equals_the_models_normal_mapping():
@@ -227,11 +241,13 @@ def test_one_pass_auxiliary_filter_equals_the_models_normal_mapping():
     h_normal = RNG.random((3, h, w), dtype=np.float32) * 2 - 1
     ks, kt = _kernel(h, w, normalized=True), _kernel(h, w, normalized=True)
     blend = RNG.random((1, h, w), dtype=np.float32)
-    both = N.spatiotemporal(np.concatenate([albedo, normal]), np.concatenate([h_albedo, h_normal]), ks, kt, blend,
-                            relu=False)
+    both = N.spatiotemporal(
+        np.concatenate([albedo, normal]), np.concatenate([h_albedo, h_normal]), ks, kt, blend, relu=False
+    )
     ref_albedo = T.spatiotemporal(_t(albedo), _t(h_albedo), _t(ks), _t(kt), _t(blend))[0].numpy()
-    ref_normal = T.spatiotemporal(_t(normal * 0.5 + 0.5), _t(h_normal * 0.5 + 0.5), _t(ks), _t(kt),
-                                  _t(blend))[0].numpy() * 2 - 1
+    ref_normal = (
+        T.spatiotemporal(_t(normal * 0.5 + 0.5), _t(h_normal * 0.5 + 0.5), _t(ks), _t(kt), _t(blend))[0].numpy() * 2 - 1
+    )
     np.testing.assert_allclose(both[:3], ref_albedo, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(both[3:], ref_normal, rtol=0, atol=2e-6)
     assert (both[3:] < 0).any()  # negative normals survive: no ReLU
@@ -308,8 +324,9 @@ def test_reject_disoccluded_matches_torch(h, w):
     warped[9:12, 1::5] = 0.0
     current[6:9] = RNG.random((3, h, w), dtype=np.float32)
     warped[6:9] = np.clip(current[6:9] + RNG.normal(scale=0.15, size=(3, h, w)).astype(np.float32), 0, 1)
-    mask = T.history_rejected(_t(current[9:12]), _t(warped[9:12]), _t(current[6:9]), _t(warped[6:9]),
-                              torch.zeros(1, 2, h, w))[0, 0].numpy()
+    mask = T.history_rejected(
+        _t(current[9:12]), _t(warped[9:12]), _t(current[6:9]), _t(warped[6:9]), torch.zeros(1, 2, h, w)
+    )[0, 0].numpy()
     want = np.where(mask, current[:12], warped)
     got = warped.copy()
     n = N.reject_disoccluded(current, got, REJECT_COS, BACKGROUND)
@@ -323,7 +340,9 @@ def test_warp_with_rejection_fused_equals_warp_then_reject():
     current[9:12] = _normals(h, w)
     current[9:12, :, :5] = 0.0  # background
     hist = RNG.random((h, w, 12), dtype=np.float32)
-    hist[..., 9:12] = np.where(RNG.random((h, w, 1)) < 0.5, current[9:12].transpose(1, 2, 0), _normals(h, w).transpose(1, 2, 0))
+    hist[..., 9:12] = np.where(
+        RNG.random((h, w, 1)) < 0.5, current[9:12].transpose(1, 2, 0), _normals(h, w).transpose(1, 2, 0)
+    )
     mv = RNG.normal(scale=1.5, size=(2, h, w)).astype(np.float32)
     lo, hi = np.full(12, -1, np.float32), np.full(12, 1, np.float32)
     current[6:9] = RNG.random((3, h, w), dtype=np.float32)
@@ -384,8 +403,9 @@ def test_clamp_fireflies_matches_torch(k):
     got = cur.copy()
     n = N.clamp_fireflies(got, hist, k)
     t, h = torch.from_numpy(cur)[None], torch.from_numpy(hist)[None]
-    want = torch.cat([T.clamp_fireflies(t[:, 0:3], h[:, 0:3], k), T.clamp_fireflies(t[:, 3:6], h[:, 3:6], k),
-                      t[:, 6:]], 1)[0].numpy()
+    want = torch.cat(
+        [T.clamp_fireflies(t[:, 0:3], h[:, 0:3], k), T.clamp_fireflies(t[:, 3:6], h[:, 3:6], k), t[:, 6:]], 1
+    )[0].numpy()
     np.testing.assert_array_equal(got, want)
     changed = (got[:6] != cur[:6]).reshape(2, 3, -1).any(1).sum()
     assert n == changed > 0
@@ -421,7 +441,7 @@ def test_fill_diffuse_holes_matches_torch():
     cur[9:12, 0:3, 0:4] = 0.0  # background: not filled
     got = cur.copy()
     n = N.fill_diffuse_holes(got)
-    want = T.fill_diffuse_holes(*(torch.from_numpy(cur[None, a:a + 3]) for a in (0, 6, 9)))[0].numpy()
+    want = T.fill_diffuse_holes(*(torch.from_numpy(cur[None, a : a + 3]) for a in (0, 6, 9)))[0].numpy()
     np.testing.assert_allclose(got[0:3], want, rtol=1e-6, atol=1e-7)  # sums in another order
     changed = (got[0:3] != cur[0:3]).any(0)
     assert n == changed.sum() > 0 and not changed[0:3, 0:4].any() and not changed[~holes].any()
@@ -481,6 +501,6 @@ def test_tile_sums_match_numpy(h, w):
     tile = 32
     got = N.tile_sums(x, 3, tile)
     s = x[3:6].astype(np.float64).sum(0)
-    want = np.array([[s[ty:ty + tile, tx:tx + tile].sum() for tx in range(0, w, tile)] for ty in range(0, h, tile)])
+    want = np.array([[s[ty : ty + tile, tx : tx + tile].sum() for tx in range(0, w, tile)] for ty in range(0, h, tile)])
     assert got.shape == want.shape == (-(-h // tile), -(-w // tile))
     np.testing.assert_allclose(got, want, rtol=1e-12)

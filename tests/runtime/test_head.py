@@ -1,20 +1,30 @@
 """The int8 network graph's u8 edges: runtime.head decodes the head's output as the float
 graph's nodes would, the filter loops read it as its decoded values; runtime.reformat
 packs the inputs as the input block's preprocessing and quantization would."""
+
 import numpy as np
 import pytest
 import torch
 import torch.nn.functional as TF
 
 from jnds_deploy import model as M
+from jnds_deploy.artifacts import HeadLayout, InputsLayout
 from jnds_deploy.errors import ArtifactError
 from jnds_deploy.runtime import filters as F
-from jnds_deploy.artifacts import HeadLayout, InputsLayout
 from jnds_deploy.runtime.head import Coded, Head
 from jnds_deploy.runtime.reformat import pack_inputs
 
-PARTS = (("diffuse.spatial", 9), ("diffuse.temporal", 9), ("diffuse.blend", 1), ("diffuse.up", 9),
-         ("diffuse.up_blend", 1), ("aux.spatial", 9), ("aux.temporal", 9), ("aux.blend", 1), ("features", 3))
+PARTS = (
+    ("diffuse.spatial", 9),
+    ("diffuse.temporal", 9),
+    ("diffuse.blend", 1),
+    ("diffuse.up", 9),
+    ("diffuse.up_blend", 1),
+    ("aux.spatial", 9),
+    ("aux.temporal", 9),
+    ("aux.blend", 1),
+    ("features", 3),
+)
 H = 7
 
 
@@ -35,8 +45,9 @@ def head(request):
 
 def _raw(head, q, name):
     c0, c = head.slices[name]
-    raw = ((q[0, :, :, c0:c0 + c].astype(np.float64) - 128) * np.array(head.layout.scale[c0:c0 + c])
-           + np.array(head.layout.centre[c0:c0 + c]))
+    raw = (q[0, :, :, c0 : c0 + c].astype(np.float64) - 128) * np.array(head.layout.scale[c0 : c0 + c]) + np.array(
+        head.layout.centre[c0 : c0 + c]
+    )
     return torch.from_numpy(raw.transpose(2, 0, 1).copy())[None]
 
 
@@ -64,18 +75,22 @@ def test_filters_read_coded_parts_as_their_decoded_values(head):
     coded = h.coded(q)
     dec = {k: v.decode() for k, v in coded.items()}
     for relu in (True, False):
-        got = F.spatiotemporal(x, hist, coded["diffuse.spatial"], coded["diffuse.temporal"], coded["diffuse.blend"],
-                               relu=relu)
-        want = F.spatiotemporal(x, hist, dec["diffuse.spatial"], dec["diffuse.temporal"], dec["diffuse.blend"],
-                                relu=relu)
+        got = F.spatiotemporal(
+            x, hist, coded["diffuse.spatial"], coded["diffuse.temporal"], coded["diffuse.blend"], relu=relu
+        )
+        want = F.spatiotemporal(
+            x, hist, dec["diffuse.spatial"], dec["diffuse.temporal"], dec["diffuse.blend"], relu=relu
+        )
         np.testing.assert_array_equal(got, want)
     got = F.spatiotemporal(x, hist, coded["aux.spatial"], coded["aux.temporal"], coded["aux.blend"], relu=False)
     want = F.spatiotemporal(x, hist, dec["aux.spatial"], dec["aux.temporal"], dec["aux.blend"], relu=False)
     np.testing.assert_array_equal(got, want)
     skip, low = x[:, :6, :10], coarse[:, :3, :5]
     sub = h.coded(np.ascontiguousarray(q[:, :6, :10]))
-    np.testing.assert_array_equal(F.up_level(skip, low, sub["diffuse.up"], sub["diffuse.up_blend"]),
-                                  F.up_level(skip, low, sub["diffuse.up"].decode(), sub["diffuse.up_blend"].decode()))
+    np.testing.assert_array_equal(
+        F.up_level(skip, low, sub["diffuse.up"], sub["diffuse.up_blend"]),
+        F.up_level(skip, low, sub["diffuse.up"].decode(), sub["diffuse.up_blend"].decode()),
+    )
 
 
 def test_level_heads_read_as_planes_decode_as_their_nodes_and_filter_alike():
@@ -95,15 +110,21 @@ def test_level_heads_read_as_planes_decode_as_their_nodes_and_filter_alike():
         # q * scale + offset in one rounding: within an ulp of (q - zero point) * scale
         np.testing.assert_allclose(coded["diffuse.level1.down"].decode(), np.clip(raw[:9], -1, 1), rtol=0, atol=1.2e-7)
         np.testing.assert_allclose(coded["diffuse.level1.up"].decode(), np.clip(raw[9:18], -1, 1), rtol=0, atol=1.2e-7)
-        np.testing.assert_allclose(coded["diffuse.level1.up_blend"].decode(), 1 / (1 + np.exp(-raw[18:].astype(np.float64))),
-                                   rtol=1e-6)
-        x, low = rng.uniform(0, 4, (3, 12, 2 * w)).astype(np.float32), rng.uniform(0, 4, (3, 3, w // 2)).astype(np.float32)
-        np.testing.assert_array_equal(F.down_level(x, coded["diffuse.level1.down"]),
-                                      F.down_level(x, coded["diffuse.level1.down"].decode()))
+        np.testing.assert_allclose(
+            coded["diffuse.level1.up_blend"].decode(), 1 / (1 + np.exp(-raw[18:].astype(np.float64))), rtol=1e-6
+        )
+        x, low = (
+            rng.uniform(0, 4, (3, 12, 2 * w)).astype(np.float32),
+            rng.uniform(0, 4, (3, 3, w // 2)).astype(np.float32),
+        )
+        np.testing.assert_array_equal(
+            F.down_level(x, coded["diffuse.level1.down"]), F.down_level(x, coded["diffuse.level1.down"].decode())
+        )
         skip = x[:, :6, :w].copy()
         np.testing.assert_array_equal(
             F.up_level(skip, low, coded["diffuse.level1.up"], coded["diffuse.level1.up_blend"]),
-            F.up_level(skip, low, coded["diffuse.level1.up"].decode(), coded["diffuse.level1.up_blend"].decode()))
+            F.up_level(skip, low, coded["diffuse.level1.up"].decode(), coded["diffuse.level1.up_blend"].decode()),
+        )
     with pytest.raises(ArtifactError, match="level head"):
         h.planar(np.zeros((1, 18, 6, 8), np.uint8))
 
@@ -139,8 +160,9 @@ def test_pack_inputs_is_the_input_blocks_preprocessing_quantized(scale, zero_poi
     hist[0, 1, 0, :2] = [-0.0, -3.0]
     layout = InputsLayout(scale, zero_point, 32)
     got = pack_inputs(cur, hist, layout)
-    x = torch.cat([M.tonemap_inputs(torch.from_numpy(cur), M.CURRENT),
-                   M.tonemap_inputs(torch.from_numpy(hist), M.HISTORY)], 1)[0].numpy()
+    x = torch.cat(
+        [M.tonemap_inputs(torch.from_numpy(cur), M.CURRENT), M.tonemap_inputs(torch.from_numpy(hist), M.HISTORY)], 1
+    )[0].numpy()
     want = np.clip(np.rint(x / np.float32(scale)) + zero_point, 0, 255).transpose(1, 2, 0)
     d = np.abs(got[0, :, :, :25].astype(np.int64) - want)
     assert got.shape == (1, h, w, 32) and got.dtype == np.uint8
@@ -171,7 +193,7 @@ def test_pack_inputs_in_2x2_blocks_is_the_space_to_depth_input(guided):
     n = 28 if guided else 25
     flat = pack_inputs(cur, hist, InputsLayout(0.011, 3, n, tuple(range(n))), guide)[0]  # (h, w, n), in order
     want = torch.nn.functional.pixel_unshuffle(torch.from_numpy(flat.transpose(2, 0, 1).copy())[None], 2)[0]
-    slots = tuple(np.random.default_rng(4).permutation(4 * n + 4)[:4 * n].tolist())
+    slots = tuple(np.random.default_rng(4).permutation(4 * n + 4)[: 4 * n].tolist())
     layout = InputsLayout(0.011, 3, 4 * n + 4, slots, block=2)
     assert layout.guided == guided and InputsLayout.from_json(layout.to_json()) == layout
     got = pack_inputs(cur, hist, layout, guide)
@@ -243,8 +265,13 @@ def test_tonemap_codes_16_at_a_time_are_the_codes_one_at_a_time(scale, zero_poin
 
     rng = np.random.default_rng(4)
     bits = rng.integers(0, 0x47800000, 4096, dtype=np.uint32)  # every exponent up to 65536
-    x = np.concatenate([bits.view(np.float32), np.float32([0, -0.0, -3, 65535, 1e9, np.inf, 1e-30, 7.5]),
-                        np.float32(rng.random(4088) ** 6 * 400)])
+    x = np.concatenate(
+        [
+            bits.view(np.float32),
+            np.float32([0, -0.0, -3, 65535, 1e9, np.inf, 1e-30, 7.5]),
+            np.float32(rng.random(4088) ** 6 * 400),
+        ]
+    )
     layout = InputsLayout(scale, zero_point, 32)
     first, step = _tonemap_codes(layout)
     whole, single = np.empty(len(x), np.uint8), np.empty(len(x), np.uint8)

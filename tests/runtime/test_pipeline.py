@@ -1,9 +1,10 @@
 """The onnxruntime pipeline against the PyTorch model, frame after frame."""
+
 import numpy as np
 import pytest
 
-from jnds_deploy.io import open_sequence
 from jnds_deploy.errors import ArtifactError, FrameError
+from jnds_deploy.io import open_sequence
 from jnds_deploy.runtime.pipeline import Pipeline, PipelineConfig
 from jnds_deploy.training.data import load_sequence
 from jnds_deploy.training.evaluate import infer_sequence
@@ -19,8 +20,9 @@ def artifacts(tiny_artifacts):
 @pytest.mark.parametrize("root", [1, 4, "fixed"])
 def test_pipeline_matches_torch_over_a_sequence(artifacts, tiny_artifacts_root4, tiny_artifacts_fixed, root):
     path, model = {1: artifacts, 4: tiny_artifacts_root4, "fixed": tiny_artifacts_fixed}[root]
-    assert (Pipeline(PipelineConfig(artifacts=str(path), precision="fp32")).upsample_root
-            == (4 if root == "fixed" else root))
+    assert Pipeline(PipelineConfig(artifacts=str(path), precision="fp32")).upsample_root == (
+        4 if root == "fixed" else root
+    )
     seq = open_sequence(SAMPLE)
     ref = infer_sequence(model, load_sequence(SAMPLE))[:4]
     pipe = Pipeline(PipelineConfig(artifacts=str(path), precision="fp32"))
@@ -67,6 +69,7 @@ def test_pipeline_fp16_filters_close_to_fp32(artifacts):
 
 def test_pipeline_errors(tmp_path, artifacts):
     import json
+
     with pytest.raises(ArtifactError, match="manifest.json: missing"):
         Pipeline(PipelineConfig(artifacts=str(tmp_path)))
     with pytest.raises(ArtifactError, match="no int8 graph"):
@@ -93,11 +96,14 @@ def test_jnds_run_does_not_need_torch(artifacts, tmp_path):
     opencv, not torch: with torch made unimportable, a run still works."""
     import subprocess
     import sys
-    code = ("import sys; sys.modules['torch'] = None\n"
-            "import jnds_deploy.serve\n"
-            "from jnds_deploy.cli import main\n"
-            f"sys.exit(main(['run', '--artifacts', {str(artifacts[0])!r}, '--input', {str(SAMPLE)!r}, "
-            f"'--output', {str(tmp_path / 'out')!r}, '--precision', 'fp32', '--quiet']))")
+
+    code = (
+        "import sys; sys.modules['torch'] = None\n"
+        "import jnds_deploy.serve\n"
+        "from jnds_deploy.cli import main\n"
+        f"sys.exit(main(['run', '--artifacts', {str(artifacts[0])!r}, '--input', {str(SAMPLE)!r}, "
+        f"'--output', {str(tmp_path / 'out')!r}, '--precision', 'fp32', '--quiet']))"
+    )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert (tmp_path / "out" / "0007.exr").is_file()
@@ -109,13 +115,16 @@ def test_jnds_run_skips_numbas_blas_probe_and_leaves_scipy_importable(artifacts,
     imports as usual afterwards."""
     import subprocess
     import sys
-    code = ("import sys\n"
-            "from jnds_deploy.cli import main\n"
-            f"assert main(['run', '--artifacts', {str(artifacts[0])!r}, '--input', {str(SAMPLE)!r}, "
-            f"'--output', {str(tmp_path / 'out')!r}, '--precision', 'fp32', '--quiet']) == 0\n"
-            "assert 'scipy.linalg' not in sys.modules, 'scipy.linalg was imported'\n"
-            "import numba.np.arraymath, scipy.linalg\n"
-            "assert not numba.np.arraymath._HAVE_BLAS and scipy.linalg.norm([3.0, 4.0]) == 5.0\n")
+
+    code = (
+        "import sys\n"
+        "from jnds_deploy.cli import main\n"
+        f"assert main(['run', '--artifacts', {str(artifacts[0])!r}, '--input', {str(SAMPLE)!r}, "
+        f"'--output', {str(tmp_path / 'out')!r}, '--precision', 'fp32', '--quiet']) == 0\n"
+        "assert 'scipy.linalg' not in sys.modules, 'scipy.linalg was imported'\n"
+        "import numba.np.arraymath, scipy.linalg\n"
+        "assert not numba.np.arraymath._HAVE_BLAS and scipy.linalg.norm([3.0, 4.0]) == 5.0\n"
+    )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
 
@@ -124,10 +133,27 @@ def test_jnds_run_writes_frames_and_report(artifacts, tmp_path):
     import json
     import subprocess
     import sys
+
     out = tmp_path / "out"
-    proc = subprocess.run([sys.executable, "-m", "jnds_deploy", "run", "--artifacts", str(artifacts[0]),
-                           "--input", str(SAMPLE), "--output", str(out), "--precision", "fp32", "--quiet"],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "jnds_deploy",
+            "run",
+            "--artifacts",
+            str(artifacts[0]),
+            "--input",
+            str(SAMPLE),
+            "--output",
+            str(out),
+            "--precision",
+            "fp32",
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 0, proc.stderr
     assert "JNDS: PSNR" in proc.stdout and "changed pixels" in proc.stdout
     assert "| network |" in proc.stdout and "| **total** |" in proc.stdout
@@ -137,6 +163,7 @@ def test_jnds_run_writes_frames_and_report(artifacts, tmp_path):
     # frame; the means are theirs, and the printout says them
     from jnds_deploy.io import OUTPUT_LAYERS, read_layers
     from jnds_deploy.metrics import flip, psnr
+
     seq = open_sequence(SAMPLE)
     scores = report["metrics"]["per_frame"]
     assert len(scores) == 8
@@ -185,6 +212,7 @@ def test_to_chw_stacks_sanitizes_pads_and_renormalizes():
     channel loop)."""
     from jnds_deploy.layout import CURRENT
     from jnds_deploy.runtime.reformat import LIMITS, to_chw
+
     rng = np.random.default_rng(3)
     h, w, pad = 5, 7, (8, 16)
     layers = {n: (rng.normal(size=(h, w, c)) * 3).astype(np.float32) for n, c in CURRENT + (("motion", 2),)}

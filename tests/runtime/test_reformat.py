@@ -1,4 +1,5 @@
 """The numba pass between the cut int8 graph's runs (runtime.reformat.block_input)."""
+
 import numpy as np
 import pytest
 
@@ -31,8 +32,15 @@ def _taps_in_float(dec, nat, sd, zd, sn, zn, sb, zb):
     return np.concatenate([up, skip], -1)[None]
 
 
-@pytest.mark.parametrize("q", [(0.0371, 3, 0.0213, 0, 0.0297, 7), (0.05, 0, 0.01, 0, 0.013, 128),
-                               (1.3e-3, 255, 0.7, 11, 2.1e-3, 40), (0.02, 17, 0.02, 17, 0.02, 17)])
+@pytest.mark.parametrize(
+    "q",
+    [
+        (0.0371, 3, 0.0213, 0, 0.0297, 7),
+        (0.05, 0, 0.01, 0, 0.013, 128),
+        (1.3e-3, 255, 0.7, 11, 2.1e-3, 40),
+        (0.02, 17, 0.02, 17, 0.02, 17),
+    ],
+)
 # channels: whole vectors of 16 (simd) and one at a time, both, or either alone
 @pytest.mark.parametrize("cd,cn", [(24, 8), (48, 16), (5, 3)])
 def test_upsample_concat_is_bit_equal_to_the_four_taps_in_float(q, cd, cn):

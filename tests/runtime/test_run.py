@@ -1,4 +1,5 @@
 """``jnds run``'s outputs besides the frames: the contact sheet a person looks at."""
+
 import importlib.util
 
 import cv2
@@ -15,8 +16,9 @@ from ..conftest import SAMPLE
 
 
 def test_run_writes_a_contact_sheet_of_first_middle_last_frames(tiny_artifacts, tmp_path):
-    report = run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), SAMPLE, tmp_path,
-                          progress=False)
+    report = run_sequence(
+        PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), SAMPLE, tmp_path, progress=False
+    )
     sheet = cv2.imread(report["contact_sheet"])
     # input, (OIDN,) JNDS, reference, changed pixels
     columns = 5 if importlib.util.find_spec("pyoidn") else 4
@@ -26,7 +28,7 @@ def test_run_writes_a_contact_sheet_of_first_middle_last_frames(tiny_artifacts, 
     out = read_exr(tmp_path / "0007.exr")
     rgb = np.stack([out[f"color.{c}"] for c in "RGB"], -1)
     x0 = (columns - 3) * (w + contact_sheet.GAP)
-    tile = sheet[-h:, x0:x0 + w, ::-1]
+    tile = sheet[-h:, x0 : x0 + w, ::-1]
     np.testing.assert_allclose(tile, to_ldr(rgb) * 255, atol=1.0)
     # the scores against the reference: the output's, OIDN's where installed, and both
     # over the changed pixels (none on frame 0, some on the orbit's later frames)
@@ -56,7 +58,9 @@ def test_output_formats_store_the_frames_as_computed(tiny_artifacts, tmp_path):
     for fmt in ("float", "half"):
         report = run_sequence(cfg, SAMPLE, tmp_path / fmt, progress=False, metrics=False, output_format=fmt)
         assert report["output_format"] == fmt
-        with OpenEXR.File(str(tmp_path / fmt / "0003.exr"), separate_channels=True) as f:  # read inside: closing clears them
+        with OpenEXR.File(
+            str(tmp_path / fmt / "0003.exr"), separate_channels=True
+        ) as f:  # read inside: closing clears them
             compression = f.header()["compression"]
             frames[fmt] = np.stack([f.channels()[f"color.{c}"].pixels for c in "RGB"], -1)
         assert compression == {"float": OpenEXR.NO_COMPRESSION, "half": OpenEXR.PIZ_COMPRESSION}[fmt]
@@ -123,8 +127,14 @@ def test_video_and_png_frames(tiny_artifacts, tmp_path):
     pytest.importorskip("imageio_ffmpeg")
     from jnds_deploy.video import read_mp4
 
-    report = run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), SAMPLE, tmp_path,
-                          progress=False, video=True, png=tmp_path / "png")
+    report = run_sequence(
+        PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"),
+        SAMPLE,
+        tmp_path,
+        progress=False,
+        video=True,
+        png=tmp_path / "png",
+    )
     frames = read_mp4(report["video"])
     pngs = [cv2.imread(str(tmp_path / "png" / f"{i:04d}.png"))[..., ::-1].astype(np.float32) for i in range(8)]
     assert len(frames) == 8 and all(f.shape == (180, 320, 3) for f in frames)
@@ -142,8 +152,9 @@ def test_a_sequence_without_references_gets_a_contact_sheet(tiny_artifacts, tmp_
 
     seq = tmp_path / "seq"
     shutil.copytree(SAMPLE, seq, ignore=shutil.ignore_patterns("reference"))
-    report = run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), seq, tmp_path / "out",
-                          progress=False)
+    report = run_sequence(
+        PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), seq, tmp_path / "out", progress=False
+    )
     assert "metrics" not in report
     sheet = cv2.imread(report["contact_sheet"])
     columns = 3 if importlib.util.find_spec("pyoidn") else 2  # input, (OIDN,) JNDS

@@ -1,6 +1,7 @@
 """Numerical stability and bad input: extreme values, broken motion, odd sizes, fp16
 limits, fuzzed files and frames. Each case states its expectation. Long runs and
 larger fuzzing budgets are in benchmarks/stability.py."""
+
 import json
 
 import numpy as np
@@ -26,8 +27,10 @@ def pipes(request):
     """Pipelines of a model predicting its upsample kernel, and of one with a fixed kernel
     (whose upsample filter is one fused pass into the output, ``filters.upsample_fixed_hwc``)."""
     a = str(request.getfixturevalue({"predicted": "tiny_artifacts", "fixed": "tiny_artifacts_fixed"}[request.param])[0])
-    return {"float32": Pipeline(PipelineConfig(artifacts=a, precision="fp32")),
-            "float16": Pipeline(PipelineConfig(artifacts=a, precision="fp32", filter_dtype="float16"))}
+    return {
+        "float32": Pipeline(PipelineConfig(artifacts=a, precision="fp32")),
+        "float16": Pipeline(PipelineConfig(artifacts=a, precision="fp32", filter_dtype="float16")),
+    }
 
 
 def _ok(out, shape=None):
@@ -51,12 +54,17 @@ def test_extreme_radiance(pipes, case):
     shape = layers["diffuse"].shape
     value = {"tiny": 1e-8, "huge": 1e6, "beyond_clamp": 1e30}.get(case)
     for k in ("diffuse", "specular"):
-        layers[k] = (np.full(shape, value, np.float32) if value else
-                     (10.0 ** rng.uniform(-8, 6, shape)).astype(np.float32))
+        layers[k] = (
+            np.full(shape, value, np.float32) if value else (10.0 ** rng.uniform(-8, 6, shape)).astype(np.float32)
+        )
     out = pipe(layers, camera_cut=True).output
     _ok(out, (180, 320, 3))
     if case == "beyond_clamp":
-        clamped = {**layers, "diffuse": np.full(shape, 65535, np.float32), "specular": np.full(shape, 65535, np.float32)}
+        clamped = {
+            **layers,
+            "diffuse": np.full(shape, 65535, np.float32),
+            "specular": np.full(shape, 65535, np.float32),
+        }
         np.testing.assert_array_equal(out, pipe(clamped, camera_cut=True).output)
 
 
@@ -133,8 +141,9 @@ def test_any_finite_input_gives_finite_nonnegative_output(pipes, data):
     h = data.draw(st.integers(1, 12), label="h")
     w = data.draw(st.integers(1, 12), label="w")
     elements = st.floats(width=32, allow_nan=False, allow_infinity=False)  # all finite float32
-    layers = {n: data.draw(hnp.arrays(np.float32, (h, w, c), elements=elements), label=n)
-              for n, c in INPUT_CHANNELS.items()}
+    layers = {
+        n: data.draw(hnp.arrays(np.float32, (h, w, c), elements=elements), label=n) for n, c in INPUT_CHANNELS.items()
+    }
     for cut in (True, False):  # the second frame warps the first one's history
         out = pipe(layers, camera_cut=cut).output
         _ok(out, (2 * h, 2 * w, 3))
@@ -142,15 +151,14 @@ def test_any_finite_input_gives_finite_nonnegative_output(pipes, data):
 
 
 @FUZZ
-@given(cut=st.integers(0, 10_000), flips=st.lists(st.tuples(st.integers(0, 10_000), st.integers(0, 255)),
-                                                   max_size=8))
+@given(cut=st.integers(0, 10_000), flips=st.lists(st.tuples(st.integers(0, 10_000), st.integers(0, 255)), max_size=8))
 def test_fuzzed_exr_bytes_read_or_raise_exr_error(cut, flips):
     """Truncated and byte-flipped EXR files: read, or ExrReadError naming the file;
     never another exception (and never a crash of the OpenEXR library)."""
     rng = np.random.default_rng(0)
     layers = random_inputs(rng, 9, 7)
     data = bytearray(exr_bytes({k: layers[k] for k in INPUT_LAYERS}, INPUT_LAYERS))
-    data = data[:cut % (len(data) + 1)]
+    data = data[: cut % (len(data) + 1)]
     for pos, val in flips:
         if data:
             data[pos % len(data)] = val
@@ -163,10 +171,14 @@ def test_fuzzed_exr_bytes_read_or_raise_exr_error(cut, flips):
 
 
 @FUZZ
-@given(key=st.sampled_from(["format", "native_size", "target_size", "frame_count", "frames", "scale"]),
-       value=st.recursive(st.none() | st.booleans() | st.integers(-10, 10) | st.floats(allow_nan=True) | st.text(max_size=5),
-                          lambda kids: st.lists(kids, max_size=3) | st.dictionaries(st.text(max_size=5), kids, max_size=3),
-                          max_leaves=6))
+@given(
+    key=st.sampled_from(["format", "native_size", "target_size", "frame_count", "frames", "scale"]),
+    value=st.recursive(
+        st.none() | st.booleans() | st.integers(-10, 10) | st.floats(allow_nan=True) | st.text(max_size=5),
+        lambda kids: st.lists(kids, max_size=3) | st.dictionaries(st.text(max_size=5), kids, max_size=3),
+        max_leaves=6,
+    ),
+)
 def test_fuzzed_sequence_json_opens_or_raises_sequence_error(make_sequence, key, value):
     """Any JSON value for any key of sequence.json: the sequence opens, or a
     SequenceError names sequence.json; never another exception."""
@@ -246,6 +258,6 @@ def test_history_rejection_partial_tiles_use_their_own_pixels():
     h, w = REJECT_TILE + 5, 2 * REJECT_TILE + 3
     current = rng.exponential(size=(13, h, w)).astype(np.float32)
     history = current[:12].copy()
-    history[0:3, REJECT_TILE:, REJECT_TILE:2 * REJECT_TILE] *= 10  # diffuse, the partial tile below
+    history[0:3, REJECT_TILE:, REJECT_TILE : 2 * REJECT_TILE] *= 10  # diffuse, the partial tile below
     assert reject_history(current, history) == 1
     np.testing.assert_array_equal(history, current[:12])

@@ -1,4 +1,5 @@
 """The server fixture of the serve tests."""
+
 import threading
 
 import pytest

@@ -1,5 +1,6 @@
 """`jnds serve` over real HTTP on loopback: round trip against `jnds run`, separate
 histories, bad requests, stream control, shutdown."""
+
 import threading
 import time
 
@@ -23,8 +24,13 @@ def _frames():
 
 def test_stream_round_trip_equals_jnds_run(server, tiny_artifacts, tmp_path):
     url, _ = server()
-    run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), SAMPLE, tmp_path / "run",
-                 progress=False, metrics=False)
+    run_sequence(
+        PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"),
+        SAMPLE,
+        tmp_path / "run",
+        progress=False,
+        metrics=False,
+    )
     client = Client(url)
     assert client.health()["status"] == "ok"
     timings = []
@@ -57,15 +63,22 @@ def test_warmup_sizes_leave_no_trace_in_the_streams(server, tiny_artifacts, tmp_
     what `jnds run` does. Sizes that are not positive or exceed max_pixels are refused."""
     import logging
 
-    run_sequence(PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"), SAMPLE, tmp_path / "run",
-                 progress=False, metrics=False)
+    run_sequence(
+        PipelineConfig(artifacts=str(tiny_artifacts[0]), precision="fp32"),
+        SAMPLE,
+        tmp_path / "run",
+        progress=False,
+        metrics=False,
+    )
     with caplog.at_level(logging.INFO, logger="jnds.serve"):
         url, _ = server(warmup=((160, 90), (64, 36)))
     assert "warmed up at 160x90" in caplog.text and "warmed up at 64x36" in caplog.text
     with Client(url).open_stream() as stream:
         for i, (layers, cut) in enumerate(_frames()[:3]):
             want = read_exr(tmp_path / "run" / f"{i:04d}.exr")
-            np.testing.assert_array_equal(stream.denoise(layers, cut), np.stack([want[f"color.{c}"] for c in "RGB"], -1))
+            np.testing.assert_array_equal(
+                stream.denoise(layers, cut), np.stack([want[f"color.{c}"] for c in "RGB"], -1)
+            )
     for bad in ((0, 90), (2000, 2000)):
         with pytest.raises(ValueError, match=f"warm-up size {bad[0]}x{bad[1]}"):
             ServeConfig(artifacts=str(tiny_artifacts[0]), warmup=(bad,))
@@ -102,6 +115,7 @@ def _exr(layers, drop=(), uint=None):
     body = exr_bytes({k: layers[k] for k in suffixes}, suffixes, compression=OpenEXR.NO_COMPRESSION)
     if uint:  # the same file with one channel stored as 32-bit unsigned int
         import io
+
         f = OpenEXR.File(io.BytesIO(body), separate_channels=True)
         ch = {k: c.pixels for k, c in f.channels().items()}
         ch[uint] = ch[uint].astype(np.uint32)
@@ -119,10 +133,12 @@ def test_bad_frames_get_clear_errors_and_the_stream_goes_on(server, tiny_artifac
     stream = client.open_stream()
     other = client.open_stream()
     flood = {**frames[1][0], "specular": np.full_like(frames[1][0]["specular"], np.nan)}
-    bad = [(b"not an exr at all", "unreadable or truncated OpenEXR"),
-           (_exr(frames[1][0], drop=("motion",)), "missing channel\\(s\\) motion.X, motion.Y"),
-           (_exr(frames[1][0], uint="roughness"), "channel 'roughness' is stored as uint32, expected half or float"),
-           (_exr(flood), "layer 'specular' has 43200 of 43200 values NaN or Inf")]
+    bad = [
+        (b"not an exr at all", "unreadable or truncated OpenEXR"),
+        (_exr(frames[1][0], drop=("motion",)), "missing channel\\(s\\) motion.X, motion.Y"),
+        (_exr(frames[1][0], uint="roughness"), "channel 'roughness' is stored as uint32, expected half or float"),
+        (_exr(flood), "layer 'specular' has 43200 of 43200 values NaN or Inf"),
+    ]
     for i, (layers, cut) in enumerate(frames[:4]):
         want = pipe(layers, cut).output
         body, message = bad[i]
@@ -217,9 +233,23 @@ def test_jnds_serve_command_serves_and_stops_on_sigterm(tiny_artifacts):
     import subprocess
     import sys
 
-    proc = subprocess.Popen([sys.executable, "-m", "jnds_deploy", "serve", "--artifacts", str(tiny_artifacts[0]),
-                             "--port", "0", "--precision", "fp32"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "jnds_deploy",
+            "serve",
+            "--artifacts",
+            str(tiny_artifacts[0]),
+            "--port",
+            "0",
+            "--precision",
+            "fp32",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         line = proc.stdout.readline()
         assert line.startswith("jnds serve: listening on http://127.0.0.1:"), (line, proc.stderr.read())
@@ -246,12 +276,22 @@ def test_a_frame_declaring_too_many_pixels_is_refused_before_decoding(server):
 
     url, fs = server()
     zeros = np.zeros((4000, 4000), np.float16)
-    names = [f"{layer}.{c}" if c else layer for layer, cs in
-             (("diffuse", "RGB"), ("specular", "RGB"), ("albedo", "RGB"), ("normal", "XYZ"), ("roughness", [""]),
-              ("motion", "XY")) for c in cs]
+    names = [
+        f"{layer}.{c}" if c else layer
+        for layer, cs in (
+            ("diffuse", "RGB"),
+            ("specular", "RGB"),
+            ("albedo", "RGB"),
+            ("normal", "XYZ"),
+            ("roughness", [""]),
+            ("motion", "XY"),
+        )
+        for c in cs
+    ]
     buf = io.BytesIO()
-    OpenEXR.File({"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION},
-                 {n: zeros for n in names}).write(buf)
+    OpenEXR.File(
+        {"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION}, {n: zeros for n in names}
+    ).write(buf)
     body = buf.getvalue()
     assert len(body) < 1 << 20
     with Client(url).open_stream() as stream:
@@ -259,8 +299,12 @@ def test_a_frame_declaring_too_many_pixels_is_refused_before_decoding(server):
         conn = http.client.HTTPConnection(host, int(port), timeout=30)
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         t0 = time.perf_counter()
-        conn.request("POST", f"/streams/{stream.id}/frames", body=body,
-                     headers={"Content-Type": "image/x-exr", "Content-Length": str(len(body))})
+        conn.request(
+            "POST",
+            f"/streams/{stream.id}/frames",
+            body=body,
+            headers={"Content-Type": "image/x-exr", "Content-Length": str(len(body))},
+        )
         resp = conn.getresponse()
         answer = json.loads(resp.read())
         assert resp.status == 413 and time.perf_counter() - t0 < 10
@@ -315,8 +359,9 @@ def test_a_body_that_never_completes_gets_408(server):
     host, port = url.split("//")[1].split(":")
     with Client(url).open_stream() as stream:
         s = socket.create_connection((host, int(port)), timeout=10)
-        s.sendall(f"POST /streams/{stream.id}/frames HTTP/1.1\r\nHost: x\r\nContent-Length: 1000\r\n\r\n".encode()
-                  + b"x" * 10)
+        s.sendall(
+            f"POST /streams/{stream.id}/frames HTTP/1.1\r\nHost: x\r\nContent-Length: 1000\r\n\r\n".encode() + b"x" * 10
+        )
         reply = b""
         while chunk := s.recv(4096):  # trickle nothing more; the server answers, then closes
             reply += chunk
@@ -339,8 +384,9 @@ def test_metrics_in_prometheus_text_format(server):
         families = {f.name: f for f in text_string_to_metric_families(r.read().decode())}
     assert families["jnds_frames"].samples[0].value == 2
     assert families["jnds_streams_open"].samples[0].value == 0 and families["jnds_rss_bytes"].samples[0].value > 0
-    counts = {s.labels["stage"]: s.value for s in families["jnds_stage_latency_seconds"].samples
-              if s.name.endswith("_count")}
+    counts = {
+        s.labels["stage"]: s.value for s in families["jnds_stage_latency_seconds"].samples if s.name.endswith("_count")
+    }
     assert counts["network"] == 2 and counts["server"] == 2
     assert Client(url).metrics()["frames_served"] == 2  # the JSON stays, at /metrics.json
 
