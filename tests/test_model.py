@@ -542,8 +542,8 @@ def test_evaluate_names_training_checkpoints_by_run_and_scores_them(tmp_path):
     report = run_evaluation([str(ckpt)], str(SAMPLE), ["bicubic"], str(tmp_path / "eval.json"), threads=1)
     assert list(report) == ["tiny-a", "bicubic"]
     for r in report.values():
-        assert set(r["mean"]) == {"psnr", "ssim", "flip", "temporal"}
-        assert np.isfinite(list(r["mean"].values())).all()
+        assert set(r["mean"]) == {"psnr", "ssim", "flip", "temporal", "changed_psnr", "changed_fraction"}
+        assert np.isfinite(list(r["mean"].values())).all() and 0 < r["mean"]["changed_fraction"] < 0.5
         assert list(r["sequences"]) == [SAMPLE.name]
     assert json.loads((tmp_path / "eval.json").read_text()) == report
 

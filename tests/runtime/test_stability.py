@@ -195,8 +195,10 @@ def test_fuzzed_sequence_json_opens_or_raises_sequence_error(make_sequence, key,
 
 @pytest.mark.parametrize("damage", ["truncate", "garbage", "missing_channel", "uint"])
 def test_jnds_run_stops_at_a_bad_frame_keeping_what_it_wrote(tiny_artifacts, tmp_path, damage):
-    """A broken frame mid-sequence: a clear error naming the file; the frames written
-    before it are complete and equal to a clean run's; no temporary files left."""
+    """A broken frame mid-sequence: a clear error naming the file. A header that says so
+    (not OpenEXR, a channel missing) stops the run before anything is written
+    (``io.check_headers``); broken pixels behind a sound header stop it at the frame, and the
+    frames written before it are complete and equal to a clean run's; no temporary files left."""
     import shutil
 
     seq = tmp_path / "seq"
@@ -218,6 +220,9 @@ def test_jnds_run_stops_at_a_bad_frame_keeping_what_it_wrote(tiny_artifacts, tmp
     with pytest.raises(JndsError, match="0005.exr") as exc:
         run_sequence(cfg, seq, tmp_path / "out", progress=False, metrics=False)
     assert isinstance(exc.value, SequenceError)
+    if damage in ("garbage", "missing_channel"):
+        assert not (tmp_path / "out").exists()
+        return
     run_sequence(cfg, SAMPLE, tmp_path / "clean", progress=False, metrics=False)
     written = sorted(p.name for p in (tmp_path / "out").iterdir())
     assert written == [f"{i:04d}.exr" for i in range(5)], written
