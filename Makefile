@@ -2,7 +2,7 @@
 # make test: set up, then run the test suite.
 VENV   := .venv
 JNDS   := $(VENV)/bin/jnds
-EXTRAS ?= render,dev,bench,cluster,video
+EXTRAS ?= train,render,dev,bench,cluster,video
 comma  := ,
 STAMP  := $(VENV)/.installed-$(subst $(comma),-,$(EXTRAS))
 
@@ -14,14 +14,12 @@ $(STAMP): pyproject.toml tools/setup.sh
 	EXTRAS=$(EXTRAS) bash tools/setup.sh
 	touch $@
 
-# validate the bundled sample, export the shipped checkpoint, calibrate int8 graphs with
-# its learned ranges, run the int8 pipeline on the sample (frames + run.json in
-# out/run), ending with the per-stage timing table
+# validate the bundled sample, then run the int8 pipeline on it with the packaged artifacts
+# (the shipped checkpoint's, tools/package_artifacts.py): frames, run.json, the contact sheet
+# and a video in out/run, its score and OIDN's, the per-stage timing table
 demo: setup
 	$(JNDS) validate samples/orbit-160x90
-	$(JNDS) export --out out/artifacts
-	$(JNDS) calibrate --artifacts out/artifacts --data samples/orbit-160x90 --method qat
-	$(JNDS) run --artifacts out/artifacts --input samples/orbit-160x90 --output out/run --precision int8
+	$(JNDS) run --input samples/orbit-160x90 --output out/run --video
 
 # lint and format first (ruff, configured in pyproject.toml); pytest exit code 5 (no tests
 # collected) is a failure, not a pass

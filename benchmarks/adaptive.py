@@ -1,6 +1,6 @@
 """Adaptive execution: run time with and without it in one run, and the error it changes.
 
-    python -m benchmarks.adaptive [--artifacts out/artifacts] [--frames 5] [--out benchmarks/results]
+    python -m benchmarks.adaptive [--frames 5] [--out benchmarks/results]
 
 Renders (once, resumable) a scene for each skip into data/adaptive/: a sunlit diffuse-only
 scene (no specular signal), a metal-only scene (no diffuse signal), a static camera, a
@@ -46,6 +46,7 @@ from jnds_deploy.errors import ArtifactError
 from jnds_deploy.io import open_sequence
 from jnds_deploy.metrics import flip, psnr
 from jnds_deploy.runtime import Pipeline
+from jnds_deploy.runtime.config import SHIPPED_ARTIFACTS
 
 SCENES = (  # scene, camera, seed, what it allows
     ("sunlit", "orbit", 3004, "diffuse only (no specular signal)"),
@@ -173,7 +174,7 @@ def main() -> int:
     ap = arguments(
         __doc__, RESULTS, "directory of adaptive.md and adaptive.json", smoke={"frames": 2, "size": "160x96"}
     )
-    ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
+    ap.add_argument("--artifacts", default=SHIPPED_ARTIFACTS)
     ap.add_argument("--data", default=str(ROOT / "data"), help="renders the scenes into DATA/adaptive; DATA/val")
     ap.add_argument("--frames", type=int, default=5, help="frames per sequence timed at --size")
     ap.add_argument("--size", default="1280x720", help="native size the timed frames are resized to")

@@ -1,7 +1,7 @@
 """Throughput of `jnds batch` on Ray: one worker, two workers, and two Ray nodes started on
 this machine (`ray start --head`, `ray start --address`), with what limits scaling.
 
-    python -m benchmarks.batch_throughput [--artifacts out/artifacts] [--sequences 6]
+    python -m benchmarks.batch_throughput [--sequences 6]
         [--frames 8] [--size 640x360] [--runs 3] [--configs NAME ...] [--out benchmarks/results/batch_throughput]
 
 The input: --sequences copies of the bundled sample resized to --size (motion scaled),
@@ -39,6 +39,7 @@ from benchmarks.common import (
     write_report,
 )
 from jnds_deploy.io import FrameInfo, SequenceWriter, open_sequence
+from jnds_deploy.runtime.config import SHIPPED_ARTIFACTS
 
 RAY = str(Path(sys.executable).with_name("ray"))
 # (workers, threads)
@@ -123,7 +124,7 @@ def main() -> None:
         RESULTS / "batch_throughput",
         smoke={"sequences": 2, "frames": 2, "size": "64x32", "runs": 1, "configs": ["1 worker x 1 thread"]},
     )
-    ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
+    ap.add_argument("--artifacts", default=SHIPPED_ARTIFACTS)
     ap.add_argument("--sequences", type=int, default=6)
     ap.add_argument("--frames", type=int, default=8)
     ap.add_argument("--size", default="640x360")

@@ -1,7 +1,7 @@
 """int8 against fp32 across exposure and across sequences: radiance scaled by 2^k, the
 deployed pipeline (ONNX Runtime) at both precisions.
 
-    python -m benchmarks.exposure_sweep [--artifacts out/artifacts] --input data/val/SEQ [SEQ|DIR ...]
+    python -m benchmarks.exposure_sweep --input data/val/SEQ [SEQ|DIR ...]
         [--stops -4 -2 0 2 4 6 8] [--out benchmarks/results/exposure_sweep]
 
 Every sequence given (or found in a directory given) at every exposure 2^k (``--stops 0``
@@ -35,6 +35,7 @@ from benchmarks.common import (
 from jnds_deploy.io import expand_sequences, open_sequence
 from jnds_deploy.layout import RADIANCE
 from jnds_deploy.metrics import flip, psnr
+from jnds_deploy.runtime.config import SHIPPED_ARTIFACTS
 
 
 def run(pipe, frames, gain: float, refs) -> dict:
@@ -51,7 +52,7 @@ def main() -> None:
     ap = arguments(
         __doc__, RESULTS / "exposure_sweep", smoke={"input": [str(ROOT / "samples" / "orbit-160x90")], "stops": [0, 8]}
     )
-    ap.add_argument("--artifacts", default="out/artifacts")
+    ap.add_argument("--artifacts", default=SHIPPED_ARTIFACTS)
     ap.add_argument("--input", nargs="+", help="sequences with references, or directories of them (required)")
     ap.add_argument("--stops", type=float, nargs="+", default=[-4, -2, 0, 2, 4, 6, 8])
     args = parse(ap)

@@ -1,6 +1,6 @@
 """Writing one output frame: time and size per EXR storage (`jnds run --output-format`).
 
-    python -m benchmarks.exr_write [--artifacts out/artifacts] [--size 1280x720] [--runs 7]
+    python -m benchmarks.exr_write [--size 1280x720] [--runs 7]
         [--threads 2] [--out benchmarks/results/exr_write]
 
 The frame is a real output: the bundled sample's frames resized to --size (native) run
@@ -33,11 +33,12 @@ from benchmarks.common import (
     write_report,
 )
 from jnds_deploy import io
+from jnds_deploy.runtime.config import SHIPPED_ARTIFACTS
 
 
 def main() -> None:
     ap = arguments(__doc__, RESULTS / "exr_write", smoke={"size": "160x96", "runs": 1})
-    ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
+    ap.add_argument("--artifacts", default=SHIPPED_ARTIFACTS)
     ap.add_argument("--size", default="1280x720")
     ap.add_argument("--runs", type=int, default=7)
     ap.add_argument("--threads", type=int, default=2)

@@ -1,7 +1,7 @@
 """The firefly clamp's factor against error: the deployed int8 pipeline at each factor
 (``PipelineConfig.firefly_clamp``; 0: off), beside OIDN `balanced` + bicubic.
 
-    python -m benchmarks.firefly_clamp [--artifacts out/artifacts] --input data/val
+    python -m benchmarks.firefly_clamp --input data/val
         [--factors 0 2 4 8 16] [--baselines oidn-balanced] [--sheet PNG] [--out benchmarks/results/firefly_clamp]
 
 Every sequence given (or found in a directory given), every frame, history carried;
@@ -31,6 +31,7 @@ from benchmarks.common import (
     write_report,
 )
 from jnds_deploy.io import expand_sequences, open_sequence
+from jnds_deploy.runtime.config import SHIPPED_ARTIFACTS
 from jnds_deploy.training.evaluate import baseline_outputs, evaluate_methods
 
 
@@ -51,7 +52,7 @@ def main() -> None:
         RESULTS / "firefly_clamp",
         smoke={"input": [str(ROOT / "samples" / "orbit-160x90")], "factors": [0, 16], "baselines": ["bicubic"]},
     )
-    ap.add_argument("--artifacts", default="out/artifacts")
+    ap.add_argument("--artifacts", default=SHIPPED_ARTIFACTS)
     ap.add_argument("--input", nargs="+", help="sequences with references, or directories of them (required)")
     ap.add_argument("--factors", type=float, nargs="+", default=[0, 2, 4, 8, 16])
     ap.add_argument("--baselines", nargs="*", default=["oidn-balanced"])

@@ -1,7 +1,7 @@
 """Ghost trails: the pipeline against a single-frame denoiser where the previous frame showed
 another surface.
 
-    python -m benchmarks.ghosting --data data/ghost-test [--before out/before] [--artifacts out/artifacts]
+    python -m benchmarks.ghosting --data data/ghost-test [--before out/before]
 
 For every sequence of --data (directories of sequences with references; the ghosting sets
 of docs/ghosting.md), per method: PSNR, FLIP, the temporal error and the changed-pixel PSNR
@@ -25,6 +25,7 @@ from benchmarks.common import RESULTS, ROOT, arguments, command_line, cpu_line, 
 from jnds_deploy import baselines, contact_sheet, video
 from jnds_deploy.io import OUTPUT_LAYERS, expand_sequences, open_sequence, read_layers
 from jnds_deploy.runtime import Pipeline, PipelineConfig
+from jnds_deploy.runtime.config import SHIPPED_ARTIFACTS
 from jnds_deploy.training.evaluate import ground_truth, mean_over_sequences, score_frames
 
 KEYS = ("psnr", "flip", "temporal", "changed_psnr")
@@ -105,7 +106,7 @@ def markdown(report: dict) -> str:
 
 def main() -> int:
     ap = arguments(__doc__, RESULTS / "ghosting", smoke={"data": [str(ROOT / "samples")]})
-    ap.add_argument("--artifacts", default="out/artifacts")
+    ap.add_argument("--artifacts", default=SHIPPED_ARTIFACTS)
     ap.add_argument("--data", nargs="+", default=["data/ghost-test"])
     ap.add_argument("--before", default=None, help="DIR/<sequence>/NNNN.exr: another version's `jnds run` frames")
     ap.add_argument("--precision", nargs="+", default=["int8", "fp32"])

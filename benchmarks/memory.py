@@ -1,7 +1,7 @@
 """Peak memory and cold start of `jnds run`: fresh processes on 3-frame sequences at
 several sizes, beside OIDN `balanced`'s per-frame time at the largest size.
 
-    python -m benchmarks.memory [--artifacts out/artifacts] [--sizes 320x180 640x360 1280x720]
+    python -m benchmarks.memory [--sizes 320x180 640x360 1280x720]
         [--frames 3] [--runs 3] [--out benchmarks/results/memory]
 
 For each size: the bundled sample's first frames resized to it (motion scaled) are
@@ -41,6 +41,7 @@ from benchmarks.common import (
     write_report,
 )
 from jnds_deploy.io import FrameInfo, SequenceWriter, open_sequence
+from jnds_deploy.runtime.config import SHIPPED_ARTIFACTS
 
 JNDS = str(Path(sys.executable).with_name("jnds"))
 
@@ -92,7 +93,7 @@ def cold_run(artifacts: str, seq: Path, out: Path) -> dict:
 
 def main() -> None:
     ap = arguments(__doc__, RESULTS / "memory", smoke={"sizes": ["64x32", "128x64"], "frames": 2, "runs": 1})
-    ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
+    ap.add_argument("--artifacts", default=SHIPPED_ARTIFACTS)
     ap.add_argument("--sizes", nargs="+", default=["320x180", "640x360", "1280x720"])
     ap.add_argument("--frames", type=int, default=3)
     ap.add_argument("--runs", type=int, default=3)

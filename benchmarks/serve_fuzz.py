@@ -1,7 +1,7 @@
 """Fuzzing the HTTP surface of `jnds serve`: hostile and careless requests, the server
 alive and bounded, another stream's output unchanged.
 
-    python -m benchmarks.serve_fuzz [--artifacts out/artifacts] [--cases 10000] [--seed 0]
+    python -m benchmarks.serve_fuzz [--cases 10000] [--seed 0]
         [--out benchmarks/results/serve_fuzz]
 
 Starts `jnds serve` as a subprocess on a free loopback port and opens a reference stream
@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse, write_report
+from jnds_deploy.runtime.config import SHIPPED_ARTIFACTS
 
 INPUT_CHANNELS = [
     "diffuse.R",
@@ -223,7 +224,7 @@ def main() -> None:
         RESULTS / "serve_fuzz",
         smoke={"cases": 40, "every": 20, "slow": 4, "rounds": 2, "request_timeout": 1.0},
     )
-    ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
+    ap.add_argument("--artifacts", default=SHIPPED_ARTIFACTS)
     ap.add_argument("--cases", type=int, default=10000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--every", type=int, default=100, help="cases between two runs of the reference stream")

@@ -1,7 +1,7 @@
 """Load test of `jnds serve` on loopback: N concurrent streams, throughput, latency,
 server memory over time, and a long run for memory growth.
 
-    python -m benchmarks.serve_load [--artifacts out/artifacts] [--frames 48] [--counts 1 2 4 8]
+    python -m benchmarks.serve_load [--frames 48] [--counts 1 2 4 8]
         [--long-s 120] [--out benchmarks/results/serve_load]
 
 Starts `jnds serve` as a subprocess on a free loopback port, then for each stream count
@@ -26,6 +26,7 @@ import numpy as np
 
 from benchmarks.common import RESULTS, ROOT, arguments, command_line, cpu_line, machine_info, parse, timed, write_report
 from jnds_deploy.io import open_sequence
+from jnds_deploy.runtime.config import SHIPPED_ARTIFACTS
 from jnds_deploy.serve import Client
 from jnds_deploy.serve.server import rss_bytes
 
@@ -83,7 +84,7 @@ def drive(url: str, frames: list, streams: int, per_stream: int | None, deadline
 
 def main() -> int:
     ap = arguments(__doc__, RESULTS / "serve_load", smoke={"counts": [1, 2], "frames": 4, "long_s": 1.0})
-    ap.add_argument("--artifacts", default="out/artifacts")
+    ap.add_argument("--artifacts", default=SHIPPED_ARTIFACTS)
     ap.add_argument("--input", default=str(ROOT / "samples" / "orbit-160x90"))
     ap.add_argument("--precision", default="int8")
     ap.add_argument("--workers", type=int, default=1)

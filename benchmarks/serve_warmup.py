@@ -1,6 +1,6 @@
 """A stream's first frames in `jnds serve`, with and without `--warmup` at their size.
 
-    python -m benchmarks.serve_warmup [--artifacts out/artifacts] [--size 1280x720] [--frames 4]
+    python -m benchmarks.serve_warmup [--size 1280x720] [--frames 4]
         [--runs 3] [--out benchmarks/results/serve_warmup]
 
 Each run is a fresh process that builds the server (``FrameServer``: its pipeline and the
@@ -32,6 +32,7 @@ from benchmarks.common import (
     parse_size,
     write_report,
 )
+from jnds_deploy.runtime.config import SHIPPED_ARTIFACTS
 
 
 def one_process(artifacts: str, size: tuple[int, int], frames: int, warmup: bool) -> dict:
@@ -60,7 +61,7 @@ def one_process(artifacts: str, size: tuple[int, int], frames: int, warmup: bool
 
 def main() -> None:
     ap = arguments(__doc__, RESULTS / "serve_warmup", smoke={"size": "160x96", "frames": 2, "runs": 1})
-    ap.add_argument("--artifacts", default=str(ROOT / "out" / "artifacts"))
+    ap.add_argument("--artifacts", default=SHIPPED_ARTIFACTS)
     ap.add_argument("--size", default="1280x720")
     ap.add_argument("--frames", type=int, default=4)
     ap.add_argument("--runs", type=int, default=3)

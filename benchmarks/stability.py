@@ -1,7 +1,7 @@
 """Numerical stability of the pipeline: long runs, int8 outside the calibration range,
 NaN floods, fp16 limits, and fuzzing with a larger budget than the tests.
 
-    python -m benchmarks.stability [--artifacts out/artifacts] [--data data/val]
+    python -m benchmarks.stability [--data data/val]
         [--long-frames 1008] [--fuzz 2000] [--out benchmarks/results/stability]
 
 Cases (each states what it checks; the figures go to benchmarks/results/stability.md,
@@ -49,6 +49,7 @@ from jnds_deploy.errors import ExrReadError
 from jnds_deploy.io import INPUT_LAYERS, exr_bytes, find_sequences, open_sequence, read_exr_bytes
 from jnds_deploy.layout import INPUT_CHANNELS
 from jnds_deploy.runtime import Pipeline
+from jnds_deploy.runtime.config import SHIPPED_ARTIFACTS
 
 STEADY_LOOPS = 10
 SCALES = (1, 4, 16, 64, 256, 1024, 4096)  # radiance x k beyond the calibration range, int8 against fp32
@@ -150,7 +151,7 @@ def fuzz_exr(n: int, rng: np.random.Generator) -> dict:
 
 def main() -> int:
     ap = arguments(__doc__, RESULTS / "stability", smoke={"data": str(ROOT / "samples"), "long_frames": 96, "fuzz": 20})
-    ap.add_argument("--artifacts", default="out/artifacts")
+    ap.add_argument("--artifacts", default=SHIPPED_ARTIFACTS)
     ap.add_argument("--data", default="data/val")
     ap.add_argument("--long-frames", type=int, default=1008)
     ap.add_argument("--fuzz", type=int, default=2000)

@@ -1,6 +1,6 @@
 """Per-stage timing of the pipeline, in the form of the paper's Table 4.
 
-    python -m benchmarks.timing [--artifacts out/artifacts] [--input samples/orbit-160x90]
+    python -m benchmarks.timing [--input samples/orbit-160x90]
         [--size 1280x720] [--repeats 3] [--no-oidn] [--out benchmarks/results/timing]
 
 Runs the frame-recurrent pipeline (fp32 and int8 network graphs, float32 filter stage)
@@ -43,6 +43,7 @@ from jnds_deploy.artifacts import Manifest
 from jnds_deploy.io import open_sequence
 from jnds_deploy.model import ModelConfig, count_macs
 from jnds_deploy.runtime import Pipeline
+from jnds_deploy.runtime.config import SHIPPED_ARTIFACTS
 from jnds_deploy.runtime.network import Edges
 from jnds_deploy.runtime.profile import STAGES, profile_stages
 from jnds_deploy.runtime.reformat import block_input
@@ -289,7 +290,7 @@ def head_to_head(pipe: Pipeline, frames, passes: int) -> dict:
 
 def main() -> int:
     ap = arguments(__doc__, RESULTS / "timing", smoke={"size": "160x96", "repeats": 1})
-    ap.add_argument("--artifacts", default="out/artifacts", help="exported and calibrated (`make demo` does both)")
+    ap.add_argument("--artifacts", default=SHIPPED_ARTIFACTS, help="exported and calibrated (`make demo` does both)")
     ap.add_argument("--input", default=str(ROOT / "samples" / "orbit-160x90"))
     ap.add_argument("--size", default="1280x720", help="native size the frames are also resized to")
     ap.add_argument("--repeats", type=int, default=3, help="passes over the sequence's frames 1..N")

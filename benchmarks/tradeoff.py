@@ -43,6 +43,7 @@ from benchmarks.common import (
 from jnds_deploy import baselines
 from jnds_deploy.artifacts import Manifest
 from jnds_deploy.io import expand_sequences, open_sequence
+from jnds_deploy.runtime.config import SHIPPED_ARTIFACTS
 from jnds_deploy.training.evaluate import ground_truth, mean_over_sequences, score_frames
 
 
@@ -165,7 +166,7 @@ def plot(report: dict, path: Path) -> None:
 
 def main() -> int:
     ap = arguments(__doc__, RESULTS / "tradeoff", smoke={"data": [str(ROOT / "samples" / "orbit-160x90")], "frames": 3})
-    ap.add_argument("--artifacts", default="out/artifacts")
+    ap.add_argument("--artifacts", default=SHIPPED_ARTIFACTS)
     ap.add_argument("--data", nargs="+", default=["data/val"])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--frames", type=int, default=None, help="the first frames of each sequence (default: all)")

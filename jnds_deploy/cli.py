@@ -530,7 +530,23 @@ def command_parser(name: str) -> argparse.ArgumentParser:
     return build_parser().commands.complete(name)
 
 
+# the commands that need PyTorch and ONNX (the train extra); the others run without them
+NEEDS_TRAIN = ("train", "train-feature-net", "evaluate", "export", "calibrate")
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] and argv[0] in NEEDS_TRAIN:
+        import importlib.util
+
+        missing = [m for m in ("torch", "onnx") if importlib.util.find_spec(m) is None]
+        if missing:
+            print(
+                f"jnds {argv[0]}: error: needs {' and '.join(missing)}: pip install 'jnds-deploy[train]' "
+                "(jnds run, serve and batch need neither)",
+                file=sys.stderr,
+            )
+            return 2
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)

@@ -32,6 +32,7 @@ from .runtime.config import (
     FILTER_DTYPES,
     PRECISION_HELP,
     PRECISIONS,
+    SHIPPED_ARTIFACTS,
 )
 
 SUMMARY = "batch.json"
@@ -62,9 +63,9 @@ def connect(address: str | None = None, cpus: int | None = None) -> dict:
 
 @dataclass
 class BatchConfig:
-    artifacts: str = option(help=ARTIFACTS_HELP)
     input: str = option(help="ROOT: every directory under it with a sequence.json")
     output: str = option(help="OUT: ROOT/<path> goes to OUT/<path>; OUT/batch.json sums up")
+    artifacts: str = option(SHIPPED_ARTIFACTS, ARTIFACTS_HELP)
     precision: str = option(DEFAULT_PRECISION, PRECISION_HELP, choices=PRECISIONS)
     filter_dtype: str = option(FILTER_DTYPES[0], FILTER_DTYPE_HELP, choices=FILTER_DTYPES)
     adaptive: bool = option(True, "skip the work a frame does not need where the result is the same")

@@ -150,12 +150,9 @@ def tiny_artifacts_fixed(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def shipped_artifacts(tmp_path_factory):
-    """The shipped checkpoint exported and calibrated (qat) on three frames of the sample,
-    as `make demo` makes out/artifacts: what the README and the benchmarks run on."""
-    from jnds_deploy.calibration import CalibrateConfig, calibrate
-    from jnds_deploy.export import ExportConfig, export
+    """The shipped checkpoint exported and calibrated as the packaged artifacts are
+    (``tools.package_artifacts.build``: qat, three frames of the sample): what the README
+    and the benchmarks run on."""
+    from tools.package_artifacts import build
 
-    d = tmp_path_factory.mktemp("shipped-artifacts")
-    export(ExportConfig(out=str(d)), log=lambda s: None)
-    calibrate(CalibrateConfig(artifacts=str(d), data=(str(SAMPLE),), method="qat", frames=3), log=lambda s: None)
-    return d
+    return build(tmp_path_factory.mktemp("shipped-artifacts"))

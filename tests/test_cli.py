@@ -93,7 +93,7 @@ def test_int8_by_default_needs_calibrated_artifacts(tiny_artifacts, tmp_path, ca
 
     assert (
         PipelineConfig(artifacts="a").precision
-        == BatchConfig("a", "b", "c").precision
+        == BatchConfig(input="b", output="c", artifacts="a").precision
         == ServeConfig(artifacts="a").precision
         == "int8"
     )

@@ -3,7 +3,7 @@
 # package and the extras named in $EXTRAS, then .venv-blender with Blender (bpy). Safe to re-run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-EXTRAS="${EXTRAS:-render,dev}"
+EXTRAS="${EXTRAS:-train,render,dev}"
 
 # apt_install FILE PACKAGE WHY: install the Debian package if FILE is missing (root + apt only)
 apt_install() {
@@ -28,7 +28,7 @@ if [ ! -x .venv/bin/python ]; then
 fi
 # torch==2.13.0 resolves to the CPU wheel this machine keeps on disk (pip's find-links)
 .venv/bin/pip install -q -e ".[${EXTRAS}]" 2>&1 | grep -v "^WARNING: Location" || true
-.venv/bin/python -c "import jnds_deploy, torch, onnxruntime, OpenEXR, cv2; print('setup: ok, torch', torch.__version__)"
+.venv/bin/python -c "import jnds_deploy, onnxruntime, OpenEXR, cv2; print('setup: ok')"
 
 # Blender as a Python module, for `jnds render --engine cycles` and the Blender tests: its
 # own environment, as bpy pins numpy < 2 (BLENDER=0 skips it)

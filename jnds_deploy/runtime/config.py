@@ -5,6 +5,7 @@ numba, no ONNX Runtime): ``jnds run`` builds its options from it before the runt
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 from ..errors import ConfigError
 from ..options import option
@@ -17,12 +18,14 @@ PRECISION_HELP = (
 )
 FILTER_DTYPES = ("float32", "float16")
 FILTER_DTYPE_HELP = "the filter stage's arithmetic (float16: the paper's)"
-ARTIFACTS_HELP = "a directory written by `jnds export` (and `jnds calibrate`)"
+# the shipped checkpoint's artifacts, exported and calibrated at release (tools/package_artifacts.py)
+SHIPPED_ARTIFACTS = str(Path(__file__).resolve().parents[1] / "checkpoints" / "artifacts")
+ARTIFACTS_HELP = "a directory written by `jnds export` (and `jnds calibrate`); default: the shipped checkpoint's"
 
 
 @dataclass(frozen=True)
 class PipelineConfig:
-    artifacts: str = option(help=ARTIFACTS_HELP)
+    artifacts: str = option(SHIPPED_ARTIFACTS, ARTIFACTS_HELP)
     precision: str = option(DEFAULT_PRECISION, PRECISION_HELP, choices=PRECISIONS)
     filter_dtype: str = option(FILTER_DTYPES[0], FILTER_DTYPE_HELP, choices=FILTER_DTYPES)
     threads: int = option(2, "ONNX Runtime threads per graph run")

@@ -55,8 +55,9 @@ def score_lines(report: dict) -> list[str]:
     lines = []
     for name, m in (("JNDS", report.get("metrics")), (BASELINE, report.get("baseline"))):
         if m:
+            flip = f", FLIP {m['flip']:.4f}" if "flip" in m else ""
             lines.append(
-                f"{name:>24}: PSNR {m['psnr']:.2f} dB, FLIP {m['flip']:.4f}, changed pixels "
+                f"{name:>24}: PSNR {m['psnr']:.2f} dB{flip}, changed pixels "
                 f"({100 * m['changed_fraction']:.1f} %) PSNR {m['changed_psnr']:.2f} dB"
             )
     return lines
@@ -232,11 +233,15 @@ def _baseline(inputs: dict, scale: int) -> np.ndarray | None:
 
 
 def _scores(color: np.ndarray, ref: np.ndarray, mask: np.ndarray | None) -> dict:
-    """One frame's PSNR, FLIP and the squared error over its changed pixels (pooled by
-    ``_summary``)."""
+    """One frame's PSNR, FLIP (where ``flip-evaluator``, the bench extra, is installed) and
+    the squared error over its changed pixels (pooled by ``_summary``)."""
+    import importlib.util
+
     from ..metrics import flip, masked_squared_error, psnr
 
-    s = {"psnr": psnr(color, ref), "flip": flip(color, ref)}
+    s = {"psnr": psnr(color, ref)}
+    if importlib.util.find_spec("flip_evaluator"):
+        s["flip"] = flip(color, ref)
     if mask is not None:
         s["changed_sq"], s["changed_n"] = masked_squared_error(color, ref, mask)
         s["changed_fraction"] = float(mask.mean())
@@ -249,12 +254,12 @@ def _summary(scores: list[dict]) -> dict:
     from ..metrics import psnr_of
 
     changed = [s for s in scores if "changed_n" in s]
+    keys = [k for k in ("psnr", "flip") if k in scores[0]]
     return {
-        "psnr": float(np.mean([s["psnr"] for s in scores])),
-        "flip": float(np.mean([s["flip"] for s in scores])),
+        **{k: float(np.mean([s[k] for s in scores])) for k in keys},
         "changed_psnr": psnr_of(sum(s["changed_sq"] for s in changed), sum(s["changed_n"] for s in changed)),
         "changed_fraction": float(np.mean([s["changed_fraction"] for s in changed])) if changed else float("nan"),
-        "per_frame": [{"psnr": s["psnr"], "flip": s["flip"]} for s in scores],
+        "per_frame": [{k: s[k] for k in keys} for s in scores],
     }
 
 

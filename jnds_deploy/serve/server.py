@@ -33,7 +33,7 @@ from ..errors import BadRequest, ConfigError, JndsError
 from ..io import INPUT_LAYERS, OPTIONAL_INPUT_LAYERS, OUTPUT_LAYERS, channels_to_layers, exr_bytes, read_exr_bytes
 from ..layout import INPUT_CHANNELS
 from ..options import gib, option, parse_size
-from ..runtime.config import ARTIFACTS_HELP, DEFAULT_PRECISION, PRECISION_HELP, PRECISIONS
+from ..runtime.config import ARTIFACTS_HELP, DEFAULT_PRECISION, PRECISION_HELP, PRECISIONS, SHIPPED_ARTIFACTS
 from ..runtime.pipeline import Pipeline, PipelineConfig
 
 log = logging.getLogger("jnds.serve")
@@ -75,7 +75,7 @@ and the connection closes; beyond --max-connections a connection gets 503 at onc
 
 @dataclass(frozen=True)
 class ServeConfig:
-    artifacts: str = option(help=ARTIFACTS_HELP)
+    artifacts: str = option(SHIPPED_ARTIFACTS, ARTIFACTS_HELP)
     host: str = option("127.0.0.1", "the address to listen on")
     port: int = option(8765, "0 picks a free port")
     precision: str = option(DEFAULT_PRECISION, PRECISION_HELP, choices=PRECISIONS)
