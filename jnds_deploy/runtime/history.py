@@ -4,8 +4,10 @@ motion vectors into the current frame, cleaned, and stored again after filtering
 Warping is bicubic (``filters.warp_channels_last``); each channel is then clamped to its
 input layer's valid range (bicubic overshoots). Two rejections replace the warped history
 by the current inputs, as on a first frame:
-- geometric, per pixel (``jnds_deploy.filter_spec.disoccluded``, the model's training does
-  the same): the current sample sees background, or the history shows another surface;
+- geometric, per pixel (``jnds_deploy.filter_spec.history_rejected``, the model's training
+  does the same): the current sample sees background, the history shows another surface
+  (normal or albedo), the pixel's previous position is off screen, or it lies in the ring
+  around such a trail (docs/ghosting.md);
 - brightness, per tile (``reject_history``): a tile whose warped diffuse (or specular)
   history is far brighter than the current frame there restarts that signal. The
   recurrence of some checkpoints has a loop gain above 1 in places; without this test

@@ -93,7 +93,7 @@ class FrameResult:
     # the pruned network variant that ran (export.prune); empty_tiles: background tiles
     # passed through the filter stage (TILE)
     decisions: dict[str, bool | int | str] = field(default_factory=dict)
-    disoccluded: int = 0  # history pixels replaced by the current inputs (filters.disoccluded)
+    disoccluded: int = 0  # history pixels replaced by the current inputs (filter_spec.history_rejected)
     rejected: int = 0  # history tiles restarted from the current frame (history.reject_history)
     clamped: int = 0  # current diffuse/specular pixel values clamped as fireflies (filters.clamp_fireflies)
     filled: int = 0  # current diffuse pixels filled from their neighbours' (filters.fill_diffuse_holes)

@@ -198,7 +198,7 @@ def iter_run(
         "native_output": cfg.native_output,
         "decisions": decisions,
         # history replaced by the current inputs per frame: pixels by the geometric test
-        # (filters.disoccluded), 32x32 tiles by the brightness test (history.reject_history)
+        # (filter_spec.history_rejected), 32x32 tiles by the brightness test (history.reject_history)
         "history_rejected": rejected,
     }
     if scores:
