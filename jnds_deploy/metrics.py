@@ -149,16 +149,10 @@ def changed_psnr(outs: list[np.ndarray], refs: list[np.ndarray], masks: list[np.
     return {"changed_psnr": psnr_of(total, count), "changed_fraction": pixels / seen if seen else float("nan")}
 
 
-def changed_masks(seq) -> list[np.ndarray | None]:
-    """``changed_mask`` of every frame of an ``io.Sequence`` at its target resolution;
-    None for frame 0 and after a camera cut."""
-    scale = seq.target_size[0] // seq.native_size[0]
-    masks, prev = [], None
-    for i in range(len(seq)):
-        cur = seq.inputs(i)
-        masks.append(None if prev is None or seq.frames[i].camera_cut else changed_mask(cur, prev, scale))
-        prev = cur
-    return masks
+def changed_masks(inputs: list[dict], cuts: list[bool], scale: int) -> list[np.ndarray | None]:
+    """``changed_mask`` of every frame of a sequence (its frames' input layers, camera-cut
+    flags and upscaling factor); None for frame 0 and after a camera cut."""
+    return [None if i == 0 or cuts[i] else changed_mask(cur, inputs[i - 1], scale) for i, cur in enumerate(inputs)]
 
 
 def motion_warp_error(seq, t: int, layer: str = "albedo") -> dict[str, float]:

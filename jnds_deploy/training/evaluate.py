@@ -80,8 +80,10 @@ def ground_truth(seq_path: Path) -> tuple[list, list, list, list]:
 
     seq = open_sequence(seq_path)
     refs = [seq.reference(i)["color"] for i in range(len(seq))]
-    motions = [seq.inputs(i)["motion"] for i in range(len(seq))]
-    return refs, motions, [f.camera_cut for f in seq.frames], changed_masks(seq)
+    inputs = [seq.inputs(i) for i in range(len(seq))]
+    cuts = [f.camera_cut for f in seq.frames]
+    masks = changed_masks(inputs, cuts, seq.target_size[0] // seq.native_size[0])
+    return refs, [a["motion"] for a in inputs], cuts, masks
 
 
 def mean_over_sequences(per_seq: dict[str, dict[str, float]]) -> dict[str, float]:
