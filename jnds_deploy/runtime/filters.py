@@ -522,11 +522,12 @@ def warp_channels_last(x: np.ndarray, motion: np.ndarray, lo=None, hi=None, curr
 
 
 @njit(inline="always")
-def _disoccluded_row(current, warped, y, cos, background, tol, off, bad):
-    """bad[x] = ``jnds_deploy.filter_spec.disoccluded`` at row y, from current (13, H, W) and
-    the warped (clamped) history (12, H, W). Returns the count. The first loop, branch-free,
-    settles every pixel whose own normal and albedo pass the tests; only the others look
-    at their neighbours."""
+def _mark_row(current, warped, y, cos, background, tol, off, rej):
+    """Row y of ``jnds_deploy.filter_spec.disoccluded`` or off[x] (``offscreen``) into rej[y],
+    from current (13, H, W) and the warped (clamped) history (12, H, W): 0 kept, 1 rejected
+    where the pixel sees background, 2 rejected where it sees a surface (``_replace_rejected``
+    rings those). The first loop, branch-free, settles every pixel whose own normal and
+    albedo pass the tests; only the others look at their neighbours."""
     _, h, w = current.shape
     cx, cy, cz = current[_NX, y], current[_NY, y], current[_NZ, y]
     hx, hy, hz = warped[_NX, y], warped[_NY, y], warped[_NZ, y]
@@ -546,10 +547,10 @@ def _disoccluded_row(current, warped, y, cos, background, tol, off, bad):
             & (ha[2, x] >= ca[2, x] - tol)
             & (ha[2, x] <= ca[2, x] + tol)
         )
-        bad[x] = background_now | (surface_before & far) | (not near) | off[x]
-    n = 0
+        bad = background_now | (surface_before & far) | (not near) | off[x]
+        rej[y, x] = np.uint8(bad) * (np.uint8(2) - np.uint8(background_now))
     for x in range(w):
-        if bad[x] and not off[x] and abs(cx[x]) + abs(cy[x]) + abs(cz[x]) >= background:
+        if rej[y, x] == 2 and not off[x]:
             # over the 3x3 neighbourhood (clamped: the replicated border adds no new value):
             # a close enough normal, and the albedo range
             limit = cos * np.sqrt(hx[x] * hx[x] + hy[x] * hy[x] + hz[x] * hz[x])
@@ -576,22 +577,8 @@ def _disoccluded_row(current, warped, y, cos, background, tol, off, bad):
                 and ha[2, x] >= lo2 - tol
                 and ha[2, x] <= hi2 + tol
             )
-            bad[x] = not (normal_ok and inside)
-        n += bad[x]
-    return n
-
-
-@njit(inline="always")
-def _mark_row(current, warped, y, cos, background, tol, off, rej):
-    """Row y of ``jnds_deploy.filter_spec.disoccluded`` or off[x] (``offscreen``) into rej[y]:
-    0 kept, 1 rejected, 2 rejected where the pixel sees a surface (``_replace_rejected``
-    dilates those)."""
-    w = warped.shape[2]
-    bad = np.empty(w, np.bool_)
-    _disoccluded_row(current, warped, y, cos, background, tol, off, bad)
-    for x in range(w):
-        surface = abs(current[_NX, y, x]) + abs(current[_NY, y, x]) + abs(current[_NZ, y, x]) >= background
-        rej[y, x] = np.uint8(bad[x]) * (np.uint8(1) + np.uint8(surface))
+            if normal_ok and inside:
+                rej[y, x] = 0
 
 
 @njit(parallel=True, cache=True)
